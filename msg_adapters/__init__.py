@@ -1,0 +1,1 @@
+"""ROS message <-> core type conversions. Imports message packages, never rclpy.node."""

@@ -1,0 +1,40 @@
+# The ROS 2 Jazzy PyPI wheels export imported targets (<pkg>::<pkg>__rosidl_generator_py) whose
+# INTERFACE_INCLUDE_DIRECTORIES name the Python and NumPy include directories of the machine that
+# built the wheels (/opt/python/cp311-cp311/include/python3.11 and
+# .../site-packages/numpy/_core/include). CMake's generate step rejects a non-existent include
+# path. Rewrite those entries, on every imported target of this directory, to the include
+# directories of the Python we build for. Any other missing /opt/python path is an error we do not
+# know how to fix, and stops the build. A no-op on a regular ROS install.
+function(pointforce_fix_wheel_python_include)
+  if(NOT Python3_INCLUDE_DIRS OR NOT Python3_NumPy_INCLUDE_DIRS)
+    find_package(Python3 REQUIRED COMPONENTS Interpreter Development.Module NumPy)
+  endif()
+  get_property(_targets DIRECTORY PROPERTY IMPORTED_TARGETS)
+  set(_fixed 0)
+  foreach(_target IN LISTS _targets)
+    get_target_property(_dirs ${_target} INTERFACE_INCLUDE_DIRECTORIES)
+    if(NOT _dirs)
+      continue()
+    endif()
+    set(_new_dirs "")
+    set(_changed FALSE)
+    foreach(_dir IN LISTS _dirs)
+      if(EXISTS "${_dir}" OR NOT _dir MATCHES "^/opt/python/")
+        list(APPEND _new_dirs "${_dir}")
+      elseif(_dir MATCHES "/numpy/(_core/)?include$")
+        list(APPEND _new_dirs ${Python3_NumPy_INCLUDE_DIRS})
+        set(_changed TRUE)
+      elseif(_dir MATCHES "/include/python[0-9.]+$")
+        list(APPEND _new_dirs ${Python3_INCLUDE_DIRS})
+        set(_changed TRUE)
+      else()
+        message(FATAL_ERROR "pointforce: ${_target} names a missing path ${_dir}")
+      endif()
+    endforeach()
+    if(_changed)
+      set_target_properties(${_target} PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_new_dirs}")
+      math(EXPR _fixed "${_fixed} + 1")
+    endif()
+  endforeach()
+  message(STATUS "pointforce: rewrote the wheel-builder Python include path on ${_fixed} imported target(s)")
+endfunction()

@@ -1,0 +1,84 @@
+"""Baked force response: per surface point, force against displacement as a table.
+
+After each refit the learner *bakes* its model ``f = y(x, d)`` on the equilibrium surface: one
+row of forces per surface point over a shared displacement grid. The contact solver then
+interpolates instead of calling a regressor (DESIGN.md section 4).
+"""
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.types import as_array
+
+
+@dataclass(frozen=True)
+class BakedResponse:
+    """Force-versus-displacement table for every point of one equilibrium surface.
+
+    Attributes:
+        depths: (K,) strictly increasing displacement grid, metres (``d`` of the seed paper:
+            positive = pushed in along ``-n``; may start below zero where camera bias makes
+            force start early).
+        forces: (N, K) normal force at each surface point and grid depth, newtons.
+        slopes: (N,) extrapolation slope beyond ``depths[-1]``, N/m (the paper's slope
+            extrapolation). Below ``depths[0]`` the force is held at ``forces[:, 0]``.
+        std: (N, K) predictive standard deviation, newtons, or ``None`` when the model has none.
+        version: model version the table was baked from.
+        meta: JSON-serialisable description (model kind, effects, training pokes).
+
+    Raises:
+        InvalidInput: shapes that disagree, NaN, or a grid that is not strictly increasing.
+
+    """
+
+    depths: np.ndarray
+    forces: np.ndarray
+    slopes: np.ndarray
+    std: np.ndarray = None
+    version: int = 0
+    meta: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        depths = as_array(self.depths, 'BakedResponse.depths', (None,))
+        if len(depths) < 2 or np.any(np.diff(depths) <= 0):
+            raise InvalidInput('BakedResponse.depths: need >= 2 strictly increasing values')
+        forces = as_array(self.forces, 'BakedResponse.forces', (None, len(depths)))
+        slopes = as_array(self.slopes, 'BakedResponse.slopes', (len(forces),))
+        std = None if self.std is None else as_array(self.std, 'BakedResponse.std', forces.shape)
+        object.__setattr__(self, 'depths', depths)
+        object.__setattr__(self, 'forces', forces)
+        object.__setattr__(self, 'slopes', slopes)
+        object.__setattr__(self, 'std', std)
+        object.__setattr__(self, 'meta', dict(self.meta))
+
+    def __len__(self) -> int:
+        """Return the number of surface points ``N``."""
+        return len(self.forces)
+
+    def force(self, indices: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Interpolate ``y(x_i, d)`` for surface indices ``indices`` (M,) at depths ``d`` (M,).
+
+        Linear in ``d`` inside the grid, held constant below it, extrapolated with ``slopes``
+        above it. Vectorised: no Python loop over points.
+
+        Returns:
+            (M,) force in newtons.
+
+        """
+        indices = np.asarray(indices, dtype=np.int64)
+        d = np.asarray(d, dtype=np.float64)
+        grid = self.depths
+        k = np.clip(np.searchsorted(grid, d, side='right') - 1, 0, len(grid) - 2)
+        lo, hi = grid[k], grid[k + 1]
+        w = np.clip((d - lo) / (hi - lo), 0.0, 1.0)
+        f0 = self.forces[indices, k]
+        f1 = self.forces[indices, k + 1]
+        out = f0 + w * (f1 - f0)
+        above = d > grid[-1]
+        if np.any(above):
+            out = np.where(above, self.forces[indices, -1]
+                           + self.slopes[indices] * (d - grid[-1]), out)
+        return out

@@ -275,3 +275,73 @@ class PokeRecord:
         The F/T reading is the force the environment applies to the tool, base-oriented.
         """
         return self.wrench[:, :3] @ self.normal
+
+
+@dataclass(frozen=True)
+class PokeGoal:
+    """A poke request: push the point probe into ``point`` along ``-normal``.
+
+    Attributes:
+        point: (3,) metres, ``base``; ignored when ``surface_index >= 0``.
+        normal: (3,) unit outward normal, ``base``; ignored when ``surface_index >= 0``.
+        surface_index: index into the current equilibrium surface, or -1.
+        force_limit: N, stop pushing at this normal force.
+        depth_limit: m, stop pushing at this depth past ``point``.
+        speed: m/s, push speed.
+        standoff: m, start this far out along ``normal``.
+
+    Only shapes and finiteness are checked here; limits are checked against the server's
+    configuration by :func:`pointforce_ros.pokes.limits.check_goal`.
+    """
+
+    point: np.ndarray
+    normal: np.ndarray
+    surface_index: int = -1
+    force_limit: float = 5.0
+    depth_limit: float = 0.015
+    speed: float = 0.002
+    standoff: float = 0.01
+
+    def __post_init__(self):
+        object.__setattr__(self, 'point', as_array(self.point, 'PokeGoal.point', (3,)))
+        object.__setattr__(self, 'normal', as_array(self.normal, 'PokeGoal.normal', (3,)))
+        for name in ('force_limit', 'depth_limit', 'speed', 'standoff'):
+            value = float(getattr(self, name))
+            if not np.isfinite(value):
+                raise InvalidInput(f'PokeGoal.{name}: must be finite, got {value}')
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, 'surface_index', int(self.surface_index))
+
+
+@dataclass(frozen=True)
+class ContactQuery:
+    """A planner's contact-wrench question: this rigid mesh, at these poses, pressed along ``approach``.
+
+    Attributes:
+        mesh: rigid mesh in its own frame.
+        poses: mesh frame -> ``base``, one per query (a single query has one).
+        approach: (3,) unit approach direction of the mesh, ``base``.
+        torque_centre: (3,) metres, ``base``; torques are taken about this point.
+        return_displacements: also return per-point surface displacements.
+
+    Raises:
+        InvalidInput: no poses, or an approach direction that is not unit length.
+
+    """
+
+    mesh: Mesh
+    poses: Tuple[Pose, ...]
+    approach: np.ndarray
+    torque_centre: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    return_displacements: bool = False
+
+    def __post_init__(self):
+        poses = tuple(self.poses)
+        if not poses:
+            raise InvalidInput('ContactQuery.poses: at least one pose is needed')
+        approach = as_array(self.approach, 'ContactQuery.approach', (3,))
+        unit_rows(approach, 'ContactQuery.approach')
+        object.__setattr__(self, 'poses', poses)
+        object.__setattr__(self, 'approach', approach)
+        object.__setattr__(self, 'torque_centre',
+                           as_array(self.torque_centre, 'ContactQuery.torque_centre', (3,)))

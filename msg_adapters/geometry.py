@@ -1,0 +1,138 @@
+"""geometry_msgs / shape_msgs <-> core types (Pose, Wrench, Mesh, vectors).
+
+Message fields are copied once into numpy; validation is done by the core types, so a NaN or a
+degenerate mesh in a request becomes :class:`~pointforce_ros.errors.InvalidInput`.
+"""
+
+import numpy as np
+from geometry_msgs.msg import (Point, Pose as PoseMsg, PoseStamped, Quaternion, Vector3,
+                               Wrench as WrenchMsg, WrenchStamped)
+from shape_msgs.msg import Mesh as MeshMsg, MeshTriangle
+
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.types import Mesh, Pose, Wrench
+
+
+def vec(msg) -> np.ndarray:
+    """(3,) array from a Point or Vector3."""
+    return np.array([msg.x, msg.y, msg.z], dtype=np.float64)
+
+
+def to_point(v) -> Point:
+    """Point message from a (3,) array."""
+    x, y, z = (float(c) for c in v)
+    return Point(x=x, y=y, z=z)
+
+
+def to_vector3(v) -> Vector3:
+    """Vector3 message from a (3,) array."""
+    x, y, z = (float(c) for c in v)
+    return Vector3(x=x, y=y, z=z)
+
+
+def stamp_to_sec(stamp) -> float:
+    """builtin_interfaces/Time -> seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def sec_to_stamp(t: float, stamp) -> None:
+    """Write seconds ``t`` into a builtin_interfaces/Time in place."""
+    sec = int(np.floor(t))
+    stamp.sec = sec
+    stamp.nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
+
+
+def pose_from_msg(msg: PoseMsg, frame: str = 'base') -> Pose:
+    """geometry_msgs/Pose -> :class:`Pose`.
+
+    A zero quaternion (an unfilled message) is read as the identity rotation, as rviz does.
+
+    Raises:
+        InvalidInput: NaN, or a non-zero quaternion that is not unit length.
+
+    """
+    q = np.array([msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w])
+    if np.all(q == 0.0):
+        q = np.array([0.0, 0.0, 0.0, 1.0])
+    return Pose(position=vec(msg.position), orientation=q, frame=frame)
+
+
+def pose_to_msg(pose: Pose) -> PoseMsg:
+    """:class:`Pose` -> geometry_msgs/Pose."""
+    x, y, z, w = (float(c) for c in pose.orientation)
+    return PoseMsg(position=to_point(pose.position), orientation=Quaternion(x=x, y=y, z=z, w=w))
+
+
+def pose_stamped_from_msg(msg: PoseStamped) -> Pose:
+    """geometry_msgs/PoseStamped -> :class:`Pose` in the header's frame."""
+    return pose_from_msg(msg.pose, frame=msg.header.frame_id or 'base')
+
+
+def pose_stamped_to_msg(pose: Pose, stamp: float = 0.0) -> PoseStamped:
+    """:class:`Pose` -> geometry_msgs/PoseStamped."""
+    out = PoseStamped(pose=pose_to_msg(pose))
+    out.header.frame_id = pose.frame
+    sec_to_stamp(stamp, out.header.stamp)
+    return out
+
+
+def wrench_from_msg(msg: WrenchMsg, frame: str = 'base') -> Wrench:
+    """geometry_msgs/Wrench -> :class:`Wrench`."""
+    return Wrench(force=vec(msg.force), torque=vec(msg.torque), frame=frame)
+
+
+def wrench_to_msg(wrench: Wrench) -> WrenchMsg:
+    """:class:`Wrench` -> geometry_msgs/Wrench."""
+    return WrenchMsg(force=to_vector3(wrench.force), torque=to_vector3(wrench.torque))
+
+
+def wrench_stamped_from_msg(msg: WrenchStamped) -> Wrench:
+    """geometry_msgs/WrenchStamped -> :class:`Wrench` in the header's frame."""
+    return wrench_from_msg(msg.wrench, frame=msg.header.frame_id or 'base')
+
+
+def wrench_stamped_to_msg(wrench: Wrench, stamp: float = 0.0) -> WrenchStamped:
+    """:class:`Wrench` -> geometry_msgs/WrenchStamped."""
+    out = WrenchStamped(wrench=wrench_to_msg(wrench))
+    out.header.frame_id = wrench.frame
+    sec_to_stamp(stamp, out.header.stamp)
+    return out
+
+
+def mesh_from_msg(msg: MeshMsg) -> Mesh:
+    """shape_msgs/Mesh -> :class:`Mesh`.
+
+    Raises:
+        InvalidInput: no vertices or triangles, NaN vertices, indices out of range, or every
+            triangle of zero area.
+
+    """
+    if len(msg.vertices) == 0 or len(msg.triangles) == 0:
+        raise InvalidInput(f'Mesh: empty ({len(msg.vertices)} vertices, '
+                           f'{len(msg.triangles)} triangles)')
+    vertices = np.array([[v.x, v.y, v.z] for v in msg.vertices], dtype=np.float64)
+    triangles = np.array([list(t.vertex_indices) for t in msg.triangles], dtype=np.int64)
+    return Mesh(vertices=vertices, triangles=triangles)
+
+
+def mesh_to_msg(mesh: Mesh) -> MeshMsg:
+    """:class:`Mesh` -> shape_msgs/Mesh."""
+    out = MeshMsg()
+    out.vertices = [to_point(v) for v in mesh.vertices]
+    tris = []
+    for t in mesh.triangles:
+        tri = MeshTriangle()
+        tri.vertex_indices = [int(i) for i in t]
+        tris.append(tri)
+    out.triangles = tris
+    return out
+
+
+def unit_vector(msg: Vector3, name: str) -> np.ndarray:
+    """(3,) unit vector from a Vector3, or :class:`InvalidInput` if NaN or not unit length."""
+    v = vec(msg)
+    norm = float(np.linalg.norm(v))
+    if not np.all(np.isfinite(v)) or abs(norm - 1.0) > 1e-3:
+        raise InvalidInput(f'{name}: must be a finite unit vector, got ({v[0]:.4g}, {v[1]:.4g}, '
+                           f'{v[2]:.4g}) with length {norm:.4g}')
+    return v / norm

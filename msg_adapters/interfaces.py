@@ -1,0 +1,137 @@
+"""pointforce_interfaces (Poke, ContactWrench, ContactWrenchBatch, SuggestPoke) <-> core types.
+
+Request readers raise :class:`~pointforce_ros.errors.InvalidInput` with a message that names the
+offending field; the nodes turn that into ``success=False`` (services) or a rejected goal (action).
+Response writers take core results duck-typed: any object with ``wrench``, ``contact_count``,
+``max_displacement`` and, when displacements were asked for, ``displaced_indices`` and
+``displacements``.
+"""
+
+from typing import Sequence
+
+import numpy as np
+from pointforce_interfaces.action import Poke
+from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch, SuggestPoke
+
+from msg_adapters.geometry import (mesh_from_msg, pose_from_msg, to_point, to_vector3,
+                                   unit_vector, vec, wrench_to_msg)
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.types import ContactQuery, PokeGoal
+
+
+def contact_query_from_request(req: ContactWrench.Request) -> ContactQuery:
+    """ContactWrench request -> :class:`ContactQuery` with one pose.
+
+    Raises:
+        InvalidInput: empty/NaN/degenerate mesh, bad pose, approach not unit, NaN centre.
+
+    """
+    return ContactQuery(mesh=mesh_from_msg(req.mesh), poses=(pose_from_msg(req.pose),),
+                        approach=unit_vector(req.approach, 'approach'),
+                        torque_centre=vec(req.torque_centre),
+                        return_displacements=bool(req.return_displacements))
+
+
+def contact_query_from_batch_request(req: ContactWrenchBatch.Request) -> ContactQuery:
+    """ContactWrenchBatch request -> :class:`ContactQuery` with every pose.
+
+    Raises:
+        InvalidInput: as :func:`contact_query_from_request`, or no poses (the message names the
+            index of a bad pose).
+
+    """
+    if len(req.poses) == 0:
+        raise InvalidInput('poses: the batch is empty')
+    poses = []
+    for i, p in enumerate(req.poses):
+        try:
+            poses.append(pose_from_msg(p))
+        except InvalidInput as exc:
+            raise InvalidInput(f'poses[{i}]: {exc}') from None
+    return ContactQuery(mesh=mesh_from_msg(req.mesh), poses=tuple(poses),
+                        approach=unit_vector(req.approach, 'approach'),
+                        torque_centre=vec(req.torque_centre))
+
+
+def fill_contact_response(resp: ContactWrench.Response, result, model_version: int,
+                          with_displacements: bool) -> ContactWrench.Response:
+    """Write a core contact result into a ContactWrench response (success=True)."""
+    resp.success = True
+    resp.message = ''
+    resp.wrench = wrench_to_msg(result.wrench)
+    resp.contact_count = int(result.contact_count)
+    resp.max_displacement = float(result.max_displacement)
+    resp.model_version = int(model_version)
+    if with_displacements:
+        resp.displaced_indices = np.asarray(result.displaced_indices, dtype=np.uint32).tolist()
+        resp.displacements = np.asarray(result.displacements, dtype=np.float64).tolist()
+    return resp
+
+
+def fill_batch_response(resp: ContactWrenchBatch.Response, results: Sequence,
+                        model_version: int) -> ContactWrenchBatch.Response:
+    """Write per-pose core results into a ContactWrenchBatch response (success=True)."""
+    resp.success = True
+    resp.message = ''
+    resp.wrenches = [wrench_to_msg(r.wrench) for r in results]
+    resp.contact_counts = [int(r.contact_count) for r in results]
+    resp.max_displacements = [float(r.max_displacement) for r in results]
+    resp.model_version = int(model_version)
+    return resp
+
+
+def fail(resp, message: str):
+    """Mark any of our service responses as failed with ``message``; returns ``resp``."""
+    resp.success = False
+    resp.message = message
+    return resp
+
+
+def poke_goal_from_msg(goal: Poke.Goal) -> PokeGoal:
+    """Poke goal -> :class:`PokeGoal`.
+
+    The normal must be unit length unless ``surface_index`` selects a surface point.
+
+    Raises:
+        InvalidInput: NaN fields or a non-unit normal.
+
+    """
+    normal = vec(goal.normal)
+    if goal.surface_index < 0:
+        normal = unit_vector(goal.normal, 'normal')
+    return PokeGoal(point=vec(goal.point), normal=normal, surface_index=goal.surface_index,
+                    force_limit=goal.force_limit, depth_limit=goal.depth_limit,
+                    speed=goal.speed, standoff=goal.standoff)
+
+
+def poke_goal_to_msg(goal: PokeGoal) -> Poke.Goal:
+    """:class:`PokeGoal` -> Poke goal message."""
+    return Poke.Goal(point=to_point(goal.point), normal=to_vector3(goal.normal),
+                     surface_index=goal.surface_index, force_limit=goal.force_limit,
+                     depth_limit=goal.depth_limit, speed=goal.speed, standoff=goal.standoff)
+
+
+def poke_result_msg(poke_id: str, samples: int, peak_force: float, max_depth: float,
+                    outcome: str, message: str = '') -> Poke.Result:
+    """Build a Poke result message."""
+    return Poke.Result(poke_id=poke_id, samples=int(samples), peak_force=float(peak_force),
+                       max_depth=float(max_depth), outcome=outcome, message=message)
+
+
+def poke_feedback_msg(depth: float, normal_force: float, samples: int,
+                      phase: str) -> Poke.Feedback:
+    """Build a Poke feedback message."""
+    return Poke.Feedback(depth=float(depth), normal_force=float(normal_force),
+                         samples=int(samples), phase=phase)
+
+
+def fill_suggest_response(resp: SuggestPoke.Response, indices, points, normals,
+                          uncertainty) -> SuggestPoke.Response:
+    """Write suggested poke locations into a SuggestPoke response (success=True)."""
+    resp.success = True
+    resp.message = ''
+    resp.surface_indices = [int(i) for i in indices]
+    resp.points = [to_point(p) for p in np.asarray(points).reshape(-1, 3)]
+    resp.normals = [to_vector3(n) for n in np.asarray(normals).reshape(-1, 3)]
+    resp.uncertainty = [float(u) for u in uncertainty]
+    return resp

@@ -1,0 +1,116 @@
+"""contact_wrench node: ``~/contact_wrench`` and ``~/contact_wrench_batch`` for planners.
+
+Answers from the latest contact model: a file in ``model_dir`` (polled) or the path announced on
+the learner's latched model topic. A new model is swapped in without dropping requests. Malformed
+requests get ``success=False`` and a message; the node keeps serving.
+"""
+
+import time
+from pathlib import Path
+
+from pointforce_interfaces.msg import ModelStatus
+from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from msg_adapters.interfaces import (contact_query_from_batch_request, contact_query_from_request,
+                                     fail, fill_batch_response, fill_contact_response)
+from pointforce_ros.errors import PointforceError
+from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.serving import WrenchServer
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+
+
+class ContactWrenchNode(Node):
+    """Serves contact-wrench queries from the learned model."""
+
+    def __init__(self, **kwargs):
+        """Declare parameters, load the newest model if any, create the services."""
+        super().__init__('contact_wrench', **kwargs)
+        self.model_dir = declare(
+            self, 'model_dir', '', 'Directory of model-v*.npz files to serve from (polled); '
+            'empty: only models announced on the model topic')
+        self.max_batch = declare(self, 'max_batch', 20000,
+                                 'Largest number of poses in one batch request', bounds=(1, 1000000))
+        spacing = declare(self, 'sample_spacing', 0.003,
+                          'Rigid-mesh surface sampling distance, m (seed paper: 3 mm)',
+                          bounds=(0.0005, 0.05))
+        poll = declare(self, 'poll_period', 1.0, 'Seconds between model_dir polls',
+                       bounds=(0.05, 60.0))
+        self.server = WrenchServer(spacing=spacing)
+        self.requests_served = 0
+        self.requests_failed = 0
+        self._try_load_dir()
+        group = ReentrantCallbackGroup()
+        self.create_service(ContactWrench, '~/contact_wrench', self._on_single,
+                            callback_group=group)
+        self.create_service(ContactWrenchBatch, '~/contact_wrench_batch', self._on_batch,
+                            callback_group=group)
+        loader = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(ModelStatus, 'model', self._on_model, LATCHED,
+                                 callback_group=loader)
+        if self.model_dir:
+            self.create_timer(poll, self._try_load_dir, callback_group=loader)
+        self.get_logger().info(f'serving contact wrenches (model version {self.server.version})')
+
+    def _try_load_dir(self):
+        if not self.model_dir:
+            return
+        try:
+            if self.server.load_latest(self.model_dir):
+                self.get_logger().info(f'loaded model v{self.server.version} from '
+                                       f'{self.server.loaded_path}')
+        except PointforceError as exc:
+            self.get_logger().error(f'cannot load model from {self.model_dir}: {exc}',
+                                    throttle_duration_sec=10.0)
+
+    def _on_model(self, msg: ModelStatus):
+        if not msg.model_path or msg.version <= self.server.version:
+            return
+        try:
+            self.server.load(Path(msg.model_path))
+            self.get_logger().info(f'hot-swapped to model v{self.server.version}')
+        except PointforceError as exc:
+            self.get_logger().error(f'model v{msg.version} at {msg.model_path} rejected: {exc}')
+
+    def _on_single(self, request, response):
+        start = time.perf_counter()
+        try:
+            query = contact_query_from_request(request)
+            results, version = self.server.answer(query)
+            fill_contact_response(response, results[0], version, query.return_displacements)
+            self.requests_served += 1
+        except PointforceError as exc:
+            self.requests_failed += 1
+            fail(response, str(exc))
+            self.get_logger().warn(f'contact_wrench refused: {exc}', throttle_duration_sec=2.0)
+        self.get_logger().debug(f'contact_wrench in {1e3 * (time.perf_counter() - start):.2f} ms')
+        return response
+
+    def _on_batch(self, request, response):
+        try:
+            if len(request.poses) > self.max_batch:
+                return fail(response, f'poses: {len(request.poses)} exceeds max_batch '
+                                      f'{self.max_batch}')
+            query = contact_query_from_batch_request(request)
+            results, version = self.server.answer(query)
+            fill_batch_response(response, results, version)
+            self.requests_served += 1
+        except PointforceError as exc:
+            self.requests_failed += 1
+            fail(response, str(exc))
+            self.get_logger().warn(f'contact_wrench_batch refused: {exc}',
+                                   throttle_duration_sec=2.0)
+        return response
+
+
+def main(args=None):
+    """Console entry point: ``contact_wrench --ros-args -p model_dir:=...``."""
+    run(ContactWrenchNode, args=args)
+
+
+if __name__ == '__main__':
+    main()

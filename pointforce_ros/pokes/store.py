@@ -1,0 +1,315 @@
+"""Poke store: one rosbag2 MCAP bag per poke, written atomically, plus a JSON index.
+
+Layout of a store directory::
+
+    <store>/index.json                 one entry per poke (id, point, normal, samples, outcome)
+    <store>/poke-000017/               a rosbag2 bag (metadata.yaml + poke-000017_0.mcap)
+
+Each bag holds the topics the poke server publishes, so Foxglove and ``ros2 bag`` read it:
+
+* ``/poke_server/tcp_pose`` geometry_msgs/PoseStamped, frame ``base``, 250 Hz
+* ``/poke_server/wrench`` geometry_msgs/WrenchStamped, frame ``tool0_controller`` (the UR
+  driver's convention: ur_rtde's base-oriented ``actual_TCP_force`` rotated into the tool frame)
+* ``/poke_server/poke_record`` std_msgs/String, one JSON message: request, probe, outcome,
+  controller timestamps and metadata
+
+A bag is written into a hidden temporary directory and renamed into place, so a poke is either
+wholly on disk or absent; a crash mid-write leaves only a ``.tmp-*`` directory that the next
+open removes. Pure Python (``rosbags``), no rclpy.
+"""
+
+import json
+import os
+import shutil
+import tempfile
+import threading
+from pathlib import Path
+from typing import Dict, Iterator, List, Optional
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.types import PokeRecord
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+POSE_TOPIC = '/poke_server/tcp_pose'
+WRENCH_TOPIC = '/poke_server/wrench'
+RECORD_TOPIC = '/poke_server/poke_record'
+RECORD_FORMAT = 'pointforce-poke/1'
+
+_T = TYPESTORE.types
+_Time = _T['builtin_interfaces/msg/Time']
+_Header = _T['std_msgs/msg/Header']
+_Point = _T['geometry_msgs/msg/Point']
+_Quaternion = _T['geometry_msgs/msg/Quaternion']
+_Vector3 = _T['geometry_msgs/msg/Vector3']
+
+
+def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """(..., 3) UR rotation vectors -> (..., 3, 3) rotation matrices (Rodrigues)."""
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    safe = np.where(angle > 1e-12, angle, 1.0)
+    k = rotvec / safe
+    kx, ky, kz = k[..., 0], k[..., 1], k[..., 2]
+    zero = np.zeros_like(kx)
+    kmat = np.stack([np.stack([zero, -kz, ky], -1), np.stack([kz, zero, -kx], -1),
+                     np.stack([-ky, kx, zero], -1)], -2)
+    a = angle[..., None]
+    eye = np.broadcast_to(np.eye(3), kmat.shape)
+    return eye + np.sin(a) * kmat + (1 - np.cos(a)) * (kmat @ kmat)
+
+
+def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 4) quaternions (x, y, z, w), w >= 0."""
+    rot = np.asarray(rot, dtype=np.float64)
+    w = np.sqrt(np.clip(1.0 + rot[..., 0, 0] + rot[..., 1, 1] + rot[..., 2, 2], 0, None)) / 2
+    x = np.sqrt(np.clip(1.0 + rot[..., 0, 0] - rot[..., 1, 1] - rot[..., 2, 2], 0, None)) / 2
+    y = np.sqrt(np.clip(1.0 - rot[..., 0, 0] + rot[..., 1, 1] - rot[..., 2, 2], 0, None)) / 2
+    z = np.sqrt(np.clip(1.0 - rot[..., 0, 0] - rot[..., 1, 1] + rot[..., 2, 2], 0, None)) / 2
+    x = np.copysign(x, rot[..., 2, 1] - rot[..., 1, 2])
+    y = np.copysign(y, rot[..., 0, 2] - rot[..., 2, 0])
+    z = np.copysign(z, rot[..., 1, 0] - rot[..., 0, 1])
+    q = np.stack([x, y, z, w], axis=-1)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quaternion_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternions (x, y, z, w) -> (..., 3) rotation vectors."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q * np.where(q[..., 3:4] < 0, -1.0, 1.0)
+    s = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    angle = 2 * np.arctan2(s, q[..., 3:4])
+    return np.where(s > 1e-12, q[..., :3] / np.where(s > 1e-12, s, 1.0) * angle, 2 * q[..., :3])
+
+
+def _stamp(t: float):
+    sec = int(np.floor(t))
+    return _Time(sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
+
+
+def _record_header(record: PokeRecord) -> dict:
+    return {
+        'format': RECORD_FORMAT, 'poke_id': record.poke_id,
+        'point': record.point.tolist(), 'normal': record.normal.tolist(),
+        'speed': record.speed, 'probe': record.probe, 'outcome': record.outcome,
+        'samples': len(record), 't_controller': record.t_controller.tolist(),
+        'meta': dict(record.meta),
+    }
+
+
+def write_poke_bag(record: PokeRecord, path) -> Path:
+    """Write ``record`` as a rosbag2 MCAP bag at ``path`` (a directory that must not exist).
+
+    The write is atomic: the bag is assembled in a temporary sibling directory and renamed.
+
+    Raises:
+        DataError: ``path`` exists already.
+
+    """
+    path = Path(path)
+    if path.exists():
+        raise DataError(f'{path} exists: poke ids must be unique')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp_root = Path(tempfile.mkdtemp(dir=path.parent, prefix=f'.tmp-{path.name}-'))
+    tmp_bag = tmp_root / path.name
+    try:
+        rot = rotvec_to_matrix(record.tcp_pose[:, 3:])
+        quats = matrix_to_quaternion(rot)
+        # ur_rtde's actual_TCP_force is base-oriented; the UR driver publishes it in the tool
+        # frame: f_tool = R^T f_base, same for the torque
+        f_tool = np.einsum('nji,nj->ni', rot, record.wrench[:, :3])
+        m_tool = np.einsum('nji,nj->ni', rot, record.wrench[:, 3:])
+        with Writer(tmp_bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            pose_conn = writer.add_connection(POSE_TOPIC, 'geometry_msgs/msg/PoseStamped',
+                                              typestore=TYPESTORE)
+            wrench_conn = writer.add_connection(WRENCH_TOPIC, 'geometry_msgs/msg/WrenchStamped',
+                                                typestore=TYPESTORE)
+            rec_conn = writer.add_connection(RECORD_TOPIC, 'std_msgs/msg/String',
+                                             typestore=TYPESTORE)
+            pose_t = _T['geometry_msgs/msg/PoseStamped']
+            pose_in = _T['geometry_msgs/msg/Pose']
+            wrench_t = _T['geometry_msgs/msg/WrenchStamped']
+            wrench_in = _T['geometry_msgs/msg/Wrench']
+            for i in range(len(record)):
+                stamp = _stamp(record.t[i])
+                t_ns = int(round(record.t[i] * 1e9))
+                p = record.tcp_pose[i]
+                q = quats[i]
+                msg = pose_t(header=_Header(stamp=stamp, frame_id='base'), pose=pose_in(
+                    position=_Point(x=p[0], y=p[1], z=p[2]),
+                    orientation=_Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])))
+                writer.write(pose_conn, t_ns,
+                             TYPESTORE.serialize_cdr(msg, 'geometry_msgs/msg/PoseStamped'))
+                f, m = f_tool[i], m_tool[i]
+                msg = wrench_t(header=_Header(stamp=stamp, frame_id='tool0_controller'),
+                               wrench=wrench_in(force=_Vector3(x=f[0], y=f[1], z=f[2]),
+                                                torque=_Vector3(x=m[0], y=m[1], z=m[2])))
+                writer.write(wrench_conn, t_ns,
+                             TYPESTORE.serialize_cdr(msg, 'geometry_msgs/msg/WrenchStamped'))
+            end_ns = int(round((record.t[-1] if len(record) else 0.0) * 1e9)) + 1
+            text = _T['std_msgs/msg/String'](data=json.dumps(_record_header(record)))
+            writer.write(rec_conn, end_ns, TYPESTORE.serialize_cdr(text, 'std_msgs/msg/String'))
+        for f in tmp_bag.iterdir():
+            with open(f, 'rb') as fh:
+                os.fsync(fh.fileno())
+        os.replace(tmp_bag, path)
+    finally:
+        shutil.rmtree(tmp_root, ignore_errors=True)
+    return path
+
+
+def read_poke_bag(path) -> PokeRecord:
+    """Read a poke bag written by :func:`write_poke_bag` (or recorded live) into a record.
+
+    Raises:
+        DataError: not a bag, corrupt MCAP, missing topics, or sample counts that disagree.
+
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f'poke bag not found: {path}')
+    poses, wrenches, header = [], [], None
+    try:
+        with AnyReader([path], default_typestore=TYPESTORE) as reader:
+            conns = [c for c in reader.connections
+                     if c.topic in (POSE_TOPIC, WRENCH_TOPIC, RECORD_TOPIC)]
+            for conn, _, raw in reader.messages(connections=conns):
+                msg = reader.deserialize(raw, conn.msgtype)
+                if conn.topic == POSE_TOPIC:
+                    p, q = msg.pose.position, msg.pose.orientation
+                    poses.append((msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+                                  p.x, p.y, p.z, q.x, q.y, q.z, q.w))
+                elif conn.topic == WRENCH_TOPIC:
+                    f, m = msg.wrench.force, msg.wrench.torque
+                    wrenches.append((f.x, f.y, f.z, m.x, m.y, m.z))
+                else:
+                    header = json.loads(msg.data)
+    except DataError:
+        raise
+    except Exception as exc:  # rosbags raises many types for a corrupt file
+        raise DataError(f'{path}: cannot read bag: {type(exc).__name__}: {exc}') from exc
+    if header is None or header.get('format') != RECORD_FORMAT:
+        raise DataError(f'{path}: no {RECORD_TOPIC} record of format {RECORD_FORMAT}')
+    if not (len(poses) == len(wrenches) == header['samples'] == len(header['t_controller'])):
+        raise DataError(f'{path}: sample counts disagree (pose {len(poses)}, wrench '
+                        f'{len(wrenches)}, record {header["samples"]})')
+    pose_arr = np.array(poses, dtype=np.float64).reshape(-1, 8)
+    w_tool = np.array(wrenches, dtype=np.float64).reshape(-1, 6)
+    rotvec = quaternion_to_rotvec(pose_arr[:, 4:8])
+    rot = rotvec_to_matrix(rotvec)
+    wrench = np.hstack([np.einsum('nij,nj->ni', rot, w_tool[:, :3]),
+                        np.einsum('nij,nj->ni', rot, w_tool[:, 3:])])
+    try:
+        return PokeRecord(poke_id=header['poke_id'], point=header['point'],
+                          normal=header['normal'], t=pose_arr[:, 0],
+                          t_controller=header['t_controller'],
+                          tcp_pose=np.hstack([pose_arr[:, 1:4], rotvec]), wrench=wrench,
+                          speed=header['speed'], probe=header['probe'],
+                          outcome=header['outcome'], meta=header.get('meta', {}))
+    except InvalidInput as exc:
+        raise DataError(f'{path}: invalid poke record: {exc}') from exc
+
+
+class PokeStore:
+    """A directory of poke bags with an index; safe for one writer and many readers.
+
+    Raises:
+        DataError: the directory exists but is not a store (a file, or unreadable index).
+
+    """
+
+    INDEX = 'index.json'
+
+    def __init__(self, root):
+        """Open (and create) the store at ``root``; removes leftovers of interrupted writes."""
+        self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise DataError(f'poke store {self.root} is a file, not a directory')
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        for leftover in self.root.glob('.tmp-*'):
+            shutil.rmtree(leftover, ignore_errors=True)
+        self._index = self._load_index()
+
+    def _load_index(self) -> Dict[str, dict]:
+        bags = {p.name for p in self.root.iterdir() if p.is_dir() and p.name.startswith('poke-')
+                and (p / 'metadata.yaml').exists()}
+        index: Dict[str, dict] = {}
+        path = self.root / self.INDEX
+        if path.exists():
+            try:
+                index = {e['poke_id']: e for e in json.loads(path.read_text())['pokes']}
+            except (ValueError, KeyError, TypeError):
+                index = {}  # rebuilt below from the bags, which are the truth
+        if set(index) != bags:
+            index = {k: v for k, v in index.items() if k in bags}
+            for name in sorted(bags - set(index)):
+                try:
+                    index[name] = self._entry(read_poke_bag(self.root / name))
+                except DataError:
+                    continue  # a corrupt bag is skipped, never fatal to the store
+            self._write_index(index)
+        return index
+
+    @staticmethod
+    def _entry(record: PokeRecord) -> dict:
+        return {'poke_id': record.poke_id, 'point': record.point.tolist(),
+                'normal': record.normal.tolist(), 'samples': len(record),
+                'outcome': record.outcome, 'probe': record.probe,
+                'meta': dict(record.meta)}
+
+    def _write_index(self, index: Dict[str, dict]) -> None:
+        fd, tmp = tempfile.mkstemp(dir=self.root, prefix='.tmp-index-')
+        with os.fdopen(fd, 'w') as fh:
+            json.dump({'pokes': [index[k] for k in sorted(index)]}, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, self.root / self.INDEX)
+
+    def next_id(self) -> str:
+        """A fresh poke id (``poke-000001``, ...)."""
+        with self._lock:
+            numbers = [int(k.split('-')[1]) for k in self._index if k.split('-')[-1].isdigit()]
+            return f'poke-{(max(numbers) + 1) if numbers else 1:06d}'
+
+    def add(self, record: PokeRecord) -> Path:
+        """Persist ``record`` (atomically) and index it; returns the bag path."""
+        with self._lock:
+            path = write_poke_bag(record, self.root / record.poke_id)
+            self._index[record.poke_id] = self._entry(record)
+            self._write_index(self._index)
+            return path
+
+    def ids(self) -> List[str]:
+        """Poke ids in store order."""
+        return sorted(self._index)
+
+    def entries(self) -> List[dict]:
+        """Index entries (no time series), in store order."""
+        return [self._index[k] for k in self.ids()]
+
+    def __len__(self) -> int:
+        """Return the number of stored pokes."""
+        return len(self._index)
+
+    def get(self, poke_id: str) -> PokeRecord:
+        """Load one poke. Raises DataError for an unknown id or a corrupt bag."""
+        if poke_id not in self._index:
+            raise DataError(f'no poke {poke_id!r} in {self.root}')
+        return read_poke_bag(self.root / poke_id)
+
+    def __iter__(self) -> Iterator[PokeRecord]:
+        """Load every poke in order."""
+        for poke_id in self.ids():
+            yield self.get(poke_id)
+
+    def refresh(self) -> Optional[List[str]]:
+        """Re-read the directory (another process may have added pokes); return new ids."""
+        with self._lock:
+            before = set(self._index)
+            self._index = self._load_index()
+            return sorted(set(self._index) - before)

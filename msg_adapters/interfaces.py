@@ -20,7 +20,7 @@ from pointforce_ros.types import ContactQuery, PokeGoal
 
 
 def contact_query_from_request(req: ContactWrench.Request) -> ContactQuery:
-    """ContactWrench request -> :class:`ContactQuery` with one pose.
+    """Convert a ContactWrench request to a :class:`ContactQuery` with one pose.
 
     Raises:
         InvalidInput: empty/NaN/degenerate mesh, bad pose, approach not unit, NaN centre.
@@ -33,7 +33,7 @@ def contact_query_from_request(req: ContactWrench.Request) -> ContactQuery:
 
 
 def contact_query_from_batch_request(req: ContactWrenchBatch.Request) -> ContactQuery:
-    """ContactWrenchBatch request -> :class:`ContactQuery` with every pose.
+    """Convert a ContactWrenchBatch request to a :class:`ContactQuery` with every pose.
 
     Raises:
         InvalidInput: as :func:`contact_query_from_request`, or no poses (the message names the
@@ -88,7 +88,7 @@ def fail(resp, message: str):
 
 
 def poke_goal_from_msg(goal: Poke.Goal) -> PokeGoal:
-    """Poke goal -> :class:`PokeGoal`.
+    """Convert a Poke goal message to a :class:`PokeGoal`.
 
     The normal must be unit length unless ``surface_index`` selects a surface point.
 
@@ -105,7 +105,7 @@ def poke_goal_from_msg(goal: Poke.Goal) -> PokeGoal:
 
 
 def poke_goal_to_msg(goal: PokeGoal) -> Poke.Goal:
-    """:class:`PokeGoal` -> Poke goal message."""
+    """Convert a :class:`PokeGoal` to a Poke goal message."""
     return Poke.Goal(point=to_point(goal.point), normal=to_vector3(goal.normal),
                      surface_index=goal.surface_index, force_limit=goal.force_limit,
                      depth_limit=goal.depth_limit, speed=goal.speed, standoff=goal.standoff)

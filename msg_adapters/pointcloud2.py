@@ -201,7 +201,7 @@ def msg_from_cloud(points: np.ndarray, rgb: Optional[np.ndarray] = None,
 
 
 def surface_to_msg(surface: Surface, *, stamp: float = 0.0) -> PointCloud2:
-    """Publishable ``~/surface`` cloud: x, y, z, rgb, normal_x, normal_y, normal_z."""
+    """Build the ``~/surface`` cloud: x, y, z, rgb, normal_x, normal_y, normal_z."""
     return msg_from_cloud(surface.points, surface.colors, surface.normals,
                           frame_id=surface.frame, stamp=stamp)
 

@@ -158,7 +158,8 @@ class Pose:
         quat = as_array(self.orientation, 'Pose.orientation', (4,))
         norm = float(np.linalg.norm(quat))
         if abs(norm - 1.0) > 1e-3:
-            raise InvalidInput(f'Pose.orientation: quaternion must be unit length, |q| = {norm:.4g}')
+            raise InvalidInput(f'Pose.orientation: quaternion must be unit length, '
+                               f'|q| = {norm:.4g}')
         quat = quat / norm
         quat.setflags(write=False)
         object.__setattr__(self, 'position', position)
@@ -315,7 +316,7 @@ class PokeGoal:
 
 @dataclass(frozen=True)
 class ContactQuery:
-    """A planner's contact-wrench question: this rigid mesh, at these poses, pressed along ``approach``.
+    """A planner's contact-wrench question: a rigid mesh at some poses, pressed along ``approach``.
 
     Attributes:
         mesh: rigid mesh in its own frame.

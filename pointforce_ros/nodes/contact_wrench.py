@@ -34,7 +34,8 @@ class ContactWrenchNode(Node):
             self, 'model_dir', '', 'Directory of model-v*.npz files to serve from (polled); '
             'empty: only models announced on the model topic')
         self.max_batch = declare(self, 'max_batch', 20000,
-                                 'Largest number of poses in one batch request', bounds=(1, 1000000))
+                                 'Largest number of poses in one batch request',
+                                 bounds=(1, 1000000))
         spacing = declare(self, 'sample_spacing', 0.003,
                           'Rigid-mesh surface sampling distance, m (seed paper: 3 mm)',
                           bounds=(0.0005, 0.05))

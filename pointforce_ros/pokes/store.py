@@ -271,7 +271,7 @@ class PokeStore:
         os.replace(tmp, self.root / self.INDEX)
 
     def next_id(self) -> str:
-        """A fresh poke id (``poke-000001``, ...)."""
+        """Return a fresh poke id (``poke-000001``, ...)."""
         with self._lock:
             numbers = [int(k.split('-')[1]) for k in self._index if k.split('-')[-1].isdigit()]
             return f'poke-{(max(numbers) + 1) if numbers else 1:06d}'
@@ -285,11 +285,11 @@ class PokeStore:
             return path
 
     def ids(self) -> List[str]:
-        """Poke ids in store order."""
+        """Return the poke ids in store order."""
         return sorted(self._index)
 
     def entries(self) -> List[dict]:
-        """Index entries (no time series), in store order."""
+        """Return the index entry of every poke, without time series, in store order."""
         return [self._index[k] for k in self.ids()]
 
     def __len__(self) -> int:

@@ -1,4 +1,4 @@
-"""Round trips for geometry, mesh and pointforce_interfaces adapters; bad requests give InvalidInput."""
+"""Round trips for geometry, mesh and interface adapters; bad requests give InvalidInput."""
 
 import numpy as np
 import pytest

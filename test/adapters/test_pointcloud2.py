@@ -14,7 +14,8 @@ def _realsense_cloud(points, rgb_u8, height=1, bigendian=False):
     """Build a cloud the way realsense-ros lays it out: x y z rgb(float32 packed), 16 B + pad."""
     n = len(points)
     order = '>' if bigendian else '<'
-    dtype = np.dtype({'names': ['x', 'y', 'z', 'rgb'], 'formats': [order + 'f4'] * 3 + [order + 'u4'],
+    dtype = np.dtype({'names': ['x', 'y', 'z', 'rgb'],
+                      'formats': [order + 'f4'] * 3 + [order + 'u4'],
                       'offsets': [0, 4, 8, 16], 'itemsize': 20})
     arr = np.zeros(n, dtype=dtype)
     arr['x'], arr['y'], arr['z'] = points.T

@@ -32,8 +32,8 @@ def test_rotation_helpers_are_consistent():
     rv = rng.normal(size=(50, 3))
     rv *= (rng.uniform(0.1, 3.0, 50) / np.linalg.norm(rv, axis=1))[:, None]
     rot = st.rotvec_to_matrix(rv)
-    np.testing.assert_allclose(rot @ np.swapaxes(rot, -1, -2), np.broadcast_to(np.eye(3), rot.shape),
-                               atol=1e-12)
+    np.testing.assert_allclose(rot @ np.swapaxes(rot, -1, -2),
+                               np.broadcast_to(np.eye(3), rot.shape), atol=1e-12)
     back = st.quaternion_to_rotvec(st.matrix_to_quaternion(rot))
     np.testing.assert_allclose(st.rotvec_to_matrix(back), rot, atol=1e-9)
 

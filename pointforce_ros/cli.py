@@ -1,0 +1,82 @@
+"""The ``pointforce`` command: demo, cell, generate, fit, query, diagnose, replay, bench.
+
+Each sub-command imports what it needs lazily, so ``pointforce --help`` is instant and the core
+sub-commands run without a ROS graph.
+"""
+
+import argparse
+import importlib
+import json
+import sys
+from typing import Callable, Dict, List, Optional
+
+from pointforce_ros.errors import PointforceError
+
+BENCHMARKS: Dict[str, str] = {
+    'contact': 'pointforce_ros.contact.bench:bench_contact',
+    'batch': 'pointforce_ros.contact.bench:bench_batch',
+    'learn': 'pointforce_ros.response.bench:bench_learn',
+    'cell': 'pointforce_ros.cell.bench:bench_cell',
+    'ros': 'pointforce_ros.nodes.bench:bench_ros',
+}
+
+
+def _load(target: str) -> Callable:
+    module, _, name = target.partition(':')
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise PointforceError(f'{target} is not available in this build: {exc}') from exc
+
+
+def _cmd_bench(args) -> int:
+    names = list(BENCHMARKS) if args.name == 'all' else [args.name]
+    for name in names:
+        result = _load(BENCHMARKS[name])(**({'quick': True} if args.quick else {}))
+        result = {'benchmark': name, **result}
+        if args.json:
+            print(json.dumps(result, sort_keys=True))
+        else:
+            print(f'== bench {name}')
+            for key, value in result.items():
+                print(f'  {key:40s} {value}')
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    return _load('pointforce_ros.nodes.demo:run_demo')(out=args.out, quick=args.quick)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of the ``pointforce`` command."""
+    parser = argparse.ArgumentParser(prog='pointforce', description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    demo = sub.add_parser('demo', help='run the whole job on the simulated cell')
+    demo.add_argument('--out', default='out/demo', help='output directory (bags, model, plots)')
+    demo.add_argument('--quick', action='store_true', help='fewer pokes and queries')
+    demo.set_defaults(func=_cmd_demo)
+
+    bench = sub.add_parser('bench', help='benchmarks; ratios against a baseline in the same run')
+    bench.add_argument('name', choices=sorted(BENCHMARKS) + ['all'])
+    bench.add_argument('--json', action='store_true', help='one JSON object per benchmark')
+    bench.add_argument('--quick', action='store_true', help='smaller sizes (for CI smoke)')
+    bench.set_defaults(func=_cmd_bench)
+    return parser
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Entry point of the ``pointforce`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except PointforceError as exc:
+        print(f'pointforce {args.command}: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'pointforce {args.command}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

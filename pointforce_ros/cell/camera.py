@@ -114,7 +114,8 @@ class CameraFrame:
             raise InvalidInput('CameraFrame.points: an unorganised cloud may not hold NaN')
         object.__setattr__(self, 'points', points)
         object.__setattr__(self, 'rgb', rgb)
-        object.__setattr__(self, 'camera_pose', _rigid(self.camera_pose, 'CameraFrame.camera_pose'))
+        object.__setattr__(self, 'camera_pose',
+                           _rigid(self.camera_pose, 'CameraFrame.camera_pose'))
         object.__setattr__(self, 'organised', bool(self.organised))
         object.__setattr__(self, 'stamp', float(self.stamp))
 
@@ -210,7 +211,7 @@ class DepthCamera:
         self._rays = self.intrinsics.pixel_rays()
 
     def noise_std(self, depth) -> np.ndarray:
-        """Standard deviation of the depth noise at true depth ``depth`` (metres)."""
+        """Return the standard deviation of the depth noise at true depth ``depth`` (metres)."""
         depth = np.asarray(depth, dtype=np.float64)
         return self.noise_a + self.noise_b * depth ** 2
 

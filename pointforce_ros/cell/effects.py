@@ -550,7 +550,7 @@ class PlasticSet(Effect):
                                                       minimum=0.0))
 
     def set_depth(self, n) -> np.ndarray:
-        """Set depth (metres) after ``n`` pokes at a spot."""
+        """Return the set depth (metres) after ``n`` pokes at a spot."""
         return self.max_set * -np.expm1(-np.asarray(n, dtype=np.float64) / self.n0)
 
     def memory(self) -> 'PlasticMemory':
@@ -569,7 +569,7 @@ class PlasticMemory:
     _peak: float = 0.0
 
     def count_near(self, tip: np.ndarray, axis: np.ndarray) -> int:
-        """Number of registered pokes within ``radius`` of ``tip`` across ``axis``."""
+        """Count the registered pokes within ``radius`` of ``tip`` across ``axis``."""
         if not self.spots:
             return 0
         rel = np.asarray(self.spots) - tip
@@ -578,7 +578,7 @@ class PlasticMemory:
                                     <= self.effect.radius ** 2))
 
     def depth_offset(self, tip: np.ndarray, axis: np.ndarray) -> float:
-        """Set depth (metres) of the surface under ``tip`` along ``axis``."""
+        """Return the set depth (metres) of the surface under ``tip`` along ``axis``."""
         n = self.count_near(tip, axis)
         return float(self.effect.set_depth(n)) if n else 0.0
 

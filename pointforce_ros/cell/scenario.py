@@ -38,7 +38,7 @@ _TOP_KEYS = {'name', 'description', 'seed', 'effects'}
 
 
 def scenario_dirs() -> List[Path]:
-    """Folders searched for ``<name>.yaml``: the source tree's, then the installed share's."""
+    """Return the folders searched for ``<name>.yaml``: source tree, then installed share."""
     dirs = [Path(__file__).resolve().parents[2] / 'config' / 'scenarios',
             Path(sys.prefix) / 'share' / 'pointforce_ros' / 'config' / 'scenarios']
     extra = os.environ.get('POINTFORCE_SCENARIOS')
@@ -48,7 +48,7 @@ def scenario_dirs() -> List[Path]:
 
 
 def list_scenarios() -> List[str]:
-    """Names of the scenarios found in :func:`scenario_dirs`, sorted."""
+    """Return the names of the scenarios found in :func:`scenario_dirs`, sorted."""
     names = set()
     for folder in scenario_dirs():
         if folder.is_dir():
@@ -181,7 +181,7 @@ class CellForceModel:
         return wrench, clean, (s_visco, s_hyst, s_fric), tip
 
     def wrench(self, tcp_pose6, t: float) -> np.ndarray:
-        """Return the reported wrench (6,) for TCP pose ``[x, y, z, rx, ry, rz]`` at time ``t``.
+        """Return what the F/T reports for a TCP pose ``[x, y, z, rx, ry, rz]`` at time ``t``.
 
         Args:
             tcp_pose6: (6,) TCP (= probe tip) position in metres and rotation vector, ``base``.
@@ -268,7 +268,7 @@ class Scenario:
         object.__setattr__(self, 'seed', int(self.seed))
 
     def effect(self, name: str) -> Optional[Effect]:
-        """The effect called ``name``, or None when it is off."""
+        """Return the effect called ``name``, or None when it is off."""
         return next((eff for eff in self.effects if eff.name == name), None)
 
     def _child_seed(self, *key: int) -> int:
@@ -284,7 +284,7 @@ class Scenario:
         return kwargs
 
     def ft_sensor(self) -> FtSensor:
-        """A fresh F/T sensor with this scenario's noise, bias and drift."""
+        """Return a fresh F/T sensor with this scenario's noise, bias and drift."""
         kwargs = {}
         for eff in self.effects:
             if eff.stage == 'ft':
@@ -360,7 +360,9 @@ def load_scenario(name_or_path) -> Scenario:
 
 
 def make_force_model(scenario: str = 'clean', object_name: str = 'plush') -> CellForceModel:
-    """Emulator factory (``pointforce_ros.cell.scenario:make_force_model``): FEM live path + effects.
+    """Build the emulator's force model (FEM live path + a scenario's effects).
+
+    Spec string for the emulator: ``pointforce_ros.cell.scenario:make_force_model``.
 
     Args:
         scenario: scenario name or path.

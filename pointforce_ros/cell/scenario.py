@@ -17,6 +17,7 @@ A scenario file (``config/scenarios/<name>.yaml``) reads::
 500 Hz; :meth:`Scenario.camera_kwargs` gives the depth camera its bias and noise.
 """
 
+import importlib
 import os
 import sys
 from dataclasses import dataclass
@@ -30,7 +31,7 @@ from pointforce_ros.cell.effects import (build_effect, DelayLine, Effect, Fricti
                                          PlasticSet, SeriesCompliance, solve_series_compliance,
                                          TimeOffset, ViscoelasticRelaxation)
 from pointforce_ros.cell.ft_sensor import FtSensor
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, ModelNotReady
 
 CleanFn = Callable[[np.ndarray, np.ndarray], Tuple[np.ndarray, np.ndarray]]
 
@@ -359,25 +360,71 @@ def load_scenario(name_or_path) -> Scenario:
     return scenario_from_dict(data, source=str(path))
 
 
-def make_force_model(scenario: str = 'clean', object_name: str = 'plush') -> CellForceModel:
-    """Build the emulator's force model (FEM live path + a scenario's effects).
+@dataclass(frozen=True)
+class HalfSpaceContact:
+    """Analytic clean contact: a flat elastic top at height ``z0`` (normal +z of ``base``).
 
-    Spec string for the emulator: ``pointforce_ros.cell.scenario:make_force_model``.
+    The push-back is ``k d**exponent`` along +z for a tip ``d = z0 - tip_z`` below the top, with
+    ``k = k0 * (1 + ripple * sin(2 pi x / wavelength) * sin(2 pi y / wavelength))`` so that the
+    stiffness varies over the surface; no torque. ``exponent`` 1.5 is Hertz-like, 1.0 a spring.
+    A stand-in for the FEM live path in tests and demos; units N, m.
+    """
+
+    z0: float = 0.04
+    k0: float = 1.4e4
+    exponent: float = 1.5
+    ripple: float = 0.0
+    wavelength: float = 0.05
+
+    def __call__(self, tip: np.ndarray, axis: np.ndarray):
+        """Return ``(force (3,), torque (3,))`` on a probe tip at ``tip`` (3,), metres."""
+        depth = self.z0 - float(tip[2])
+        if depth <= 0.0:
+            return np.zeros(3), np.zeros(3)
+        k = self.k0
+        if self.ripple:
+            w = 2.0 * np.pi / self.wavelength
+            k = k * (1.0 + self.ripple * np.sin(w * tip[0]) * np.sin(w * tip[1]))
+        return np.array([0.0, 0.0, k * depth ** self.exponent]), np.zeros(3)
+
+
+def make_force_model(scenario: str = 'clean', object_name: Optional[str] = 'plush',
+                     halfspace: Optional[dict] = None) -> CellForceModel:
+    """Build the emulator's force model: clean contact physics + a scenario's effects.
+
+    Spec string for the emulator: ``pointforce_ros.cell.scenario:make_force_model`` with JSON
+    keyword arguments, e.g. ``{"scenario": "realistic", "object_name": "plush"}``.
 
     Args:
         scenario: scenario name or path.
-        object_name: object of ``config/objects`` whose precomputed live contact is loaded.
+        object_name: object of ``config/objects`` whose precomputed FEM live contact
+            (``LiveContact.load(name).point_probe_wrench``) is the clean physics.
+        halfspace: keyword arguments of :class:`HalfSpaceContact`; when given it replaces the
+            FEM object (no precomputed data needed).
 
     Raises:
-        InvalidInput: unknown scenario.
+        InvalidInput: unknown scenario or bad half-space parameters.
         ModelNotReady: the FEM live path is not available.
 
     """
-    from pointforce_ros.errors import ModelNotReady
     spec = load_scenario(scenario)
-    try:
-        from pointforce_ros.cell.fem import LiveContact
-    except ImportError as exc:
-        raise ModelNotReady(f'FEM live contact path is not available: {exc}')
-    live = LiveContact.load(object_name)
+    if halfspace is not None:
+        try:
+            clean = HalfSpaceContact(**halfspace)
+        except TypeError as exc:
+            raise InvalidInput(f'make_force_model: bad halfspace parameters: {exc}')
+        return spec.force_model(clean)
+    live_cls = None
+    for module_name in ('pointforce_ros.cell.fem', 'pointforce_ros.cell.fem.live'):
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            continue
+        live_cls = getattr(module, 'LiveContact', None)
+        if live_cls is not None:
+            break
+    if live_cls is None:
+        raise ModelNotReady('FEM live contact path (LiveContact) is not available; pass '
+                            'halfspace={...} for an analytic object')
+    live = live_cls.load(object_name)
     return spec.force_model(live.point_probe_wrench)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pointforce_ros.cell.camera import (CameraFrame, CameraIntrinsics, DepthCamera, look_at,
-                                        merge_frames)
+                                        merge_frames, ring_viewpoints)
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import Mesh
 
@@ -156,6 +156,27 @@ def test_merge_two_views_into_base():
     assert np.all(on_face)
     # only the side camera sees the +x face of the box
     assert np.count_nonzero(np.abs(p[:, 0] - 0.05) < 1e-9) > 50
+
+
+def test_ring_viewpoints_face_the_target_and_see_it_centred():
+    target = np.array([0.5, 0.0, 0.04])
+    poses = ring_viewpoints(target, 0.45, count=3, elevation_deg=50.0)
+    cam = DepthCamera()
+    plane = grid_plane(half=1.0)
+    for pose in poses:
+        to_target = target - pose[:3, 3]
+        assert np.linalg.norm(to_target) == pytest.approx(0.45)
+        np.testing.assert_allclose(pose[:3, 2], to_target / 0.45, atol=1e-12)
+        assert pose[2, 1] < 0.0  # image y points down in the world
+        # the centre pixel ray hits the target's height plane at the target
+        centre = cam.render(Mesh(plane.vertices + [0.0, 0.0, 0.04], plane.triangles), pose)
+        hit = pose[:3, :3] @ centre.points[120, 212] + pose[:3, 3]
+        # pixel (212, 120) is half a pixel off the principal point: < 0.45 m * 0.71 / 213 / sin
+        assert np.linalg.norm(hit - target) < 0.003
+    azimuths = [np.arctan2(p[1, 3], p[0, 3] - 0.5) for p in poses]
+    np.testing.assert_allclose(np.diff(np.sort(azimuths)), 2 * np.pi / 3, atol=1e-9)
+    with pytest.raises(InvalidInput):
+        ring_viewpoints(target, 0.45, elevation_deg=90.0)
 
 
 def test_quantised_depth_lands_on_the_unit():

@@ -14,7 +14,8 @@ from pointforce_ros.cell.effects import (DelayLine, EFFECTS, Friction, Hysteresi
                                          SeriesCompliance, solve_series_compliance, TimeOffset,
                                          ViscoelasticRelaxation)
 from pointforce_ros.cell.ft_sensor import FtSensor, GRAVITY
-from pointforce_ros.cell.scenario import (CellForceModel, list_scenarios, load_scenario, Scenario,
+from pointforce_ros.cell.scenario import (CellForceModel, HalfSpaceContact, list_scenarios,
+                                          load_scenario, make_force_model, Scenario,
                                           scenario_from_dict)
 from pointforce_ros.errors import DataError, InvalidInput, NotConverged
 
@@ -375,3 +376,17 @@ def test_all_effects_model_call_is_well_under_a_millisecond():
         model.wrench(pose, i / RATE)
         times.append(time.perf_counter() - start)
     assert np.median(times) < 0.5e-3
+
+
+def test_emulator_factory_with_an_analytic_half_space():
+    model = make_force_model('series_compliance', halfspace={'z0': Z0, 'k0': 3000.0,
+                                                             'exponent': 1.0})
+    depths = np.linspace(0.001, 0.006, 50)
+    reported, _ = run(model, depths)
+    np.testing.assert_allclose(reported[:, 2], 3000.0 * 2e4 / 2.3e4 * depths, rtol=1e-9)
+    ripple = HalfSpaceContact(z0=Z0, k0=1000.0, exponent=1.0, ripple=0.5, wavelength=0.04)
+    stiff, _ = ripple(np.array([0.01, 0.01, Z0 - 0.002]), np.array([0.0, 0.0, -1.0]))
+    soft, _ = ripple(np.array([0.01, -0.01, Z0 - 0.002]), np.array([0.0, 0.0, -1.0]))
+    np.testing.assert_allclose([stiff[2], soft[2]], [3.0, 1.0], rtol=1e-12)
+    with pytest.raises(InvalidInput):
+        make_force_model('clean', halfspace={'stiffness': 1.0})

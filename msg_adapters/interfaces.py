@@ -2,14 +2,14 @@
 
 Request readers raise :class:`~pointforce_ros.errors.InvalidInput` with a message that names the
 offending field; the nodes turn that into ``success=False`` (services) or a rejected goal (action).
-Response writers take core results duck-typed: any object with ``wrench``, ``contact_count``,
-``max_displacement`` and, when displacements were asked for, ``displaced_indices`` and
-``displacements``.
+Response writers take core results duck-typed: a single result has ``wrench``,
+``contact_count``, ``max_displacement`` and, when displacements were asked for,
+``displaced_indices`` and ``displacements``; a batch result has the arrays ``wrenches`` (B, 6),
+``contact_count`` (B,) and ``max_displacement`` (B,).
 """
 
-from typing import Sequence
-
 import numpy as np
+from geometry_msgs.msg import Wrench as WrenchMsg
 from pointforce_interfaces.action import Poke
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch, SuggestPoke
 
@@ -68,14 +68,19 @@ def fill_contact_response(resp: ContactWrench.Response, result, model_version: i
     return resp
 
 
-def fill_batch_response(resp: ContactWrenchBatch.Response, results: Sequence,
+def fill_batch_response(resp: ContactWrenchBatch.Response, batch,
                         model_version: int) -> ContactWrenchBatch.Response:
-    """Write per-pose core results into a ContactWrenchBatch response (success=True)."""
+    """Write a batch result into a ContactWrenchBatch response (success=True).
+
+    ``batch`` has ``wrenches`` (B, 6), ``contact_count`` (B,) and ``max_displacement`` (B,).
+    """
+    wrenches = np.asarray(batch.wrenches, dtype=np.float64).reshape(-1, 6)
     resp.success = True
     resp.message = ''
-    resp.wrenches = [wrench_to_msg(r.wrench) for r in results]
-    resp.contact_counts = [int(r.contact_count) for r in results]
-    resp.max_displacements = [float(r.max_displacement) for r in results]
+    resp.wrenches = [WrenchMsg(force=to_vector3(w[:3]), torque=to_vector3(w[3:]))
+                     for w in wrenches]
+    resp.contact_counts = np.asarray(batch.contact_count, dtype=np.uint32).tolist()
+    resp.max_displacements = np.asarray(batch.max_displacement, dtype=np.float64).tolist()
     resp.model_version = int(model_version)
     return resp
 

@@ -7,7 +7,7 @@ started with and the next request sees the new one (read-copy-update). Pure Pyth
 
 import threading
 from pathlib import Path
-from typing import List, Optional, Tuple
+from typing import Optional, Tuple
 
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.errors import ModelNotReady
@@ -54,17 +54,28 @@ class WrenchServer:
         self.load(path)
         return True
 
-    def answer(self, query: ContactQuery) -> Tuple[List, int]:
-        """Return (one result per pose, model version). Raises ModelNotReady or InvalidInput."""
+    def _snapshot(self) -> Tuple[ContactModel, ContactSimulator]:
         current = self._current
         if current is None:
             raise ModelNotReady('no contact model loaded yet: run the learner or give model_dir')
-        model, simulator = current
-        if len(query.poses) == 1:
-            results = [simulator.query(query.mesh, query.poses[0], query.approach,
-                                       query.torque_centre,
-                                       return_displacements=query.return_displacements)]
-        else:
-            results = list(simulator.query_batch(query.mesh, query.poses, query.approach,
-                                                 query.torque_centre))
-        return results, int(model.version)
+        return current
+
+    def answer(self, query: ContactQuery):
+        """Answer the first pose of ``query``: returns (ContactResult, model version).
+
+        Raises:
+            ModelNotReady: no model loaded.
+            InvalidInput: a query the simulator cannot use.
+
+        """
+        model, simulator = self._snapshot()
+        result = simulator.query(query.mesh, query.poses[0], query.approach, query.torque_centre,
+                                 return_displacements=query.return_displacements)
+        return result, int(model.version)
+
+    def answer_batch(self, query: ContactQuery):
+        """Answer every pose of ``query``: returns (BatchContactResult, model version)."""
+        model, simulator = self._snapshot()
+        batch = simulator.query_batch(query.mesh, list(query.poses), query.approach,
+                                      query.torque_centre)
+        return batch, int(model.version)

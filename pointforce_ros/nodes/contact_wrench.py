@@ -51,7 +51,7 @@ class ContactWrenchNode(Node):
         self.create_service(ContactWrenchBatch, '~/contact_wrench_batch', self._on_batch,
                             callback_group=group)
         loader = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(ModelStatus, 'model', self._on_model, LATCHED,
+        self.create_subscription(ModelStatus, 'stiffness_learner/model', self._on_model, LATCHED,
                                  callback_group=loader)
         if self.model_dir:
             self.create_timer(poll, self._try_load_dir, callback_group=loader)
@@ -81,8 +81,8 @@ class ContactWrenchNode(Node):
         start = time.perf_counter()
         try:
             query = contact_query_from_request(request)
-            results, version = self.server.answer(query)
-            fill_contact_response(response, results[0], version, query.return_displacements)
+            result, version = self.server.answer(query)
+            fill_contact_response(response, result, version, query.return_displacements)
             self.requests_served += 1
         except PointforceError as exc:
             self.requests_failed += 1
@@ -97,8 +97,8 @@ class ContactWrenchNode(Node):
                 return fail(response, f'poses: {len(request.poses)} exceeds max_batch '
                                       f'{self.max_batch}')
             query = contact_query_from_batch_request(request)
-            results, version = self.server.answer(query)
-            fill_batch_response(response, results, version)
+            batch, version = self.server.answer_batch(query)
+            fill_batch_response(response, batch, version)
             self.requests_served += 1
         except PointforceError as exc:
             self.requests_failed += 1

@@ -91,7 +91,7 @@ def run_demo(out: str = 'out/demo', quick: bool = False) -> int:
     server = WrenchServer()
     server.swap(model)
     direct = server.answer(ContactQuery(mesh=sphere, poses=(pose,), approach=approach,
-                                        torque_centre=centre))[0][0]
+                                        torque_centre=centre))[0]
     diff = np.abs(direct.wrench.force - np.array([f.x, f.y, f.z])).max()
     print(f'[demo] same query without ROS: Fz = {direct.wrench.force[2]:+.3f} N '
           f'(|difference| {diff:.2e} N)')

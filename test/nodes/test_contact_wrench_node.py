@@ -1,0 +1,126 @@
+"""contact_wrench node over real DDS: answers, batch, bad requests, hot swap, concurrency."""
+
+import threading
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Vector3
+from pointforce_interfaces.msg import ModelStatus
+from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
+from pointforce_ros.model_io import save_model
+from pointforce_ros.nodes.contact_wrench import ContactWrenchNode, LATCHED
+from pointforce_ros.nodes.demo import analytic_patch_model
+from pointforce_ros.serving import WrenchServer
+from pointforce_ros.shapes import icosphere
+from pointforce_ros.types import ContactQuery, Pose
+
+pytestmark = pytest.mark.ros
+SPHERE = icosphere(0.02, 2)
+
+
+def _request(depth, x=0.5, y=0.0):
+    pose = Pose(position=[x, y, 0.06 - depth])
+    return ContactWrench.Request(mesh=mesh_to_msg(SPHERE), pose=pose_to_msg(pose),
+                                 approach=Vector3(x=0.0, y=0.0, z=-1.0),
+                                 torque_centre=to_point(pose.position)), pose
+
+
+@pytest.fixture
+def served(ros_graph, tmp_path):
+    model = analytic_patch_model(spacing=0.003)
+    save_model(model, tmp_path / 'models')
+    node = ros_graph.add(ContactWrenchNode(
+        context=ros_graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(tmp_path / 'models')),
+                             Parameter('poll_period', value=0.1)]))
+    client_node = ros_graph.add(Node('test_planner', context=ros_graph.context))
+    single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
+    assert single.wait_for_service(timeout_sec=15.0) and batch.wait_for_service(timeout_sec=15.0)
+    return ros_graph, node, client_node, single, batch, model, tmp_path
+
+
+def test_answer_round_trips_and_equals_the_core_solver(served):
+    graph, node, _, single, _, model, _ = served
+    request, pose = _request(0.003)
+    response = graph.wait_future(single.call_async(request), 10, 'contact_wrench')
+    assert response.success, response.message
+    server = WrenchServer()
+    server.swap(model)
+    direct, _ = server.answer(ContactQuery(mesh=SPHERE, poses=(pose,), approach=[0, 0, -1],
+                                           torque_centre=pose.position))
+    got = [response.wrench.force.x, response.wrench.force.y, response.wrench.force.z]
+    np.testing.assert_allclose(got, direct.wrench.force, rtol=0, atol=1e-12)
+    assert response.wrench.force.z > 0.5 and response.model_version == model.version
+    deeper = graph.wait_future(single.call_async(_request(0.005)[0]), 10, 'deeper')
+    assert deeper.wrench.force.z > response.wrench.force.z
+
+
+@pytest.mark.parametrize('breakage, match', [
+    (lambda r: setattr(r.approach, 'z', 0.2), 'approach'),
+    (lambda r: setattr(r.mesh, 'triangles', []), 'empty'),
+    (lambda r: setattr(r.pose.position, 'z', float('nan')), 'non-finite'),
+])
+def test_malformed_requests_fail_cleanly_and_the_node_keeps_serving(served, breakage, match):
+    graph, node, _, single, _, _, _ = served
+    bad, _ = _request(0.003)
+    breakage(bad)
+    response = graph.wait_future(single.call_async(bad), 10, 'bad request')
+    assert not response.success and match in response.message
+    good = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'good request')
+    assert good.success and node.requests_failed == 1
+
+
+def test_batch_equals_single_queries(served):
+    graph, _, _, single, batch, _, _ = served
+    depths = [0.0, 0.002, 0.004]
+    request = ContactWrenchBatch.Request(mesh=mesh_to_msg(SPHERE),
+                                         approach=Vector3(x=0.0, y=0.0, z=-1.0),
+                                         torque_centre=to_point([0.5, 0.0, 0.06]))
+    request.poses = [pose_to_msg(Pose(position=[0.5, 0.0, 0.06 - d])) for d in depths]
+    response = graph.wait_future(batch.call_async(request), 10, 'batch')
+    assert response.success and len(response.wrenches) == 3
+    for d, w in zip(depths, response.wrenches):
+        req, _ = _request(d)
+        req.torque_centre = to_point([0.5, 0.0, 0.06])
+        one = graph.wait_future(single.call_async(req), 10, 'single')
+        assert w.force.z == pytest.approx(one.wrench.force.z, abs=1e-9)
+    assert response.wrenches[0].force.z == pytest.approx(0.0, abs=1e-9)
+
+
+def test_model_topic_hot_swaps_without_dropping_requests(served):
+    graph, node, client_node, single, _, model, tmp_path = served
+    stiffer = analytic_patch_model(spacing=0.003, version=2)
+    forces = stiffer.response.forces * 2.0
+    from pointforce_ros.model_io import ContactModel
+    from pointforce_ros.response.baked import BakedResponse
+    stiffer = ContactModel(surface=stiffer.surface, shape_constant=stiffer.shape_constant,
+                           version=2, response=BakedResponse(
+                               depths=stiffer.response.depths, forces=forces,
+                               slopes=stiffer.response.slopes * 2.0, version=2))
+    path = save_model(stiffer, tmp_path / 'elsewhere')
+    before = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'before')
+    answers, errors = [], []
+
+    def hammer():
+        for _ in range(40):
+            try:
+                r = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'hammer')
+                answers.append((r.success, r.model_version, r.wrench.force.z))
+            except RuntimeError as exc:
+                errors.append(exc)
+    thread = threading.Thread(target=hammer)
+    thread.start()
+    pub = client_node.create_publisher(ModelStatus, '/stiffness_learner/model', LATCHED)
+    pub.publish(ModelStatus(version=2, num_pokes=3, model_path=str(path)))
+    thread.join(timeout=60)
+    graph.wait_for(lambda: node.server.version == 2, 10, 'model v2')
+    after = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'after')
+    assert not errors and all(ok for ok, _, _ in answers) and len(answers) == 40
+    assert {v for _, v, _ in answers} <= {1, 2}
+    assert after.model_version == 2
+    assert after.wrench.force.z == pytest.approx(2.0 * before.wrench.force.z, rel=1e-9)

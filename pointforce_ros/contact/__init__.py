@@ -1,1 +1,12 @@
-"""pointforce_ros.contact."""
+"""pointforce_ros.contact: the semi-empirical contact simulator (seed 000, section IV)."""
+
+from pointforce_ros.contact.lcp import (lcp_residual, LcpSolution, shape_function, shape_matrix,
+                                        solve_lcp, solve_lcp_batch, solve_lcp_paper)
+from pointforce_ros.contact.paper import PaperContactSimulator
+from pointforce_ros.contact.sampling import sample_mesh_surface
+from pointforce_ros.contact.simulator import (BatchContactResult, ContactResult,
+                                              ContactSimulator, normalise_approach)
+
+__all__ = ['BatchContactResult', 'ContactResult', 'ContactSimulator', 'LcpSolution',
+           'PaperContactSimulator', 'lcp_residual', 'normalise_approach', 'sample_mesh_surface',
+           'shape_function', 'shape_matrix', 'solve_lcp', 'solve_lcp_batch', 'solve_lcp_paper']

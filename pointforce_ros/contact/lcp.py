@@ -1,0 +1,263 @@
+"""Shape function and the displacement LCP of the contact simulator (seed 000, eq. 2-3).
+
+Sign convention. The paper writes eq. 3 as ``w = d - G d~`` with ``0 <= w _|_ d~ >= 0``. Read
+literally that LCP always has the trivial solution ``d~ = 0`` (``w = d > 0``): no force. The
+paper's own solution scheme ("assume equalities, drop negative actual displacements") and its
+text ("non-negative actual displacements no greater than the nominal displacements") describe
+the physical problem instead, with the slack taken the other way round::
+
+    u = G d~                      surface displacement at every candidate point
+    w = u - d = G d~ - d >= 0     the displaced surface clears the rigid point (no penetration)
+    d~ >= 0                       no pulling
+    w_i d~_i = 0                  a point carries actual displacement only where it touches
+
+This is the KKT system of the convex QP ``min 1/2 x'Gx - d'x, x >= 0`` and, because
+``g(r) = c / (c + r) = integral of c exp(-t (c + r)) dt`` is a positive mixture of exponential
+kernels, ``G`` is positive definite for distinct points: the LCP has exactly one solution. It
+also implies ``d~ <= d`` (``d_i = d~_i + sum_j g_ij d~_j`` on touching points, ``g > 0``).
+Everything in this module uses ``w = G d~ - d``.
+
+Solvers:
+
+* :func:`solve_lcp_batch` / :func:`solve_lcp`: block principal pivoting (Judice & Pires; the
+  NNLS variant of Kim & Park 2011) with Murty's single-pivot backup rule, which makes it finite
+  for any P-matrix. It starts from the paper's guess (every candidate touching), exchanges all
+  infeasible indices at once, and typically ends in 2-4 dense solves. Many problems of
+  different sizes are solved together as one padded stack.
+* :func:`solve_lcp_paper`: the paper's scheme as written. It only ever removes points, so it
+  cannot cycle; it always stops within ``m`` solves, but a point removed early is never put
+  back, so the answer can violate ``w >= 0`` (the rigid body penetrates the displaced surface):
+  see :attr:`LcpSolution.residual`.
+"""
+
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+import numpy as np
+
+from pointforce_ros.errors import InvalidInput, NotConverged
+
+
+def shape_function(r: np.ndarray, c: float) -> np.ndarray:
+    """Return ``g(r) = c / (c + r)`` (eq. 2) for distances ``r`` >= 0 and constant ``c`` > 0.
+
+    ``r`` and ``c`` share one length unit (metres at every public interface); ``g(0) = 1``.
+    """
+    return c / (c + np.asarray(r, dtype=np.float64))
+
+
+def shape_matrix(points: np.ndarray, c: float) -> np.ndarray:
+    """(m, m) matrix ``G_ij = g(|q_i - q_j|)`` of candidate points ``points`` (m, 3), metres."""
+    points = np.asarray(points, dtype=np.float64)
+    diff = points[:, None, :] - points[None, :, :]
+    return shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), c)
+
+
+@dataclass(frozen=True)
+class LcpSolution:
+    """Solution of ``0 <= G x - d _|_ x >= 0``.
+
+    Attributes:
+        x: (m,) actual displacements ``d~``, metres, >= 0.
+        w: (m,) ``G x - d``, metres: the gap between the displaced surface and the rigid point.
+        residual: ``max_i |min(x_i, w_i)|``, metres: zero exactly at a complementary solution
+            (it catches a negative ``x``, a negative ``w`` and ``x_i w_i != 0`` alike).
+        iterations: number of dense solves.
+        converged: ``residual <= tol`` of the call.
+        method: ``'bpp'`` or ``'paper'``.
+
+    """
+
+    x: np.ndarray
+    w: np.ndarray
+    residual: float
+    iterations: int
+    converged: bool
+    method: str
+
+
+def lcp_residual(G: np.ndarray, d: np.ndarray, x: np.ndarray) -> float:
+    """Return ``max |min(x, G x - d)|`` in the units of ``d`` (0 for an empty problem)."""
+    if len(d) == 0:
+        return 0.0
+    w = G @ x - d
+    return float(np.max(np.abs(np.minimum(x, w))))
+
+
+def _check_problem(G, d) -> Tuple[np.ndarray, np.ndarray]:
+    G = np.asarray(G, dtype=np.float64)
+    d = np.asarray(d, dtype=np.float64)
+    if d.ndim != 1 or G.shape != (len(d), len(d)):
+        raise InvalidInput(f'LCP: G must be (m, m) and d (m,), got {G.shape} and {d.shape}')
+    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(d))):
+        raise InvalidInput('LCP: G and d must be finite')
+    return G, d
+
+
+def _batched_solve(A: np.ndarray, b: np.ndarray) -> Tuple[np.ndarray, int]:
+    """Solve the stack ``A x = b``; singular members (duplicate points) get a tiny ridge."""
+    try:
+        return np.linalg.solve(A, b[..., None])[..., 0], 0
+    except np.linalg.LinAlgError:
+        out = np.empty_like(b)
+        ridged = 0
+        for k in range(len(A)):
+            try:
+                out[k] = np.linalg.solve(A[k], b[k])
+            except np.linalg.LinAlgError:
+                scale = max(float(np.abs(np.diagonal(A[k])).max()), 1.0)
+                out[k] = np.linalg.solve(A[k] + 1e-9 * scale * np.eye(len(b[k])), b[k])
+                ridged += 1
+        return out, ridged
+
+
+def solve_lcp_batch(G: np.ndarray, d: np.ndarray, valid: Optional[np.ndarray] = None,
+                    free: Optional[np.ndarray] = None, max_iter: int = 200,
+                    tol: float = 1e-12) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Solve a stack of LCPs ``0 <= G_b x_b - d_b _|_ x_b >= 0`` by block principal pivoting.
+
+    Args:
+        G: (B, m, m) symmetric positive definite matrices (entries of padding ignored).
+        d: (B, m) nominal displacements (any length unit).
+        valid: (B, m) bool, ``False`` marks padding (its ``x`` is 0); default all valid.
+        free: (B, m) bool initial guess of the touching set (warm start); default ``valid``
+            (the paper's guess: every candidate touches).
+        max_iter: most pivoting rounds.
+        tol: relative feasibility tolerance (times ``max |d_b|``).
+
+    Returns:
+        ``(x, residual, iterations)``: (B, m) actual displacements (0 on padding), (B,)
+        ``max |min(x, w)|`` per problem and (B,) number of dense solves per problem.
+
+    Raises:
+        NotConverged: a problem still infeasible after ``max_iter`` rounds (cannot happen for
+            a positive definite ``G`` short of round-off; the message gives the residual).
+
+    """
+    G = np.asarray(G, dtype=np.float64)
+    d = np.asarray(d, dtype=np.float64)
+    B, m = d.shape
+    valid = np.ones((B, m), dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    F = valid.copy() if free is None else (np.asarray(free, dtype=bool) & valid)
+    x = np.zeros((B, m))
+    iterations = np.zeros(B, dtype=np.int64)
+    if B == 0 or m == 0:
+        return x, np.zeros(B), iterations
+    eye = np.eye(m, dtype=bool)
+    pair = valid[:, :, None] & valid[:, None, :]
+    Gv = np.where(pair, G, 0.0)
+    scale = np.maximum(np.abs(np.where(valid, d, 0.0)).max(axis=1), 1e-300)
+    eps = tol * scale
+    best = np.full(B, m + 1)
+    chances = np.full(B, 3)
+    todo = np.flatnonzero(valid.any(axis=1))
+    for _ in range(max_iter):
+        if len(todo) == 0:
+            break
+        whole = len(todo) == B
+        Gt = Gv if whole else Gv[todo]
+        dt = d if whole else d[todo]
+        vt = valid if whole else valid[todo]
+        Ft = F if whole else F[todo]
+        A = np.where(Ft[:, :, None] & Ft[:, None, :], Gt, eye)
+        xt, _ = _batched_solve(A, np.where(Ft, dt, 0.0))
+        iterations[todo] += 1
+        wt = (Gt @ xt[:, :, None])[:, :, 0] - dt
+        e = eps[todo, None]
+        bad = vt & ((Ft & (xt < -e)) | (~Ft & (wt < -e)))
+        n_bad = bad.sum(axis=1)
+        x[todo] = np.where(Ft, xt, 0.0)
+        done = n_bad == 0
+        if np.all(done):
+            todo = todo[:0]
+            break
+        keep = ~done
+        idx, bad, n_bad = todo[keep], bad[keep], n_bad[keep]
+        better = n_bad < best[idx]
+        best[idx] = np.where(better, n_bad, best[idx])
+        chances[idx] = np.where(better, 3, chances[idx] - (~better))
+        full = better | (chances[idx] >= 0)
+        flip = bad.copy()
+        # Murty's backup: out of chances, exchange only the largest infeasible index.
+        single = np.flatnonzero(~full)
+        if len(single):
+            last = m - 1 - np.argmax(bad[single][:, ::-1], axis=1)
+            flip[single] = False
+            flip[single, last] = True
+        F[idx] ^= flip
+        todo = idx
+    if len(todo):
+        worst = max(_residuals(Gv[todo], d[todo], x[todo], valid[todo]))
+        raise NotConverged(f'LCP: {len(todo)} problem(s) still infeasible after {max_iter} '
+                           f'pivoting rounds (residual {worst:.3g})')
+    x = np.maximum(x, 0.0)
+    return x, _residuals(Gv, d, x, valid), iterations
+
+
+def _residuals(Gv, d, x, valid) -> np.ndarray:
+    w = (Gv @ x[:, :, None])[:, :, 0] - d
+    r = np.where(valid, np.abs(np.minimum(x, w)), 0.0)
+    return r.max(axis=1) if r.shape[1] else np.zeros(len(r))
+
+
+def solve_lcp(G: np.ndarray, d: np.ndarray, free: Optional[np.ndarray] = None,
+              tol: float = 1e-12) -> LcpSolution:
+    """Solve ``0 <= G x - d _|_ x >= 0`` for one positive definite ``G`` (m, m), ``d`` (m,).
+
+    Block principal pivoting with a backup rule (see :func:`solve_lcp_batch`). ``free`` (m,)
+    bool optionally warm-starts the touching set.
+
+    Raises:
+        InvalidInput: shapes that disagree or non-finite entries.
+        NotConverged: see :func:`solve_lcp_batch`.
+
+    """
+    G, d = _check_problem(G, d)
+    warm = None if free is None else np.asarray(free, dtype=bool)[None]
+    x, res, it = solve_lcp_batch(G[None], d[None], free=warm, tol=tol)
+    x = x[0]
+    scale = max(float(np.abs(d).max()) if len(d) else 0.0, 1e-300)
+    return LcpSolution(x=x, w=G @ x - d, residual=float(res[0]), iterations=int(it[0]),
+                       converged=bool(res[0] <= 1e-9 * scale), method='bpp')
+
+
+def solve_lcp_paper(G: np.ndarray, d: np.ndarray) -> LcpSolution:
+    """Solve by the paper's scheme: assume every point touches, invert, drop negatives, repeat.
+
+    Each round inverts ``G`` over the remaining points (``numpy.linalg.inv``, as described),
+    removes every point whose actual displacement came out negative and repeats until none is
+    negative. It stops within ``m`` rounds. Removed points are never re-admitted, so
+    ``converged`` is ``False`` (and ``residual`` > 0) where a removed point ends up penetrated
+    (``w < 0``).
+
+    Raises:
+        InvalidInput: shapes that disagree or non-finite entries.
+        NotConverged: ``G`` singular over the remaining points (duplicate contact points:
+            ``g = 1`` off the diagonal), which the scheme as written cannot handle.
+
+    """
+    G, d = _check_problem(G, d)
+    m = len(d)
+    active = np.ones(m, dtype=bool)
+    x = np.zeros(m)
+    rounds = 0
+    while active.any():
+        rounds += 1
+        sub = np.ix_(active, active)
+        try:
+            xa = np.linalg.inv(G[sub]) @ d[active]
+        except np.linalg.LinAlgError as exc:
+            raise NotConverged('paper LCP scheme: G is singular over the touching points '
+                               f'(duplicate contact points?): {exc}')
+        x[:] = 0.0
+        x[active] = xa
+        negative = xa < 0.0
+        if not negative.any():
+            break
+        idx = np.flatnonzero(active)
+        active[idx[negative]] = False
+    x[~active] = 0.0
+    res = lcp_residual(G, d, x)
+    scale = max(float(np.abs(d).max()) if m else 0.0, 1e-300)
+    return LcpSolution(x=x, w=G @ x - d, residual=res, iterations=rounds,
+                       converged=bool(res <= 1e-9 * scale), method='paper')

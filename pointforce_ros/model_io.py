@@ -136,3 +136,35 @@ def latest_model_path(directory) -> Optional[Path]:
         if m and int(m.group(1)) > found[0]:
             found = (int(m.group(1)), p)
     return found[1]
+
+
+def save_surface(surface: Surface, path) -> Path:
+    """Write an equilibrium surface atomically to ``path`` (``.npz``); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix='.tmp-', suffix='.npz')
+    try:
+        with os.fdopen(fd, 'wb') as fh:
+            np.savez(fh, points=surface.points, normals=surface.normals, colors=surface.colors,
+                     frame=np.frombuffer(surface.frame.encode(), dtype=np.uint8))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def load_surface(path) -> Surface:
+    """Read a surface written by :func:`save_surface`; DataError if missing or corrupt."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f'surface file not found: {path}')
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return Surface(points=z['points'], normals=z['normals'], colors=z['colors'],
+                           frame=bytes(z['frame']).decode() or 'base')
+    except (OSError, ValueError, KeyError, InvalidInput) as exc:
+        raise DataError(f'{path}: corrupt or unreadable surface file: {exc}') from exc

@@ -32,6 +32,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.transforms import (matrix_to_quaternion, quaternion_to_rotvec,
+                                       rotvec_to_matrix)
 from pointforce_ros.types import PokeRecord
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -46,44 +48,6 @@ _Header = _T['std_msgs/msg/Header']
 _Point = _T['geometry_msgs/msg/Point']
 _Quaternion = _T['geometry_msgs/msg/Quaternion']
 _Vector3 = _T['geometry_msgs/msg/Vector3']
-
-
-def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """(..., 3) UR rotation vectors -> (..., 3, 3) rotation matrices (Rodrigues)."""
-    rotvec = np.asarray(rotvec, dtype=np.float64)
-    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
-    safe = np.where(angle > 1e-12, angle, 1.0)
-    k = rotvec / safe
-    kx, ky, kz = k[..., 0], k[..., 1], k[..., 2]
-    zero = np.zeros_like(kx)
-    kmat = np.stack([np.stack([zero, -kz, ky], -1), np.stack([kz, zero, -kx], -1),
-                     np.stack([-ky, kx, zero], -1)], -2)
-    a = angle[..., None]
-    eye = np.broadcast_to(np.eye(3), kmat.shape)
-    return eye + np.sin(a) * kmat + (1 - np.cos(a)) * (kmat @ kmat)
-
-
-def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation matrices -> (..., 4) quaternions (x, y, z, w), w >= 0."""
-    rot = np.asarray(rot, dtype=np.float64)
-    w = np.sqrt(np.clip(1.0 + rot[..., 0, 0] + rot[..., 1, 1] + rot[..., 2, 2], 0, None)) / 2
-    x = np.sqrt(np.clip(1.0 + rot[..., 0, 0] - rot[..., 1, 1] - rot[..., 2, 2], 0, None)) / 2
-    y = np.sqrt(np.clip(1.0 - rot[..., 0, 0] + rot[..., 1, 1] - rot[..., 2, 2], 0, None)) / 2
-    z = np.sqrt(np.clip(1.0 - rot[..., 0, 0] - rot[..., 1, 1] + rot[..., 2, 2], 0, None)) / 2
-    x = np.copysign(x, rot[..., 2, 1] - rot[..., 1, 2])
-    y = np.copysign(y, rot[..., 0, 2] - rot[..., 2, 0])
-    z = np.copysign(z, rot[..., 1, 0] - rot[..., 0, 1])
-    q = np.stack([x, y, z, w], axis=-1)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def quaternion_to_rotvec(q: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions (x, y, z, w) -> (..., 3) rotation vectors."""
-    q = np.asarray(q, dtype=np.float64)
-    q = q * np.where(q[..., 3:4] < 0, -1.0, 1.0)
-    s = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
-    angle = 2 * np.arctan2(s, q[..., 3:4])
-    return np.where(s > 1e-12, q[..., :3] / np.where(s > 1e-12, s, 1.0) * angle, 2 * q[..., :3])
 
 
 def _stamp(t: float):

@@ -8,6 +8,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from pointforce_ros.errors import DataError
+from pointforce_ros import transforms as tf
 from pointforce_ros.pokes import store as st
 from pointforce_ros.types import PokeRecord
 
@@ -31,11 +32,11 @@ def test_rotation_helpers_are_consistent():
     rng = np.random.default_rng(1)
     rv = rng.normal(size=(50, 3))
     rv *= (rng.uniform(0.1, 3.0, 50) / np.linalg.norm(rv, axis=1))[:, None]
-    rot = st.rotvec_to_matrix(rv)
+    rot = tf.rotvec_to_matrix(rv)
     np.testing.assert_allclose(rot @ np.swapaxes(rot, -1, -2),
                                np.broadcast_to(np.eye(3), rot.shape), atol=1e-12)
-    back = st.quaternion_to_rotvec(st.matrix_to_quaternion(rot))
-    np.testing.assert_allclose(st.rotvec_to_matrix(back), rot, atol=1e-9)
+    back = tf.quaternion_to_rotvec(tf.matrix_to_quaternion(rot))
+    np.testing.assert_allclose(tf.rotvec_to_matrix(back), rot, atol=1e-9)
 
 
 def test_bag_round_trip_keeps_series_and_uses_tool_frame_on_the_wire(tmp_path):
@@ -45,8 +46,8 @@ def test_bag_round_trip_keeps_series_and_uses_tool_frame_on_the_wire(tmp_path):
     np.testing.assert_allclose(back.t, rec.t, atol=1e-9)
     np.testing.assert_allclose(back.t_controller, rec.t_controller)
     np.testing.assert_allclose(back.tcp_pose[:, :3], rec.tcp_pose[:, :3])
-    np.testing.assert_allclose(st.rotvec_to_matrix(back.tcp_pose[:, 3:]),
-                               st.rotvec_to_matrix(rec.tcp_pose[:, 3:]), atol=1e-9)
+    np.testing.assert_allclose(tf.rotvec_to_matrix(back.tcp_pose[:, 3:]),
+                               tf.rotvec_to_matrix(rec.tcp_pose[:, 3:]), atol=1e-9)
     np.testing.assert_allclose(back.wrench, rec.wrench, atol=1e-9)
     np.testing.assert_allclose(back.displacement(), rec.displacement(), atol=1e-12)
     assert back.meta == rec.meta and back.outcome == 'force_limit'
@@ -56,7 +57,7 @@ def test_bag_round_trip_keeps_series_and_uses_tool_frame_on_the_wire(tmp_path):
         _, _, raw = next(reader.messages(connections=[conn]))
         msg = reader.deserialize(raw, conn.msgtype)
     assert msg.header.frame_id == 'tool0_controller'
-    expected = st.rotvec_to_matrix(rec.tcp_pose[0, 3:]).T @ rec.wrench[0, :3]
+    expected = tf.rotvec_to_matrix(rec.tcp_pose[0, 3:]).T @ rec.wrench[0, :3]
     np.testing.assert_allclose([msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z],
                                expected, atol=1e-9)
 

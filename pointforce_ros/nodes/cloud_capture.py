@@ -1,0 +1,143 @@
+"""cloud_capture node: merge depth scans into the latched equilibrium surface ``~/surface``.
+
+Subscribes to a PointCloud2 topic (realsense-ros name by default; remap it), keeps the newest
+cloud, and on ``~/add_scan`` puts it in the merge set with the camera pose of that moment (there
+is no tf2 here: the pose comes from the ``camera_pose`` parameter or, if published, the
+``~/camera_pose`` topic, ``base`` <- optical frame). ``~/capture`` builds the surface (crop,
+voxel, outliers, outward normals: :mod:`pointforce_ros.surface.equilibrium`), publishes it
+latched, stores it, and clears the merge set. A bad cloud is refused with a message; the node
+keeps serving.
+"""
+
+import threading
+import time
+from pathlib import Path
+
+from geometry_msgs.msg import PoseStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_srvs.srv import Trigger
+
+from msg_adapters.geometry import pose_stamped_from_msg
+from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
+from pointforce_ros.errors import PointforceError
+from pointforce_ros.model_io import save_surface
+from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
+from pointforce_ros.transforms import pose_to_matrix
+from pointforce_ros.types import Pose
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+DEFAULT_TOPIC = '/camera/camera/depth/color/points'
+
+
+class CloudCaptureNode(Node):
+    """Builds and publishes the equilibrium surface from merged depth scans."""
+
+    def __init__(self, **kwargs):
+        """Declare parameters, subscribe to the camera, create the services."""
+        super().__init__('cloud_capture', **kwargs)
+        topic = declare(self, 'cloud_topic', DEFAULT_TOPIC,
+                        'PointCloud2 input (realsense-ros layout: x y z float32 + packed rgb)')
+        pose7 = declare(self, 'camera_pose', [0.5, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0],
+                        'Camera optical frame in base when no ~/camera_pose topic is published: '
+                        '[x y z (m), qx qy qz qw]')
+        roi = declare(self, 'roi', [0.35, -0.15, 0.0, 0.65, 0.15, 0.2],
+                      'Region of interest in base, m: [xmin ymin zmin xmax ymax zmax]')
+        voxel = declare(self, 'voxel_size', 0.002, 'Voxel edge for downsampling, m',
+                        bounds=(0.0002, 0.05))
+        orientation = declare(self, 'normal_orientation', 'camera',
+                              'Outward-normal rule: camera | centroid | up')
+        self.store_path = Path(declare(self, 'surface_file', 'out/cell/surface.npz',
+                                       'Where the captured surface is stored (.npz)'))
+        self.frame = declare(self, 'frame_id', 'base', 'Frame of the published surface')
+        try:
+            self.config = SurfaceConfig(roi_min=roi[:3], roi_max=roi[3:], voxel_size=voxel,
+                                        orientation=orientation)
+            self.default_pose = Pose(position=pose7[:3], orientation=pose7[3:])
+        except PointforceError as exc:
+            raise ValueError(f'cloud_capture: bad parameters: {exc}') from exc
+        self._lock = threading.Lock()
+        self._latest = None
+        self._camera_pose = None
+        self._scans = []
+        self.surface = None
+        self.surface_pub = self.create_publisher(PointCloud2, '~/surface', LATCHED)
+        self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data)
+        self.create_subscription(PoseStamped, '~/camera_pose', self._on_pose, 10)
+        group = MutuallyExclusiveCallbackGroup()
+        self.create_service(Trigger, '~/add_scan', self._on_add, callback_group=group)
+        self.create_service(Trigger, '~/capture', self._on_capture, callback_group=group)
+        self.create_service(Trigger, '~/clear', self._on_clear, callback_group=group)
+        self.get_logger().info(f'listening for clouds on {topic}')
+
+    def _on_cloud(self, msg: PointCloud2):
+        with self._lock:
+            self._latest = msg
+
+    def _on_pose(self, msg: PoseStamped):
+        try:
+            pose = pose_stamped_from_msg(msg)
+        except PointforceError as exc:
+            self.get_logger().warn(f'ignoring camera pose: {exc}', throttle_duration_sec=5.0)
+            return
+        with self._lock:
+            self._camera_pose = pose
+
+    def _scan_from_latest(self) -> Scan:
+        with self._lock:
+            msg, pose = self._latest, self._camera_pose or self.default_pose
+        if msg is None:
+            raise PointforceError('no cloud received yet on the camera topic')
+        cloud = cloud_from_msg(msg, drop_nan=True)
+        if len(cloud.points) == 0:
+            raise PointforceError('the latest cloud has no valid (finite) point')
+        return Scan(points=cloud.points, colors=cloud.rgb, transform=pose_to_matrix(pose))
+
+    def _on_add(self, request, response):
+        try:
+            scan = self._scan_from_latest()
+            self._scans.append(scan)
+            response.success = True
+            response.message = f'{len(self._scans)} scan(s) in the merge set'
+        except PointforceError as exc:
+            response.success, response.message = False, str(exc)
+        return response
+
+    def _on_clear(self, request, response):
+        self._scans.clear()
+        response.success, response.message = True, 'merge set cleared'
+        return response
+
+    def _on_capture(self, request, response):
+        try:
+            scans = list(self._scans) or [self._scan_from_latest()]
+            start = time.perf_counter()
+            surface, report = build_equilibrium_surface(scans, self.config)
+            self.surface = surface
+            self.surface_pub.publish(surface_to_msg(surface,
+                                                    stamp=self.get_clock().now().nanoseconds
+                                                    * 1e-9))
+            save_surface(surface, self.store_path)
+            self._scans.clear()
+            response.success = True
+            response.message = (f'surface of {len(surface)} points from {len(scans)} scan(s) '
+                                f'({report.n_input} raw, {report.n_outliers} outliers removed) '
+                                f'in {time.perf_counter() - start:.2f} s -> {self.store_path}')
+            self.get_logger().info(response.message)
+        except PointforceError as exc:
+            response.success, response.message = False, str(exc)
+            self.get_logger().warn(f'capture refused: {exc}')
+        return response
+
+
+def main(args=None):
+    """Console entry point: ``cloud_capture --ros-args -p cloud_topic:=/my/points``."""
+    run(CloudCaptureNode, args=args)
+
+
+if __name__ == '__main__':
+    main()

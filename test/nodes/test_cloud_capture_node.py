@@ -1,0 +1,91 @@
+"""cloud_capture over DDS: rendered scans in, latched outward surface out, bad clouds refused."""
+
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2, PointField
+from std_srvs.srv import Trigger
+
+from msg_adapters.geometry import pose_stamped_to_msg
+from msg_adapters.pointcloud2 import msg_from_cloud, surface_from_msg
+from pointforce_ros.cell.camera import DepthCamera, look_at
+from pointforce_ros.model_io import load_surface
+from pointforce_ros.nodes.cloud_capture import CloudCaptureNode, LATCHED
+from pointforce_ros.shapes import box
+from pointforce_ros.transforms import matrix_to_pose
+from pointforce_ros.types import Mesh
+
+pytestmark = pytest.mark.ros
+
+
+def _block():
+    """A 80 x 60 x 40 mm block on the table centred at (0.5, 0), as base-frame triangles."""
+    b = box((0.08, 0.06, 0.04))
+    return Mesh(vertices=b.vertices + [0.5, 0.0, 0.0], triangles=b.triangles)
+
+
+def _call(graph, client, what):
+    assert client.wait_for_service(timeout_sec=10.0), f'{what} service missing'
+    return graph.wait_future(client.call_async(Trigger.Request()), 30, what)
+
+
+def test_two_views_merge_into_a_latched_outward_surface(ros_graph, tmp_path):
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
+        Parameter('roi', value=[0.4, -0.1, 0.01, 0.6, 0.1, 0.1])]))
+    test_node = ros_graph.add(Node('camera_driver', context=ros_graph.context))
+    cloud_pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    pose_pub = test_node.create_publisher(PoseStamped, '/cloud_capture/camera_pose', 10)
+    add = test_node.create_client(Trigger, '/cloud_capture/add_scan')
+    capture = test_node.create_client(Trigger, '/cloud_capture/capture')
+    camera = DepthCamera(noise_a=0.0003, seed=3)
+    mesh = _block()
+    for eye in ([0.5, -0.25, 0.35], [0.5, 0.25, 0.35]):
+        pose = look_at(eye, [0.5, 0.0, 0.04])
+        frame = camera.render(mesh, pose, organised=True)
+        pose_pub.publish(pose_stamped_to_msg(matrix_to_pose(pose)))
+        ros_graph.wait_for(lambda: node._camera_pose is not None and np.allclose(
+            node._camera_pose.position, eye), 10, 'camera pose')
+        cloud_pub.publish(msg_from_cloud(frame.points, frame.rgb,
+                                         frame_id='camera_depth_optical_frame'))
+        ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
+        assert _call(ros_graph, add, 'add_scan').success
+        node._latest = None
+    result = _call(ros_graph, capture, 'capture')
+    assert result.success, result.message
+    received = []
+    test_node.create_subscription(PointCloud2, '/cloud_capture/surface',
+                                  received.append, LATCHED)  # late joiner still gets it
+    ros_graph.wait_for(lambda: received, 10, 'latched surface')
+    surface = surface_from_msg(received[0])
+    top = surface.points[:, 2] > 0.038
+    assert top.mean() > 0.3
+    # top face normals point up, side faces point away from the block centre
+    assert np.median(surface.normals[top, 2]) > 0.98
+    side = np.abs(surface.points[:, 1]) > 0.029
+    out = np.sign(surface.points[side, 1]) * surface.normals[side, 1]
+    assert np.mean(out > 0.5) > 0.9
+    stored = load_surface(tmp_path / 'surface.npz')
+    np.testing.assert_allclose(stored.points, surface.points, atol=1e-6)
+
+
+def test_bad_or_missing_cloud_is_refused_and_node_keeps_serving(ros_graph, tmp_path):
+    ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 's.npz'))]))
+    test_node = ros_graph.add(Node('bad_driver', context=ros_graph.context))
+    capture = test_node.create_client(Trigger, '/cloud_capture/capture')
+    first = _call(ros_graph, capture, 'capture without cloud')
+    assert not first.success and 'no cloud' in first.message
+    pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    bad = msg_from_cloud(np.random.default_rng(0).uniform(size=(50, 3)))
+    bad.fields = [f for f in bad.fields if f.name != 'z'] + [
+        PointField(name='w', offset=8, datatype=PointField.FLOAT32, count=1)]
+    pub.publish(bad)
+    time.sleep(0.5)
+    second = _call(ros_graph, capture, 'capture with a bad cloud')
+    assert not second.success and "no 'z' field" in second.message
+    assert not (tmp_path / 's.npz').exists()

@@ -1,0 +1,182 @@
+"""Online stiffness learning: poke store in, versioned baked contact models out.
+
+:class:`OnlineLearner` is what the ``stiffness_learner`` node wraps (pure Python, no ROS). Each
+call to :meth:`OnlineLearner.update` reads the pokes that landed in the store since the last call,
+cuts their loading curves, refits the force-response model, bakes it on the equilibrium surface
+and saves a :class:`~pointforce_ros.model_io.ContactModel` atomically. The model version is the
+number of pokes in it, so a restarted learner that reloads the same store produces the same
+model under the same version.
+
+Before a poke joins the training set, the current model predicts it: that *prequential* error is
+a genuine held-out figure, reported as ``validation_rmse``.
+"""
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence
+
+import numpy as np
+
+from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
+from pointforce_ros.model_io import ContactModel, model_path, save_model
+from pointforce_ros.pokes.curves import extract_curve, PokeCurve
+from pointforce_ros.pokes.store import PokeStore
+from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.types import Surface
+
+DEFAULT_DEPTHS = np.linspace(-0.004, 0.025, 59)
+
+
+@dataclass(frozen=True)
+class LearnerStatus:
+    """What the learner publishes after a refit.
+
+    Attributes:
+        version: model version (= pokes in the model).
+        num_pokes: training pokes.
+        training_rmse: N, model against its own training curves.
+        validation_rmse: N, prequential: each poke predicted by the model before it was added
+            (RMS over the pokes that had a predecessor model); NaN before the second poke.
+        model_path: saved contact model.
+        fit_seconds: refit + bake + save time of this update.
+        skipped: poke id -> reason, for pokes that could not be used (no contact, ...).
+
+    """
+
+    version: int
+    num_pokes: int
+    training_rmse: float
+    validation_rmse: float
+    model_path: Optional[Path]
+    fit_seconds: float
+    skipped: Dict[str, str] = field(default_factory=dict)
+
+
+def curve_rmse(model, curves: Sequence[PokeCurve], surface: Surface) -> float:
+    """RMS of ``model`` against the force samples of ``curves`` (N); NaN for no curves."""
+    from scipy.spatial import cKDTree
+    if not curves:
+        return float('nan')
+    tree = cKDTree(surface.points)
+    errors = []
+    for curve in curves:
+        _, idx = tree.query(curve.point)
+        feats = np.repeat(surface.features[idx][None], len(curve.d), axis=0)
+        errors.append(model.predict(feats, curve.d) - curve.f)
+    err = np.concatenate(errors)
+    return float(np.sqrt(np.mean(err ** 2)))
+
+
+class OnlineLearner:
+    """Refit-as-pokes-arrive learner over a :class:`PokeStore`.
+
+    Args:
+        store_dir: the poke store the poke server writes.
+        model_dir: where versioned contact models are saved.
+        surface: equilibrium surface the model is baked on.
+        shape_constant: ``c`` of the shape function, metres.
+        depths: (K,) bake grid, metres.
+        model_factory: makes an empty force-response model (ours by default).
+        corrections: optional callable ``records -> records`` applied before curve extraction
+            (the accepted effects of ``pointforce diagnose``).
+        effects: the accepted effects' description, stored in each saved model.
+
+    """
+
+    def __init__(self, store_dir, model_dir, surface: Surface, *, shape_constant: float,
+                 depths: np.ndarray = DEFAULT_DEPTHS,
+                 model_factory: Callable[[], object] = ContactGpModel,
+                 corrections: Optional[Callable] = None, effects: Optional[dict] = None):
+        """Open the store; nothing is fitted until :meth:`update`."""
+        if not (np.isfinite(shape_constant) and shape_constant > 0):
+            raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
+        self.store = PokeStore(store_dir)
+        self.model_dir = Path(model_dir)
+        self.surface = surface
+        self.shape_constant = float(shape_constant)
+        self.depths = np.asarray(depths, dtype=np.float64)
+        self.model_factory = model_factory
+        self.corrections = corrections
+        self.effects = dict(effects or {})
+        self.model = None
+        self.curves: List[PokeCurve] = []
+        self.skipped: Dict[str, str] = {}
+        self._prequential: List[np.ndarray] = []
+        self.status: Optional[LearnerStatus] = None
+
+    def _new_curves(self) -> List[PokeCurve]:
+        self.store.refresh()
+        seen = {c.poke_id for c in self.curves} | set(self.skipped)
+        fresh = []
+        for poke_id in self.store.ids():
+            if poke_id in seen:
+                continue
+            try:
+                record = self.store.get(poke_id)
+                if self.corrections is not None:
+                    record = self.corrections([record])[0]
+                fresh.append(extract_curve(record))
+            except PointforceError as exc:
+                self.skipped[poke_id] = str(exc)
+        return fresh
+
+    def update(self) -> Optional[LearnerStatus]:
+        """Fit the pokes that arrived since the last call; return the new status or ``None``."""
+        fresh = self._new_curves()
+        if not fresh:
+            return None
+        start = time.perf_counter()
+        for curve in fresh:
+            if self.model is not None:
+                self._prequential.append(np.array([curve_rmse(self.model, [curve],
+                                                              self.surface)]))
+            try:
+                if self.model is None:
+                    self.model = self.model_factory().fit([curve], self.surface)
+                else:
+                    self.model.partial_fit(curve, self.surface)
+            except PointforceError as exc:
+                self.skipped[curve.poke_id] = str(exc)
+                continue
+            self.curves.append(curve)
+        if self.model is None:
+            return None
+        baked = self.model.bake(self.surface, self.depths)
+        version = len(self.curves)
+        contact = ContactModel(surface=self.surface, response=baked,
+                               shape_constant=self.shape_constant, version=version,
+                               effects=self.effects,
+                               meta={'kind': getattr(self.model, 'kind', 'unknown'),
+                                     'pokes': [c.poke_id for c in self.curves]})
+        path = save_model(contact, self.model_dir)
+        pre = np.concatenate(self._prequential) if self._prequential else np.zeros(0)
+        self.status = LearnerStatus(
+            version=version, num_pokes=len(self.curves),
+            training_rmse=curve_rmse(self.model, self.curves, self.surface),
+            validation_rmse=float(np.sqrt(np.mean(pre ** 2))) if len(pre) else float('nan'),
+            model_path=path, fit_seconds=time.perf_counter() - start,
+            skipped=dict(self.skipped))
+        return self.status
+
+    def current_model_path(self) -> Optional[Path]:
+        """Path of the newest saved model, or ``None`` before the first fit."""
+        return None if self.status is None else model_path(self.model_dir, self.status.version)
+
+    def suggest(self, count: int = 1, exclude_radius: float = 0.01):
+        """Next poke locations where the model is least certain.
+
+        Returns:
+            (indices (count,), std (count,) in N) into ``surface``.
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: ``count`` outside 1..50.
+
+        """
+        if self.model is None:
+            raise ModelNotReady('no model yet: poke at least once before asking for suggestions')
+        if not 1 <= int(count) <= 50:
+            raise InvalidInput(f'count: must be 1..50, got {count}')
+        from pointforce_ros.response.suggest import suggest_pokes
+        return suggest_pokes(self.model, self.surface, int(count), exclude_radius=exclude_radius)

@@ -1,0 +1,208 @@
+"""Identify the shape-function constant ``c`` of ``g(r) = c / (c + r)`` from data.
+
+The paper picks ``c`` by eye and suggests tracking the dent with a camera (seed 000, IV.A.2).
+Two ways are implemented:
+
+* :func:`identify_shape_constant`: from a dent profile ``u(r)`` observed around a point poke
+  (``u(r) = u0 c / (c + r)``; for a single-point poke the model says ``u0`` is the poke
+  depth). A least-squares fit: ``u0`` is solved in closed form for every ``c``, ``c`` is
+  found by a log-spaced scan refined by a bounded scalar minimisation.
+  :func:`dent_profile` turns a displaced surface (same points, displaced) or an observed
+  cloud into ``(r, u)``.
+* :func:`identify_shape_constant_from_probe`: from pokes with a second probe of known geometry
+  (a flat punch, cylinder or paddle) once the point response is known: ``c`` sets how much
+  neighbouring contacts share displacement, hence the second probe's force; it is fitted to
+  the measured forces by the same scan + refinement over the contact simulator.
+"""
+
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence, Tuple
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.spatial import cKDTree
+
+from pointforce_ros.contact.lcp import shape_function
+from pointforce_ros.errors import InvalidInput, NotConverged
+from pointforce_ros.types import as_array, Mesh, Pose, Surface
+
+
+@dataclass(frozen=True)
+class ShapeFit:
+    """Result of a shape-constant fit.
+
+    Attributes:
+        c: fitted constant, metres.
+        u0: fitted dent depth at ``r = 0``, metres (``nan`` for a probe fit).
+        rmse: root-mean-square residual, metres (dent) or newtons (probe).
+        n_points: number of samples fitted.
+        method: ``'dent'`` or ``'probe'``.
+
+    """
+
+    c: float
+    u0: float
+    rmse: float
+    n_points: int
+    method: str
+
+
+def _scan_then_refine(cost: Callable[[float], float], bounds: Tuple[float, float],
+                      what: str) -> float:
+    lo, hi = np.log(bounds[0]), np.log(bounds[1])
+    grid = np.linspace(lo, hi, 41)
+    values = np.array([cost(np.exp(v)) for v in grid])
+    best = int(np.argmin(values))
+    left, right = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+    res = minimize_scalar(lambda v: cost(np.exp(v)), bounds=(left, right), method='bounded',
+                          options={'xatol': 1e-6})
+    log_c = float(res.x) if res.fun <= values[best] else float(grid[best])
+    edge = 0.02 * (hi - lo)
+    if log_c <= lo + edge or log_c >= hi - edge:
+        raise NotConverged(f'{what}: best c = {np.exp(log_c):.3g} m lies at the search bound '
+                           f'[{bounds[0]:.3g}, {bounds[1]:.3g}] m; the data do not determine c '
+                           '(widen c_bounds or use a deeper poke / larger field of view)')
+    return float(np.exp(log_c))
+
+
+def _check_bounds(c_bounds) -> Tuple[float, float]:
+    lo, hi = (float(v) for v in c_bounds)
+    if not (0 < lo < hi and np.isfinite(hi)):
+        raise InvalidInput(f'c_bounds: need 0 < low < high (metres), got {c_bounds}')
+    return lo, hi
+
+
+def identify_shape_constant(r: np.ndarray, u: np.ndarray, u0: Optional[float] = None,
+                            r_min: float = 0.0,
+                            c_bounds: Tuple[float, float] = (1e-5, 1.0)) -> ShapeFit:
+    """Fit ``u(r) = u0 c / (c + r)`` to a dent profile by least squares.
+
+    Args:
+        r: (M,) distance of each sample from the poke point, metres (>= 0).
+        u: (M,) displacement of each sample along ``-n``, metres.
+        u0: dent depth at the poke point if known (the poke depth for a point probe), else
+            fitted.
+        r_min: ignore samples closer than this (under a probe of finite size).
+        c_bounds: search interval for ``c``, metres.
+
+    Returns:
+        :class:`ShapeFit` with ``method='dent'``.
+
+    Raises:
+        InvalidInput: mismatched/non-finite arrays, negative distances, fewer than 3 samples
+            beyond ``r_min``, or no positive displacement.
+        NotConverged: the optimum lies on a search bound (``c`` not determined by the data).
+
+    """
+    r = as_array(r, 'r', (None,))
+    u = as_array(u, 'u', (len(r),))
+    if np.any(r < 0):
+        raise InvalidInput('r: distances must be >= 0')
+    lo, hi = _check_bounds(c_bounds)
+    keep = r >= r_min
+    r, u = r[keep], u[keep]
+    if len(r) < 3:
+        raise InvalidInput(f'identify_shape_constant: need >= 3 samples beyond r_min, got '
+                           f'{len(r)}')
+    if not np.any(u > 0):
+        raise InvalidInput('identify_shape_constant: no positive displacement in the profile')
+    if u0 is not None and not (np.isfinite(u0) and u0 > 0):
+        raise InvalidInput(f'u0: must be a positive depth in metres, got {u0}')
+
+    def amplitude(c):
+        g = shape_function(r, c)
+        return float(u0) if u0 is not None else float(g @ u / (g @ g))
+
+    def cost(c):
+        return float(np.sum((u - amplitude(c) * shape_function(r, c)) ** 2))
+
+    c = _scan_then_refine(cost, (lo, hi), 'identify_shape_constant')
+    return ShapeFit(c=c, u0=amplitude(c), rmse=float(np.sqrt(cost(c) / len(r))),
+                    n_points=len(r), method='dent')
+
+
+def dent_profile(surface: Surface, displaced: np.ndarray, poke_point: np.ndarray,
+                 search_radius: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
+    """Return ``(r, u)`` of a dent: distance from ``poke_point`` and displacement along ``-n``.
+
+    Args:
+        surface: equilibrium surface (``N`` points, ``base``).
+        displaced: either (N, 3) the same points after the poke (tracked correspondence), or
+            (M, 3) an observed cloud of the dented surface in ``base`` (any M != N): each
+            surface point then takes the observed point nearest to its normal line among its 8
+            nearest observed points, accepted within ``search_radius`` of that line.
+        poke_point: (3,) the poke location on the equilibrium surface, metres, ``base``.
+        search_radius: largest distance from the normal line for the cloud case, metres;
+            default 1.5 times the median spacing of the observed cloud.
+
+    Returns:
+        ``r`` (K,) metres and ``u`` (K,) metres (positive = pushed in) for the K surface points
+        with a displacement.
+
+    Raises:
+        InvalidInput: malformed arrays.
+
+    """
+    displaced = as_array(displaced, 'displaced', (None, 3))
+    poke = as_array(poke_point, 'poke_point', (3,))
+    p, n = surface.points, surface.normals
+    if len(displaced) == len(p):
+        u = -np.einsum('ij,ij->i', displaced - p, n)
+        return np.linalg.norm(p - poke, axis=1), u
+    if len(displaced) < 8:
+        raise InvalidInput('dent_profile: an observed cloud needs at least 8 points')
+    tree = cKDTree(displaced)
+    if search_radius is None:
+        spacing, _ = tree.query(displaced[:: max(len(displaced) // 2000, 1)], k=2)
+        search_radius = 1.5 * float(np.median(spacing[:, 1]))
+    _, idx = tree.query(p, k=8)
+    off = displaced[idx] - p[:, None, :]
+    along = np.einsum('kji,ki->kj', off, n)
+    lateral = np.linalg.norm(off - along[..., None] * n[:, None, :], axis=2)
+    best = np.argmin(lateral, axis=1)
+    rows = np.arange(len(p))
+    ok = lateral[rows, best] <= search_radius
+    return np.linalg.norm(p[ok] - poke, axis=1), -along[rows, best][ok]
+
+
+def identify_shape_constant_from_probe(simulator, mesh: Mesh, poses: Sequence[Pose], approach,
+                                       measured_force: np.ndarray,
+                                       c_bounds: Tuple[float, float] = (1e-4, 0.1)) -> ShapeFit:
+    """Fit ``c`` so the simulated forces of a second probe match measured ones.
+
+    Args:
+        simulator: a :class:`ContactSimulator` built on the equilibrium surface with the point
+            response already learned (its own ``c`` is ignored).
+        mesh: the second probe's mesh (known geometry).
+        poses: the probe poses of the poke(s), ``base`` (T poses).
+        approach: (3,) unit push direction, ``base``.
+        measured_force: (T,) force along ``-approach`` (push-back, N) or (T, 3) force vectors.
+
+    Returns:
+        :class:`ShapeFit` with ``method='probe'`` (``rmse`` in newtons).
+
+    Raises:
+        InvalidInput: mismatched lengths or non-finite forces.
+        NotConverged: the optimum lies on a search bound (the forces do not determine ``c``,
+            e.g. a probe that touches at a single point).
+
+    """
+    lo, hi = _check_bounds(c_bounds)
+    a = np.asarray(approach, dtype=np.float64)
+    measured = np.asarray(measured_force, dtype=np.float64)
+    n = len(poses)
+    if measured.shape not in ((n,), (n, 3)):
+        raise InvalidInput(f'measured_force: expected ({n},) or ({n}, 3), got {measured.shape}')
+    measured = as_array(measured, 'measured_force', measured.shape)
+
+    def simulate(c):
+        batch = simulator.with_shape_constant(c).query_batch(mesh, poses, a, np.zeros(3))
+        force = batch.wrenches[:, :3]
+        return -force @ a if measured.ndim == 1 else force
+
+    def cost(c):
+        return float(np.sum((simulate(c) - measured) ** 2))
+
+    c = _scan_then_refine(cost, (lo, hi), 'identify_shape_constant_from_probe')
+    return ShapeFit(c=c, u0=float('nan'), rmse=float(np.sqrt(cost(c) / n)), n_points=n,
+                    method='probe')

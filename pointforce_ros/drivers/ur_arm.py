@@ -1,0 +1,842 @@
+"""Universal Robots arm driver on ur_rtde 1.6.5: motion commands, tare and a 250 Hz F/T stream.
+
+This is the only module of the package that imports ``rtde_control`` / ``rtde_receive``.
+
+Interfaces held by :class:`UrArm` (each is its own TCP connection to the controller):
+
+- ``RTDEControlInterface`` (``frequency``, 500 Hz on an e-Series): every command.
+- ``RTDEReceiveInterface`` for status queries made by the caller's thread.
+- a second ``RTDEReceiveInterface``, also at ``frequency``, owned by a dedicated stream thread.
+  The thread polls every 0.5 ms, keeps one controller sample per ``1 / stream_hz`` slot of
+  controller time (de-duplicating on ``getTimestamp``; a slot has two 500 Hz samples, so one
+  sample lost under CPU load does not open a gap), re-reads a sample whose timestamp changed
+  mid-read, and hands :class:`ArmSample` records to callbacks, to a bounded ring buffer and to
+  any running :meth:`UrArm.push_until`. ``waitPeriod`` is not used: it truncates the period to
+  whole milliseconds.
+
+Faults are reported as :class:`ArmEvent` records, never silently: ``stall`` (no new controller
+sample for ``stall_timeout``), ``ft_frozen`` (``actual_TCP_force`` bitwise identical for
+``ft_freeze_timeout`` of controller time while the timestamp advances: a real F/T sensor always
+has noise), ``protective_stop``, ``program_stopped`` and ``connection_lost``, each with a
+matching ``*_cleared`` event when the condition ends (``connection_lost`` never ends: build a new
+:class:`UrArm`).
+
+Units SI, frames as ur_rtde reports them: TCP pose ``[x, y, z, rx, ry, rz]`` (m, rotation vector
+in rad) in ``base``; wrench ``[fx, fy, fz, tx, ty, tz]`` (N, N m) base-oriented, tared, the
+reaction of the environment on the tool.
+"""
+
+from collections import deque
+from dataclasses import dataclass, field
+import math
+import socket
+import threading
+import time
+from typing import Callable, List, Optional, Sequence, Tuple
+
+import numpy as np
+import rtde_control
+import rtde_receive
+
+from pointforce_ros.errors import DeviceFault, InvalidInput, UnsafeCommand
+
+STREAM_VARIABLES = ['timestamp', 'actual_TCP_pose', 'actual_TCP_force', 'safety_status_bits',
+                    'runtime_state', 'robot_mode', 'safety_mode']
+STATUS_VARIABLES = STREAM_VARIABLES + ['actual_TCP_speed', 'robot_status_bits']
+RUNTIME_PLAYING = 2
+CONTROLLER_PORTS = ((29999, 'dashboard'), (30004, 'RTDE'), (30003, 'script'))
+
+EVENT_STALL = 'stall'
+EVENT_FT_FROZEN = 'ft_frozen'
+EVENT_PROTECTIVE_STOP = 'protective_stop'
+EVENT_PROGRAM_STOPPED = 'program_stopped'
+EVENT_CONNECTION_LOST = 'connection_lost'
+FAULT_KINDS = (EVENT_CONNECTION_LOST, EVENT_PROTECTIVE_STOP, EVENT_PROGRAM_STOPPED,
+               EVENT_STALL, EVENT_FT_FROZEN)
+"""Fault kinds, most fundamental first (a protective stop also pauses the program)."""
+
+
+@dataclass(frozen=True)
+class ArmSample:
+    """One controller sample as the stream delivered it.
+
+    Attributes:
+        t_wall: wall-clock (ROS) time when the driver read it, s since the epoch.
+        t_controller: controller timestamp, s since controller start; strictly increasing.
+        pose: (6,) TCP pose ``[x, y, z, rx, ry, rz]``, m and rad, ``base``.
+        wrench: (6,) ``actual_TCP_force``: N and N m, base-oriented, tared.
+
+    """
+
+    t_wall: float
+    t_controller: float
+    pose: np.ndarray
+    wrench: np.ndarray
+
+
+@dataclass(frozen=True)
+class ArmEvent:
+    """A fault or recovery the stream thread detected.
+
+    Attributes:
+        kind: one of :data:`FAULT_KINDS`, or that name with ``_cleared`` appended.
+        t_wall: wall-clock time of detection, s since the epoch.
+        message: what was seen, for a log or an abort message.
+
+    """
+
+    kind: str
+    t_wall: float
+    message: str
+
+
+@dataclass(frozen=True)
+class PushResult:
+    """Samples and outcome of one :meth:`UrArm.push_until`.
+
+    Attributes:
+        t_wall: (T,) wall-clock time of each sample, s.
+        t_controller: (T,) controller time, s, strictly increasing.
+        tcp_pose: (T, 6) TCP pose, ``base``.
+        wrench: (T, 6) tared base-oriented wrench.
+        outcome: ``force_limit``, ``depth_limit``, ``canceled`` or ``aborted: <why>``.
+        peak_force: largest push-back force along ``-direction`` in the record, N (the
+            overshoot past a force limit included).
+        max_travel: largest TCP travel along ``direction`` from the stand-off pose in the
+            record, m.
+        standoff: (6,) the stand-off pose the push started from.
+        direction: (3,) unit push direction, ``base``.
+        events: fault events seen during the push.
+
+    """
+
+    t_wall: np.ndarray
+    t_controller: np.ndarray
+    tcp_pose: np.ndarray
+    wrench: np.ndarray
+    outcome: str
+    peak_force: float
+    max_travel: float
+    standoff: np.ndarray
+    direction: np.ndarray
+    events: Tuple[ArmEvent, ...] = field(default_factory=tuple)
+
+    def __len__(self) -> int:
+        """Return the number of samples."""
+        return len(self.t_controller)
+
+    def push_force(self) -> np.ndarray:
+        """Return the (T,) push-back force along ``-direction``, N (> 0 pushing in)."""
+        return -(self.wrench[:, :3] @ self.direction)
+
+    def travel(self) -> np.ndarray:
+        """Return the (T,) TCP travel along ``direction`` from the stand-off pose, m."""
+        return (self.tcp_pose[:, :3] - self.standoff[:3]) @ self.direction
+
+
+class PushFault(DeviceFault):
+    """A push ended on a device fault. The samples recorded up to then are kept.
+
+    Attributes:
+        kind: the fault kind (one of :data:`FAULT_KINDS` or ``timeout`` / ``command_failed``).
+        result: :class:`PushResult` with every sample recorded, outcome ``aborted: <kind>``.
+        detected_wall: wall-clock time the fault was detected (the arm was told to stop then).
+        retracted: whether the arm was moved back to the stand-off pose.
+
+    """
+
+    def __init__(self, message: str, kind: str, result: PushResult, detected_wall: float,
+                 retracted: bool):
+        super().__init__(message)
+        self.kind = kind
+        self.result = result
+        self.detected_wall = detected_wall
+        self.retracted = retracted
+
+
+def _vector(value, name: str, size: int) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f'{name}: cannot be read as {size} floats: {exc}')
+    if arr.shape != (size,):
+        raise InvalidInput(f'{name}: expected {size} values, got {arr.size}')
+    if not np.all(np.isfinite(arr)):
+        raise InvalidInput(f'{name}: NaN or infinite value in {arr.tolist()}')
+    return arr
+
+
+def _positive(value, name: str, upper: float, unit: str) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInput(f'{name}: must be a number, got {value!r}')
+    if not math.isfinite(value) or value <= 0.0:
+        raise InvalidInput(f'{name}: must be positive and finite, got {value}')
+    if value > upper:
+        raise UnsafeCommand(f'{name}: {value:g} {unit} exceeds the limit of {upper:g} {unit}')
+    return value
+
+
+class UrArm:
+    """A UR arm through ur_rtde, with a 250 Hz pose + wrench stream and fault detection.
+
+    Args:
+        host: controller address (a real robot, or the loopback emulator).
+        frequency: RTDE frequency of every interface, Hz (500 on an e-Series).
+        stream_hz: rate of delivered samples, Hz (<= ``frequency``).
+        connect_timeout: deadline to reach the controller ports and get the first sample, s.
+        stall_timeout: no new controller sample for this long is a ``stall``, s.
+        ft_freeze_timeout: a bitwise-constant wrench for this long (controller time) is
+            ``ft_frozen``, s; ``None`` disables the check (a noise-free simulated sensor).
+        buffer_size: capacity of the ring buffer of recent samples.
+        max_speed: largest accepted TCP speed for moves, m/s.
+        max_accel: largest accepted TCP acceleration, m/s^2.
+
+    Raises:
+        InvalidInput: malformed arguments.
+        DeviceFault: a controller port does not answer, ur_rtde fails to connect, or no sample
+            arrives before the deadline; the message names the host.
+
+    """
+
+    def __init__(self, host: str, frequency: float = 500.0, stream_hz: float = 250.0, *,
+                 connect_timeout: float = 5.0, stall_timeout: float = 0.05,
+                 ft_freeze_timeout: Optional[float] = 0.05, buffer_size: int = 15000,
+                 max_speed: float = 0.5, max_accel: float = 3.0):
+        if not isinstance(host, str) or not host.strip():
+            raise InvalidInput('host: must be a non-empty address string')
+        self.host = host
+        self.frequency = _positive(frequency, 'frequency', 500.0, 'Hz')
+        self.stream_hz = _positive(stream_hz, 'stream_hz', self.frequency, 'Hz')
+        self.stall_timeout = _positive(stall_timeout, 'stall_timeout', 10.0, 's')
+        self.ft_freeze_timeout = (None if ft_freeze_timeout is None else
+                                  _positive(ft_freeze_timeout, 'ft_freeze_timeout', 10.0, 's'))
+        self.max_speed = _positive(max_speed, 'max_speed', 3.0, 'm/s')
+        self.max_accel = _positive(max_accel, 'max_accel', 150.0, 'm/s^2')
+        if int(buffer_size) < 1:
+            raise InvalidInput(f'buffer_size: must be >= 1, got {buffer_size}')
+        connect_timeout = _positive(connect_timeout, 'connect_timeout', 600.0, 's')
+
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._cmd_lock = threading.RLock()
+        self._ring = deque(maxlen=int(buffer_size))
+        self._recorders: List[list] = []
+        self._sample_callbacks: List[Callable[[ArmSample], None]] = []
+        self._event_callbacks: List[Callable[[ArmEvent], None]] = []
+        self._events = deque(maxlen=1000)
+        self._event_count = 0
+        self._active = set()
+        self._sample_count = 0
+        self._speeding = False
+        self._closed = False
+        self._stop = threading.Event()
+        self._ctrl = self._rx = self._stream_rx = None
+        self._thread: Optional[threading.Thread] = None
+
+        deadline = time.monotonic() + connect_timeout
+        self._probe_ports(deadline)
+        try:
+            self._ctrl = rtde_control.RTDEControlInterface(host, self.frequency)
+            self._rx = rtde_receive.RTDEReceiveInterface(host, self.frequency, STATUS_VARIABLES)
+            self._stream_rx = rtde_receive.RTDEReceiveInterface(host, self.frequency,
+                                                                STREAM_VARIABLES)
+        except (RuntimeError, ValueError, OSError) as exc:
+            self._disconnect_all()
+            raise DeviceFault(f'UR controller {host}: ur_rtde could not connect: {exc}') from exc
+        self._thread = threading.Thread(target=self._stream_loop, name=f'ur_arm_stream_{host}',
+                                        daemon=True)
+        self._thread.start()
+        with self._cond:
+            while self._sample_count == 0 and time.monotonic() < deadline:
+                self._cond.wait(0.05)
+            got_sample = self._sample_count > 0
+        if not got_sample:
+            self.close()
+            raise DeviceFault(f'UR controller {host}: no RTDE sample within '
+                              f'{connect_timeout:g} s of connecting')
+
+    # -- connection ---------------------------------------------------------------------------
+    def _probe_ports(self, deadline: float) -> None:
+        for port, name in CONTROLLER_PORTS:
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                raise DeviceFault(f'UR controller {self.host}: connect deadline passed before '
+                                  f'the {name} port {port} was reached')
+            try:
+                with socket.create_connection((self.host, port), timeout=left):
+                    pass
+            except OSError as exc:
+                raise DeviceFault(f'UR controller {self.host}: {name} port {port} does not '
+                                  f'answer ({exc}); is the robot on and reachable?') from exc
+
+    def close(self) -> None:
+        """Stop the stream thread, stop the control script and disconnect (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        if self._ctrl is not None and self._safe_connected(self._ctrl):
+            try:
+                if self._ctrl.isProgramRunning():
+                    self._ctrl.stopScript()
+            except RuntimeError:
+                pass
+        self._disconnect_all()
+
+    def _disconnect_all(self) -> None:
+        threads = []
+        for iface in (self._ctrl, self._rx, self._stream_rx):
+            if iface is not None:
+                thread = threading.Thread(target=self._quiet_disconnect, args=(iface,))
+                thread.start()
+                threads.append(thread)
+        for thread in threads:
+            thread.join(timeout=5.0)
+
+    @staticmethod
+    def _quiet_disconnect(iface) -> None:
+        try:
+            iface.disconnect()
+        except RuntimeError:
+            pass
+
+    @staticmethod
+    def _safe_connected(iface) -> bool:
+        try:
+            return bool(iface.isConnected())
+        except RuntimeError:
+            return False
+
+    def __enter__(self) -> 'UrArm':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- stream thread ------------------------------------------------------------------------
+    def _stream_loop(self) -> None:
+        rx = self._stream_rx
+        slot_period = 1.0 / self.stream_hz
+        slot_offset = 0.5 / self.frequency
+        last_t = None
+        last_slot = None
+        last_new = time.monotonic()
+        last_wrench = None
+        frozen_since = None
+        protective = False
+        playing = None
+        while not self._stop.is_set():
+            if not self._safe_connected(rx):
+                self._emit(EVENT_CONNECTION_LOST, f'RTDE connection to {self.host} lost')
+                return
+            try:
+                t = rx.getTimestamp()
+            except RuntimeError as exc:
+                self._emit(EVENT_CONNECTION_LOST, f'RTDE read from {self.host} failed: {exc}')
+                return
+            now = time.monotonic()
+            if t != last_t:
+                last_new = now
+                if last_t is not None and t < last_t:
+                    last_slot = None
+                last_t = t
+                self._clear(EVENT_STALL, 'controller samples flowing again')
+                slot = math.floor((t + slot_offset) / slot_period)
+                if last_slot is None or slot > last_slot:
+                    sample = self._read_sample(rx, t)
+                    if sample is not None:
+                        last_slot = math.floor((sample.t_controller + slot_offset)
+                                               / slot_period)
+                        last_t = sample.t_controller
+                        self._deliver(sample)
+                        if self.ft_freeze_timeout is not None:
+                            if last_wrench is not None and np.array_equal(sample.wrench,
+                                                                          last_wrench):
+                                if frozen_since is None:
+                                    frozen_since = sample.t_controller
+                                elif (sample.t_controller - frozen_since
+                                      >= self.ft_freeze_timeout - 1e-9):
+                                    held = sample.t_controller - frozen_since
+                                    self._emit(EVENT_FT_FROZEN, 'actual_TCP_force bitwise '
+                                               f'constant for {held:.3f} s of controller time')
+                            else:
+                                frozen_since = None
+                                self._clear(EVENT_FT_FROZEN, 'F/T values changing again')
+                            last_wrench = sample.wrench
+                try:
+                    now_protective = bool(rx.isProtectiveStopped())
+                    now_playing = rx.getRuntimeState() == RUNTIME_PLAYING
+                except RuntimeError:
+                    continue
+                if now_protective and not protective:
+                    self._emit(EVENT_PROTECTIVE_STOP, f'{self.host} is protective stopped')
+                elif protective and not now_protective:
+                    self._clear(EVENT_PROTECTIVE_STOP, 'protective stop released')
+                protective = now_protective
+                if playing and not now_playing:
+                    self._emit(EVENT_PROGRAM_STOPPED, f'control program on {self.host} is no '
+                               f'longer running (runtime_state {rx.getRuntimeState()})')
+                elif now_playing and playing is False:
+                    self._clear(EVENT_PROGRAM_STOPPED, 'control program running')
+                playing = now_playing
+            elif now - last_new > self.stall_timeout:
+                self._emit(EVENT_STALL, f'no new controller sample for {now - last_new:.3f} s')
+            time.sleep(0.0005)
+
+    def _read_sample(self, rx, t: float) -> Optional[ArmSample]:
+        for _ in range(3):
+            try:
+                pose = rx.getActualTCPPose()
+                wrench = rx.getActualTCPForce()
+                t_after = rx.getTimestamp()
+            except RuntimeError:
+                return None
+            if t_after == t:
+                return ArmSample(time.time(), t, np.array(pose, dtype=float),
+                                 np.array(wrench, dtype=float))
+            t = t_after
+        return None
+
+    def _deliver(self, sample: ArmSample) -> None:
+        with self._cond:
+            self._ring.append(sample)
+            self._sample_count += 1
+            for rec in self._recorders:
+                rec.append(sample)
+            callbacks = list(self._sample_callbacks)
+            self._cond.notify_all()
+        for callback in callbacks:
+            callback(sample)
+
+    def _emit(self, kind: str, message: str) -> None:
+        with self._cond:
+            if kind in self._active:
+                return
+            self._active.add(kind)
+        self._publish(ArmEvent(kind, time.time(), message))
+
+    def _clear(self, kind: str, message: str) -> None:
+        with self._cond:
+            if kind not in self._active:
+                return
+            self._active.discard(kind)
+        self._publish(ArmEvent(kind + '_cleared', time.time(), message))
+
+    def _publish(self, event: ArmEvent) -> None:
+        with self._cond:
+            self._events.append(event)
+            self._event_count += 1
+            callbacks = list(self._event_callbacks)
+            self._cond.notify_all()
+        for callback in callbacks:
+            callback(event)
+
+    # -- stream access ------------------------------------------------------------------------
+    def add_sample_callback(self, callback: Callable[[ArmSample], None]) -> None:
+        """Call ``callback(sample)`` from the stream thread for every sample (keep it short)."""
+        with self._lock:
+            self._sample_callbacks.append(callback)
+
+    def remove_sample_callback(self, callback: Callable[[ArmSample], None]) -> None:
+        """Stop calling ``callback``; unknown callbacks are ignored."""
+        with self._lock:
+            if callback in self._sample_callbacks:
+                self._sample_callbacks.remove(callback)
+
+    def add_event_callback(self, callback: Callable[[ArmEvent], None]) -> None:
+        """Call ``callback(event)`` from the stream thread for every fault or recovery."""
+        with self._lock:
+            self._event_callbacks.append(callback)
+
+    def samples(self) -> List[ArmSample]:
+        """Return a copy of the ring buffer, oldest first."""
+        with self._lock:
+            return list(self._ring)
+
+    def latest(self) -> ArmSample:
+        """Return the newest sample (the constructor guarantees there is one)."""
+        with self._lock:
+            return self._ring[-1]
+
+    def events(self) -> List[ArmEvent]:
+        """Return a copy of the recent fault and recovery records, oldest first."""
+        with self._lock:
+            return list(self._events)
+
+    def active_faults(self) -> List[str]:
+        """Return the fault kinds in effect now, in :data:`FAULT_KINDS` order."""
+        with self._lock:
+            return [k for k in FAULT_KINDS if k in self._active]
+
+    def wait_samples(self, count: int, timeout: float) -> bool:
+        """Block until ``count`` more samples arrived; False on timeout."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            target = self._sample_count + count
+            while self._sample_count < target:
+                left = deadline - time.monotonic()
+                if left <= 0.0:
+                    return False
+                self._cond.wait(left)
+            return True
+
+    # -- status ---------------------------------------------------------------------------------
+    def is_connected(self) -> bool:
+        """Return True while every ur_rtde interface is connected."""
+        return all(self._safe_connected(i) for i in (self._ctrl, self._rx, self._stream_rx)
+                   if i is not None) and EVENT_CONNECTION_LOST not in self._active
+
+    def is_protective_stopped(self) -> bool:
+        """``isProtectiveStopped`` of the status receive interface.
+
+        Raises:
+            DeviceFault: the connection is lost.
+
+        """
+        self._require_connection('isProtectiveStopped')
+        return bool(self._rx.isProtectiveStopped())
+
+    def is_program_running(self) -> bool:
+        """Return True while the ur_rtde control script runs on the controller."""
+        self._require_connection('getRuntimeState')
+        return self._rx.getRuntimeState() == RUNTIME_PLAYING
+
+    def tcp_pose(self) -> np.ndarray:
+        """Return the (6,) current TCP pose, ``base``."""
+        self._require_connection('getActualTCPPose')
+        return np.array(self._rx.getActualTCPPose(), dtype=float)
+
+    def tcp_wrench(self) -> np.ndarray:
+        """Return the (6,) current tared base-oriented wrench."""
+        self._require_connection('getActualTCPForce')
+        return np.array(self._rx.getActualTCPForce(), dtype=float)
+
+    def _controller_alive(self, window: float = 0.03) -> bool:
+        """Return True when the status interface sees the controller timestamp advance."""
+        if not self.is_connected():
+            return False
+        try:
+            first = self._rx.getTimestamp()
+            deadline = time.monotonic() + window
+            while time.monotonic() < deadline:
+                time.sleep(0.002)
+                if self._rx.getTimestamp() != first:
+                    return True
+        except RuntimeError:
+            return False
+        return False
+
+    def _require_connection(self, what: str) -> None:
+        if self._closed:
+            raise DeviceFault(f'UR arm {self.host}: {what} after close()')
+        if not self.is_connected():
+            raise DeviceFault(f'UR arm {self.host}: {what}: connection lost')
+
+    def _diagnose(self, what: str) -> str:
+        if not self.is_connected():
+            return f'{what} on {self.host} failed: connection lost'
+        if self._rx.isProtectiveStopped():
+            return f'{what} on {self.host} failed: protective stop'
+        if self._rx.getRuntimeState() != RUNTIME_PLAYING:
+            return (f'{what} on {self.host} failed: control program not running '
+                    f'(runtime_state {self._rx.getRuntimeState()})')
+        return f'{what} on {self.host} failed: the controller rejected or timed out the command'
+
+    def _check_ready(self, what: str) -> None:
+        self._require_connection(what)
+        if self._rx.isProtectiveStopped():
+            raise DeviceFault(f'{what} on {self.host}: the robot is protective stopped')
+        if self._rx.getRuntimeState() != RUNTIME_PLAYING:
+            raise DeviceFault(f'{what} on {self.host}: control program not running')
+
+    # -- commands -------------------------------------------------------------------------------
+    def tare(self) -> None:
+        """Zero the F/T sensor (``zeroFtSensor``); do it right before every contact.
+
+        Raises:
+            DeviceFault: the controller refused (protective stop, program stopped, lost link).
+
+        """
+        self._check_ready('zeroFtSensor')
+        with self._cmd_lock:
+            ok = self._ctrl.zeroFtSensor()
+        if not ok:
+            raise DeviceFault(self._diagnose('zeroFtSensor'))
+
+    def move_linear(self, pose6: Sequence[float], speed: float = 0.25, accel: float = 1.2,
+                    asynchronous: bool = False) -> None:
+        """Move linearly (moveL) to ``pose6`` (``base``); asynchronous moves return at once.
+
+        A synchronous move cannot be cancelled: use ``asynchronous=True`` and :meth:`stop`.
+
+        Raises:
+            InvalidInput: malformed pose, speed or acceleration.
+            UnsafeCommand: speed or acceleration above the configured limits.
+            DeviceFault: the controller refused or lost the command (the message says why).
+
+        """
+        pose = _vector(pose6, 'pose6', 6)
+        speed = _positive(speed, 'speed', self.max_speed, 'm/s')
+        accel = _positive(accel, 'accel', self.max_accel, 'm/s^2')
+        self._check_ready('moveL')
+        with self._cmd_lock:
+            self._speeding = False
+            ok = self._ctrl.moveL(pose.tolist(), speed, accel, asynchronous)
+        if not ok:
+            raise DeviceFault(self._diagnose('moveL'))
+
+    def is_moving(self) -> bool:
+        """Return True while an asynchronous move started by :meth:`move_linear` runs."""
+        self._require_connection('getAsyncOperationProgress')
+        return self._ctrl.getAsyncOperationProgress() >= 0
+
+    def wait_motion(self, timeout: float) -> None:
+        """Wait for an asynchronous move to end, watching the stream for faults.
+
+        Raises:
+            DeviceFault: a fault event, or the move still running after ``timeout`` s.
+
+        """
+        deadline = time.monotonic() + timeout
+        while self.is_moving():
+            faults = self.active_faults()
+            if faults:
+                raise DeviceFault(f'UR arm {self.host}: move interrupted by {", ".join(faults)}')
+            if time.monotonic() > deadline:
+                raise DeviceFault(f'UR arm {self.host}: move still running after {timeout:g} s')
+            self.wait_samples(1, 0.05)
+
+    def stop(self, decel: float = 2.0) -> None:
+        """Decelerate to rest: ``speedStop`` after :meth:`speed_linear`, else ``stopL``.
+
+        Raises:
+            InvalidInput: non-positive deceleration.
+            DeviceFault: the connection is lost.
+
+        """
+        decel = _positive(decel, 'decel', 150.0, 'm/s^2')
+        self._require_connection('stop')
+        with self._cmd_lock:
+            if self._speeding:
+                self._speeding = False
+                self._ctrl.speedStop(decel)
+            else:
+                self._ctrl.stopL(decel)
+
+    def speed_linear(self, twist6: Sequence[float], accel: float = 0.5,
+                     time_s: float = 0.0) -> None:
+        """Move the TCP at ``twist6`` (speedL; m/s, rad/s, ``base``) until :meth:`stop`.
+
+        Raises:
+            InvalidInput: malformed twist or acceleration.
+            UnsafeCommand: linear speed or acceleration above the configured limits.
+            DeviceFault: the controller refused the command.
+
+        """
+        twist = _vector(twist6, 'twist6', 6)
+        if float(np.linalg.norm(twist[:3])) > self.max_speed:
+            raise UnsafeCommand(f'twist6: linear speed {np.linalg.norm(twist[:3]):g} m/s '
+                                f'exceeds the limit of {self.max_speed:g} m/s')
+        accel = _positive(accel, 'accel', self.max_accel, 'm/s^2')
+        self._check_ready('speedL')
+        with self._cmd_lock:
+            ok = self._ctrl.speedL(twist.tolist(), accel, float(time_s))
+            self._speeding = bool(ok)
+        if not ok:
+            raise DeviceFault(self._diagnose('speedL'))
+
+    # -- the poke primitive ---------------------------------------------------------------------
+    def push_until(self, standoff_pose6: Sequence[float], direction: Sequence[float], *,
+                   force_limit: float, travel_limit: float, speed: float = 0.002,
+                   accel: float = 0.1, approach_speed: float = 0.05, retract_speed: float = 0.01,
+                   stop_decel: float = 1.0, cancel: Optional[Callable[[], bool]] = None,
+                   settle_samples: int = 5, max_force: float = 100.0,
+                   max_travel: float = 0.1) -> PushResult:
+        """Push from a stand-off pose along ``direction`` until a limit, then retract.
+
+        Sequence: moveL to ``standoff_pose6`` (asynchronous, watched for faults), wait
+        ``settle_samples``, tare, async moveL towards ``standoff + travel_limit * direction`` at
+        ``speed`` (the controller itself never goes past the travel limit), and on every sample
+        check the push-back force ``-wrench[:3] . direction`` against ``force_limit``,
+        ``cancel()`` and the fault events. On a stop condition: ``stopL(stop_decel)``, settle,
+        retract to the stand-off pose. Samples are recorded from just before the push starts
+        until the retract ends.
+
+        Args:
+            standoff_pose6: (6,) start pose, ``base``.
+            direction: (3,) push direction in ``base`` (normalised here), e.g. ``-n``.
+            force_limit: push-back force that ends the push, N.
+            travel_limit: largest travel along ``direction`` from the stand-off pose, m.
+            speed: constant push speed, m/s.
+            accel: acceleration to reach ``speed``, m/s^2.
+            approach_speed: speed of the move to the stand-off pose, m/s.
+            retract_speed: speed of the retract, m/s.
+            stop_decel: deceleration of the stop at a limit, m/s^2.
+            cancel: polled once per sample; returning True ends the push as ``canceled``.
+            settle_samples: samples to wait after arriving and after stopping.
+            max_force: upper bound accepted for ``force_limit``, N.
+            max_travel: upper bound accepted for ``travel_limit``, m.
+
+        Returns:
+            :class:`PushResult` with outcome ``force_limit``, ``depth_limit`` or ``canceled``.
+
+        Raises:
+            InvalidInput: malformed pose, direction or limits.
+            UnsafeCommand: a limit or speed above its bound.
+            DeviceFault: the robot was not ready before the push started.
+            PushFault: a protective stop, lost connection, stalled or frozen F/T stream, stopped
+                program, failed command or timeout during the push; ``.result`` holds every
+                sample recorded, the arm was stopped and, where the controller still accepts
+                commands, retracted.
+
+        """
+        standoff = _vector(standoff_pose6, 'standoff_pose6', 6)
+        unit = _vector(direction, 'direction', 3)
+        norm = float(np.linalg.norm(unit))
+        if norm < 1e-9:
+            raise InvalidInput('direction: must be a non-zero 3-vector')
+        unit = unit / norm
+        force_limit = _positive(force_limit, 'force_limit', max_force, 'N')
+        travel_limit = _positive(travel_limit, 'travel_limit', max_travel, 'm')
+        speed = _positive(speed, 'speed', min(0.05, self.max_speed), 'm/s')
+        accel = _positive(accel, 'accel', self.max_accel, 'm/s^2')
+        approach_speed = _positive(approach_speed, 'approach_speed', self.max_speed, 'm/s')
+        retract_speed = _positive(retract_speed, 'retract_speed', self.max_speed, 'm/s')
+        stop_decel = _positive(stop_decel, 'stop_decel', 150.0, 'm/s^2')
+        self._check_ready('push_until')
+
+        target = standoff.copy()
+        target[:3] += unit * travel_limit
+        push_timeout = travel_limit / speed + 2.0 * speed / accel + 5.0
+        recorder: list = []
+        state = {'peak': 0.0, 'travel': 0.0, 'events_seen': 0}
+
+        def result(outcome: str) -> PushResult:
+            with self._lock:
+                if recorder in self._recorders:
+                    self._recorders.remove(recorder)
+                rows = list(recorder)
+                events = tuple(list(self._events)[-(self._event_count - state['events_seen']):]
+                               if self._event_count > state['events_seen'] else ())
+            pose = np.array([s.pose for s in rows], dtype=float).reshape(-1, 6)
+            wrench = np.array([s.wrench for s in rows], dtype=float).reshape(-1, 6)
+            return PushResult(
+                t_wall=np.array([s.t_wall for s in rows], dtype=float),
+                t_controller=np.array([s.t_controller for s in rows], dtype=float),
+                tcp_pose=pose, wrench=wrench, outcome=outcome,
+                peak_force=float(max(0.0, (-(wrench[:, :3] @ unit)).max(initial=0.0))),
+                max_travel=float(max(0.0, ((pose[:, :3] - standoff[:3]) @ unit).max(
+                    initial=0.0))),
+                standoff=standoff, direction=unit, events=events)
+
+        # approach and tare (no recording yet)
+        self._move_watched(standoff, approach_speed, 1.2, 'approach')
+        self.wait_samples(settle_samples, 1.0)
+        self.tare()
+        with self._cond:
+            state['events_seen'] = self._event_count
+            self._recorders.append(recorder)
+        self.wait_samples(settle_samples, 1.0)
+
+        outcome = None
+        fault = None
+        try:
+            with self._cmd_lock:
+                ok = self._ctrl.moveL(target.tolist(), speed, accel, True)
+            if not ok:
+                fault = ('command_failed', self._diagnose('moveL (push)'), time.time())
+            deadline = time.monotonic() + push_timeout
+            seen = 0
+            while fault is None and outcome is None:
+                with self._cond:
+                    if len(recorder) == seen and not self._active:
+                        self._cond.wait(0.02)
+                    fresh = recorder[seen:]
+                    seen = len(recorder)
+                    active = [k for k in FAULT_KINDS if k in self._active]
+                for sample in fresh:
+                    push_force = -float(sample.wrench[:3] @ unit)
+                    travel = float((sample.pose[:3] - standoff[:3]) @ unit)
+                    state['peak'] = max(state['peak'], push_force)
+                    state['travel'] = max(state['travel'], travel)
+                    if push_force >= force_limit:
+                        outcome = 'force_limit'
+                        break
+                if outcome is not None:
+                    break
+                if active:
+                    fault = (active[0], f'push on {self.host} aborted: '
+                             + '; '.join(e.message for e in self.events()[-3:]), time.time())
+                    break
+                if cancel is not None and cancel():
+                    outcome = 'canceled'
+                    break
+                if self._ctrl.getAsyncOperationProgress() < 0:
+                    outcome = 'depth_limit'
+                    break
+                if time.monotonic() > deadline:
+                    fault = ('timeout', f'push on {self.host} did not finish within '
+                             f'{push_timeout:.1f} s', time.time())
+        except RuntimeError as exc:
+            fault = ('command_failed', f'push on {self.host}: ur_rtde error: {exc}', time.time())
+
+        detected = time.time()
+        stoppable = fault is None or fault[0] in (EVENT_FT_FROZEN, 'timeout') or (
+            fault[0] == EVENT_STALL and self._controller_alive())
+        if stoppable and self._safe_connected(self._ctrl):
+            try:
+                with self._cmd_lock:
+                    self._ctrl.stopL(stop_decel)
+            except RuntimeError:
+                pass
+        if fault is None:
+            self.wait_samples(settle_samples, 1.0)
+            try:
+                self._move_watched(standoff, retract_speed, 0.5, 'retract')
+            except DeviceFault as exc:
+                kind = self.active_faults()[0] if self.active_faults() else 'command_failed'
+                fault = (kind, f'retract after {outcome} failed: {exc}', time.time())
+                detected = fault[2]
+            else:
+                self.wait_samples(settle_samples, 1.0)
+                return result(outcome)
+        kind, message, detected = fault[0], fault[1], fault[2] if fault[2] else detected
+        retracted = False
+        if stoppable and self.is_connected():
+            try:
+                self.wait_samples(settle_samples, 0.5)
+                self._move_watched(standoff, retract_speed, 0.5, 'retract', ignore=kind)
+                retracted = True
+            except DeviceFault:
+                retracted = False
+        raise PushFault(message, kind, result(f'aborted: {kind}'), detected, retracted)
+
+    def _move_watched(self, pose: np.ndarray, speed: float, accel: float, what: str,
+                      ignore: Optional[str] = None) -> None:
+        """Async moveL watched for faults (a synchronous one could hang on a lost link)."""
+        speed = min(speed, self.max_speed)
+        accel = min(accel, self.max_accel)
+        self._require_connection(what)
+        with self._cmd_lock:
+            self._speeding = False
+            ok = self._ctrl.moveL(pose.tolist(), speed, accel, True)
+        if not ok:
+            raise DeviceFault(self._diagnose(f'moveL ({what})'))
+        current = self.latest().pose[:3]
+        distance = float(np.linalg.norm(pose[:3] - current))
+        timeout = distance / speed + 2.0 * speed / accel + 5.0
+        deadline = time.monotonic() + timeout
+        while self._ctrl.getAsyncOperationProgress() >= 0:
+            faults = [f for f in self.active_faults() if f != ignore]
+            if faults:
+                with self._cmd_lock:
+                    if self._safe_connected(self._ctrl) and EVENT_PROTECTIVE_STOP not in faults:
+                        self._ctrl.stopL(2.0)
+                raise DeviceFault(f'{what} on {self.host} interrupted by {", ".join(faults)}')
+            if time.monotonic() > deadline:
+                raise DeviceFault(f'{what} on {self.host} still running after {timeout:.1f} s')
+            self.wait_samples(1, 0.05)

@@ -1,0 +1,158 @@
+"""UrArm against the loopback RTDE emulator: the real ur_rtde code path end to end."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from pointforce_ros.drivers.ur_arm import (EVENT_CONNECTION_LOST, EVENT_FT_FROZEN,
+                                           EVENT_PROTECTIVE_STOP, EVENT_STALL, PushFault, UrArm)
+from pointforce_ros.errors import DeviceFault, InvalidInput, UnsafeCommand
+
+pytestmark = pytest.mark.e2e
+
+TABLE_Z = 0.25
+K = 2000.0
+STANDOFF = [0.3, 0.0, TABLE_Z + 0.002, 3.14159265, 0.0, 0.0]
+DOWN = [0.0, 0.0, -1.0]
+
+
+@pytest.fixture
+def cell(start_emulator):
+    """(emulator, arm): a 2000 N/m table top at z = 0.25 m under the TCP."""
+    emu = start_emulator(initial_pose=[0.3, 0.0, 0.27, 3.14159265, 0.0, 0.0],
+                         force_model_kwargs={'z0': TABLE_Z, 'k': K})
+    arm = UrArm(emu.host)
+    try:
+        yield emu, arm
+    finally:
+        emu.control.unstall()
+        arm.close()
+
+
+def _inject_when(arm, condition, action):
+    """Run ``action`` once (on its own thread) when ``condition(sample)`` first holds."""
+    fired = {}
+
+    def on_sample(sample):
+        if 't' not in fired and condition(sample):
+            fired['t'] = time.time()
+            threading.Thread(target=action).start()
+    arm.add_sample_callback(on_sample)
+    return fired
+
+
+def test_connect_failure_names_the_host():
+    t0 = time.monotonic()
+    with pytest.raises(DeviceFault, match='127.0.0.254'):
+        UrArm('127.0.0.254', connect_timeout=2.0)
+    assert time.monotonic() - t0 < 2.5
+
+
+def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
+    emu, arm = cell
+    got = []
+    arm.add_sample_callback(got.append)
+    time.sleep(3.0)
+    arm.remove_sample_callback(got.append)
+    t = np.array([s.t_controller for s in got])
+    wall = np.array([s.t_wall for s in got])
+    rate = (len(t) - 1) / (t[-1] - t[0])
+    assert abs(rate - 250.0) / 250.0 < 0.05, f'{rate:.1f} Hz'
+    assert len(got) >= 0.95 * 750
+    assert np.all(np.diff(t) > 0), 'duplicated or reordered controller timestamps'
+    assert np.diff(t).max() <= 0.012 + 1e-9, f'gap of {np.diff(t).max() * 1e3:.1f} ms'
+    assert np.diff(wall).max() < 0.03
+    assert len(arm.samples()) >= len(got)
+    assert not arm.active_faults()
+
+
+def test_push_stops_at_force_limit_and_retracts(cell):
+    emu, arm = cell
+    with pytest.raises(UnsafeCommand):
+        arm.push_until(STANDOFF, DOWN, force_limit=500.0, travel_limit=0.01)
+    with pytest.raises(InvalidInput):
+        arm.push_until([0.3, 0.0, float('nan'), 0, 0, 0], DOWN, force_limit=5.0,
+                       travel_limit=0.01)
+    limit = 4.0
+    res = arm.push_until(STANDOFF, DOWN, force_limit=limit, travel_limit=0.01, speed=0.004)
+    assert res.outcome == 'force_limit'
+    force = res.push_force()
+    # 4 mm/s into 2000 N/m is 8 N/s: one 4 ms sample plus the stop is ~0.05 N
+    assert limit <= res.peak_force < limit + 0.1
+    assert force.max() == pytest.approx(res.peak_force)
+    np.testing.assert_allclose(res.max_travel, 0.002 + limit / K, atol=5e-5)
+    assert np.all(np.diff(res.t_controller) > 0)
+    np.testing.assert_allclose(res.tcp_pose[-1], STANDOFF, atol=1e-6)   # retracted
+    np.testing.assert_allclose(arm.tcp_pose(), STANDOFF, atol=1e-6)
+    # recorded from before contact: tared zero first, spring law in contact
+    assert abs(force[0]) < 0.05
+    inside = res.travel() > 0.0025
+    slope = np.polyfit(res.travel()[inside], force[inside], 1)[0]
+    assert abs(slope - K) / K < 0.05
+
+
+def test_push_into_air_ends_at_the_depth_limit(cell):
+    emu, arm = cell
+    high = list(STANDOFF)
+    high[2] = TABLE_Z + 0.02
+    res = arm.push_until(high, DOWN, force_limit=5.0, travel_limit=0.005, speed=0.01)
+    assert res.outcome == 'depth_limit'
+    np.testing.assert_allclose(res.max_travel, 0.005, atol=1e-6)
+    assert res.peak_force < 0.1
+
+
+def test_cancel_ends_the_push(cell):
+    emu, arm = cell
+    t0 = time.monotonic()
+    res = arm.push_until(STANDOFF, DOWN, force_limit=50.0, travel_limit=0.01, speed=0.002,
+                         cancel=lambda: time.monotonic() - t0 > 0.6)
+    assert res.outcome == 'canceled'
+    assert 0.0 < res.max_travel < 0.005
+
+
+def test_protective_stop_mid_push_raises_with_samples_kept(cell):
+    emu, arm = cell
+    fired = _inject_when(arm, lambda s: s.wrench[2] > 2.0, emu.control.protective_stop)
+    with pytest.raises(PushFault) as info:
+        arm.push_until(STANDOFF, DOWN, force_limit=20.0, travel_limit=0.01, speed=0.004)
+    fault = info.value
+    assert fault.kind == EVENT_PROTECTIVE_STOP and not fault.retracted
+    assert fault.result.outcome == 'aborted: protective_stop'
+    assert len(fault.result) > 100 and fault.result.push_force().max() > 2.0
+    assert fault.detected_wall - fired['t'] < 0.1
+    assert arm.is_protective_stopped()
+    assert any(e.kind == EVENT_PROTECTIVE_STOP for e in fault.result.events)
+    with pytest.raises(DeviceFault, match='protective'):
+        arm.move_linear(STANDOFF, 0.05, 0.5)
+
+
+@pytest.mark.parametrize('what, kind', [('force', EVENT_FT_FROZEN), ('stream', EVENT_STALL)])
+def test_ft_stall_raises_within_100_ms(cell, what, kind):
+    emu, arm = cell
+    fired = _inject_when(arm, lambda s: s.wrench[2] > 1.0, lambda: emu.control.stall(what))
+    with pytest.raises(PushFault) as info:
+        arm.push_until(STANDOFF, DOWN, force_limit=20.0, travel_limit=0.01, speed=0.004)
+    fault = info.value
+    assert fault.kind == kind
+    latency = fault.detected_wall - fired['t']
+    assert latency < 0.1, f'{kind} detected after {latency * 1e3:.0f} ms'
+    assert len(fault.result) > 50, (fired['t'] - fault.result.t_wall[0], fault.result.events,
+                                    fault.result.push_force()[-5:])
+    emu.control.unstall()
+    if what == 'force':
+        assert fault.retracted   # the controller still takes commands: stopped and retracted
+        np.testing.assert_allclose(arm.tcp_pose(), STANDOFF, atol=1e-6)
+
+
+def test_dropped_connection_raises(cell):
+    emu, arm = cell
+    _inject_when(arm, lambda s: s.wrench[2] > 1.0, lambda: emu.control.drop(refuse_s=1.0))
+    with pytest.raises(PushFault) as info:
+        arm.push_until(STANDOFF, DOWN, force_limit=20.0, travel_limit=0.01, speed=0.004)
+    assert info.value.kind == EVENT_CONNECTION_LOST
+    assert len(info.value.result) > 50
+    assert not arm.is_connected()
+    with pytest.raises(DeviceFault, match='connection lost'):
+        arm.tare()

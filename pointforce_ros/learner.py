@@ -114,6 +114,9 @@ class OnlineLearner:
                 continue
             try:
                 record = self.store.get(poke_id)
+                if record.outcome.startswith('aborted'):
+                    self.skipped[poke_id] = f'not learned from: {record.outcome}'
+                    continue
                 if self.corrections is not None:
                     record = self.corrections([record])[0]
                 fresh.append(extract_curve(record))

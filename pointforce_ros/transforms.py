@@ -70,3 +70,20 @@ def pose6_to_matrix(pose6: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = pose6[..., :3]
     out[..., 3, 3] = 1.0
     return out
+
+
+def rotvec_aligning_z(axis: np.ndarray) -> np.ndarray:
+    """UR rotation vector (3,) of a tool whose z axis points along ``axis`` (3,).
+
+    The rotation is the shortest one from base z to ``axis``; for ``axis = -z`` it is a half
+    turn about x (tool pointing straight down, as a poke of a level surface).
+    """
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    z = np.array([0.0, 0.0, 1.0])
+    cross = np.cross(z, a)
+    s = float(np.linalg.norm(cross))
+    c = float(np.dot(z, a))
+    if s < 1e-12:
+        return np.zeros(3) if c > 0 else np.array([np.pi, 0.0, 0.0])
+    return cross / s * np.arctan2(s, c)

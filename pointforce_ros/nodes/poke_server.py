@@ -1,0 +1,265 @@
+"""poke_server node: the ``~/poke`` action, driving a UR arm through ``ur_rtde``.
+
+One goal at a time. A goal is checked against the limits (and the latched equilibrium surface
+when one is published) and rejected with a logged reason if bad. Execution: move to the
+stand-off along the normal, tare, push along ``-n`` at constant speed until the force or depth
+limit, retract (:meth:`pointforce_ros.drivers.ur_arm.UrArm.push_until`). The driver's own
+receive interface streams TCP pose and wrench at 250 Hz, de-duplicated on controller time, to
+``~/tcp_pose`` (``base``) and ``~/wrench`` (``tool0_controller``) and into the poke record.
+Cancel stops the arm (asynchronous moveL + stopL) and retracts. A protective stop, a lost
+connection or a stalled F/T stream aborts with a message, after retracting where possible.
+Every poke, completed, canceled or aborted, is written to the poke store (rosbag2 MCAP) before
+the result is sent; completed ones are announced on ``~/poke_landed``.
+"""
+
+import threading
+import time
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from pointforce_interfaces.action import Poke
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from msg_adapters.geometry import sec_to_stamp
+from msg_adapters.interfaces import (poke_feedback_msg, poke_goal_from_msg, poke_result_msg)
+from msg_adapters.pointcloud2 import surface_from_msg
+from pointforce_ros.errors import DeviceFault, PointforceError
+from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.pokes.limits import check_goal, PokeLimits
+from pointforce_ros.pokes.store import PokeStore
+from pointforce_ros.transforms import (matrix_to_quaternion, rotvec_aligning_z,
+                                       rotvec_to_matrix)
+from pointforce_ros.types import PokeRecord
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+STREAM = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class PokeServerNode(Node):
+    """The Poke action server on a UR arm."""
+
+    def __init__(self, arm_factory=None, **kwargs):
+        """Declare parameters, connect the arm (retried per goal), create the action server.
+
+        ``arm_factory(host) -> UrArm`` is injectable for a different driver; the default is
+        :class:`pointforce_ros.drivers.ur_arm.UrArm`.
+        """
+        super().__init__('poke_server', **kwargs)
+        self.robot_ip = declare(self, 'robot_ip', '127.0.0.2',
+                                'UR controller address (the simulated cell listens on 127.0.0.2)')
+        self.store = PokeStore(declare(self, 'store_dir', 'out/cell/pokes',
+                                       'Poke store directory (one rosbag2 MCAP bag per poke)'))
+        self.limits = PokeLimits(
+            max_force=declare(self, 'max_force', 15.0, 'Largest accepted force limit, N',
+                              bounds=(0.1, 100.0)),
+            max_depth=declare(self, 'max_depth', 0.03, 'Largest accepted depth limit, m',
+                              bounds=(0.001, 0.1)),
+            max_speed=declare(self, 'max_speed', 0.01, 'Largest accepted push speed, m/s',
+                              bounds=(0.0001, 0.05)),
+            surface_tolerance=declare(self, 'surface_tolerance', 0.003,
+                                      'Largest goal distance from the equilibrium surface, m',
+                                      bounds=(0.0, 0.05)))
+        self.retract_speed = declare(self, 'retract_speed', 0.01, 'Retract speed, m/s',
+                                     bounds=(0.0005, 0.1))
+        self.approach_speed = declare(self, 'approach_speed', 0.05,
+                                      'Speed of the move to the stand-off, m/s',
+                                      bounds=(0.001, 0.25))
+        self.feedback_hz = declare(self, 'feedback_rate', 25.0, 'Action feedback rate, Hz',
+                                   bounds=(1.0, 250.0))
+        self._arm_factory = arm_factory or self._default_arm
+        self._arm = None
+        self._arm_lock = threading.Lock()
+        self._busy = threading.Lock()
+        self.samples_streamed = 0
+        self.surface = None
+        group = ReentrantCallbackGroup()
+        self.wrench_pub = self.create_publisher(WrenchStamped, '~/wrench', STREAM)
+        self.pose_pub = self.create_publisher(PoseStamped, '~/tcp_pose', STREAM)
+        self.landed_pub = self.create_publisher(String, '~/poke_landed', STREAM)
+        self.create_subscription(PointCloud2, '/cloud_capture/surface', self._on_surface,
+                                 LATCHED, callback_group=group)
+        self.create_service(Trigger, '~/zero_ftsensor', self._on_zero, callback_group=group)
+        self._server = ActionServer(self, Poke, '~/poke', execute_callback=self._execute,
+                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+                                    callback_group=group)
+        try:
+            self._connect()
+        except PointforceError as exc:
+            self.get_logger().warn(f'arm not connected yet ({exc}); will retry on the next goal')
+
+    # ------------------------------------------------------------------ arm and streaming
+    @staticmethod
+    def _default_arm(host):
+        from pointforce_ros.drivers.ur_arm import UrArm
+        return UrArm(host)
+
+    def _connect(self):
+        with self._arm_lock:
+            if self._arm is not None and self._arm.is_connected():
+                return self._arm
+            if self._arm is not None:
+                self._arm.close()
+                self._arm = None
+            arm = self._arm_factory(self.robot_ip)
+            arm.add_sample_callback(self._stream_sample)
+            self._arm = arm
+            self.get_logger().info(f'connected to the UR controller at {self.robot_ip}')
+            return arm
+
+    def _stream_sample(self, sample):
+        """Publish one 250 Hz sample (driver thread; must not block)."""
+        self.samples_streamed += 1
+        stamp = sample.t_wall
+        rot = rotvec_to_matrix(sample.pose[3:])
+        pose = PoseStamped()
+        pose.header.frame_id = 'base'
+        sec_to_stamp(stamp, pose.header.stamp)
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (
+            float(v) for v in sample.pose[:3])
+        q = matrix_to_quaternion(rot)
+        (pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z,
+         pose.pose.orientation.w) = (float(v) for v in q)
+        wrench = WrenchStamped()
+        wrench.header.frame_id = 'tool0_controller'
+        wrench.header.stamp = pose.header.stamp
+        force = rot.T @ sample.wrench[:3]
+        torque = rot.T @ sample.wrench[3:]
+        w = wrench.wrench
+        w.force.x, w.force.y, w.force.z = (float(v) for v in force)
+        w.torque.x, w.torque.y, w.torque.z = (float(v) for v in torque)
+        self.pose_pub.publish(pose)
+        self.wrench_pub.publish(wrench)
+
+    def _on_surface(self, msg):
+        try:
+            self.surface = surface_from_msg(msg)
+            self.get_logger().info(f'equilibrium surface of {len(self.surface)} points')
+        except PointforceError as exc:
+            self.get_logger().error(f'ignoring surface: {exc}')
+
+    def _on_zero(self, request, response):
+        try:
+            self._connect().tare()
+            response.success, response.message = True, 'F/T sensor zeroed'
+        except PointforceError as exc:
+            response.success, response.message = False, str(exc)
+        return response
+
+    # ------------------------------------------------------------------ action callbacks
+    def _on_goal(self, goal_msg):
+        if self._busy.locked():
+            self.get_logger().warn('poke goal rejected: another poke is running')
+            return GoalResponse.REJECT
+        try:
+            check_goal(poke_goal_from_msg(goal_msg), self.limits, self.surface)
+        except PointforceError as exc:
+            self.get_logger().warn(f'poke goal rejected: {exc}')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, goal_handle):
+        self.get_logger().info('poke cancel requested')
+        return CancelResponse.ACCEPT
+
+    def _execute(self, goal_handle):
+        if not self._busy.acquire(blocking=False):
+            goal_handle.abort()
+            return poke_result_msg('', 0, 0.0, 0.0, 'aborted', 'another poke is running')
+        try:
+            return self._run_poke(goal_handle)
+        finally:
+            self._busy.release()
+
+    def _run_poke(self, goal_handle):
+        try:
+            goal = poke_goal_from_msg(goal_handle.request)
+            point, normal = check_goal(goal, self.limits, self.surface)
+            arm = self._connect()
+        except PointforceError as exc:
+            goal_handle.abort()
+            return poke_result_msg('', 0, 0.0, 0.0, 'aborted', str(exc))
+        standoff = np.concatenate([point + goal.standoff * normal, rotvec_aligning_z(-normal)])
+        period = 1.0 / self.feedback_hz
+        last = {'t': 0.0, 'first': self.samples_streamed}
+
+        def cancel_and_feedback():
+            sample = arm.latest()
+            now = time.monotonic()
+            if sample is not None and now - last['t'] >= period:
+                last['t'] = now
+                depth = float(-(sample.pose[:3] - point) @ normal)
+                force = float(sample.wrench[:3] @ normal)
+                goal_handle.publish_feedback(poke_feedback_msg(
+                    depth, force, self.samples_streamed - last['first'], 'push'))
+            return goal_handle.is_cancel_requested
+
+        poke_id = self.store.next_id()
+        fault = None
+        try:
+            result = arm.push_until(standoff, -normal, force_limit=goal.force_limit,
+                                    travel_limit=goal.standoff + goal.depth_limit,
+                                    speed=goal.speed, approach_speed=self.approach_speed,
+                                    retract_speed=self.retract_speed,
+                                    cancel=cancel_and_feedback,
+                                    max_force=self.limits.max_force,
+                                    max_travel=self.limits.max_depth + 0.05)
+        except DeviceFault as exc:
+            fault = exc
+            result = getattr(exc, 'result', None)
+        except PointforceError as exc:
+            goal_handle.abort()
+            return poke_result_msg('', 0, 0.0, 0.0, 'aborted', str(exc))
+        saved_id, samples, peak, depth = '', 0, 0.0, 0.0
+        if result is not None and len(result) > 1:
+            record = PokeRecord(poke_id=poke_id, point=point, normal=normal,
+                                t=result.t_wall, t_controller=result.t_controller,
+                                tcp_pose=result.tcp_pose, wrench=result.wrench,
+                                speed=goal.speed, probe='point', outcome=result.outcome,
+                                meta={'standoff': goal.standoff, 'force_limit': goal.force_limit,
+                                      'depth_limit': goal.depth_limit,
+                                      'surface_index': goal.surface_index,
+                                      'robot_ip': self.robot_ip})
+            self.store.add(record)  # on disk before any result is sent
+            saved_id, samples = poke_id, len(record)
+            peak = float(np.max(record.normal_force()))
+            depth = float(np.max(record.displacement()))
+        if fault is not None:
+            kind = getattr(fault, 'kind', 'device_fault')
+            message = (f'{kind}: {fault} (the {samples} samples recorded are stored as '
+                       f'{saved_id or "nothing: no sample was recorded"})')
+            self.get_logger().error(f'poke aborted: {message}')
+            goal_handle.abort()
+            return poke_result_msg(saved_id, samples, peak, depth, 'aborted', message)
+        if result.outcome == 'canceled':
+            goal_handle.canceled()
+            return poke_result_msg(saved_id, samples, peak, depth, 'canceled',
+                                   'canceled; the arm stopped and retracted')
+        self.landed_pub.publish(String(data=saved_id))
+        goal_handle.succeed()
+        self.get_logger().info(f'{saved_id}: {result.outcome}, peak {peak:.2f} N at '
+                               f'{1e3 * depth:.1f} mm, {samples} samples')
+        return poke_result_msg(saved_id, samples, peak, depth, result.outcome, '')
+
+    def destroy_node(self):
+        """Close the arm connection with the node."""
+        with self._arm_lock:
+            if self._arm is not None:
+                self._arm.close()
+                self._arm = None
+        return super().destroy_node()
+
+
+def main(args=None):
+    """Console entry point: ``poke_server --ros-args -p robot_ip:=192.168.1.10``."""
+    run(PokeServerNode, args=args)
+
+
+if __name__ == '__main__':
+    main()

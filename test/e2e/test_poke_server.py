@@ -1,0 +1,164 @@
+"""poke_server end to end: action over DDS -> UrArm -> real ur_rtde -> loopback RTDE emulator.
+
+Every test starts its own emulator process (a flat elastic top at z = 0.04 m, k = 1000 N/m) on
+its own loopback address and its own ROS graph.
+"""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from pointforce_interfaces.action import Poke
+from rclpy.action import ActionClient
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+
+from msg_adapters.interfaces import poke_goal_to_msg
+from msg_adapters.pointcloud2 import surface_to_msg
+from pointforce_ros.nodes.poke_server import LATCHED, PokeServerNode, STREAM
+from pointforce_ros.pokes.store import PokeStore, read_poke_bag
+from pointforce_ros.types import PokeGoal, Surface
+
+pytestmark = [pytest.mark.e2e, pytest.mark.ros]
+SPRING = {'z0': 0.04, 'k': 1000.0}
+START = [0.5, 0.0, 0.1, np.pi, 0.0, 0.0]
+
+
+@pytest.fixture
+def cell(ros_graph, start_emulator, tmp_path):
+    emulator = start_emulator(force_model='pointforce_ros.cell.rtde_emulator:HalfSpaceSpring',
+                              force_model_kwargs=SPRING, initial_pose=START)
+    server = ros_graph.add(PokeServerNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('robot_ip', value=emulator.host),
+        Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
+    client_node = ros_graph.add(Node('poke_client', context=ros_graph.context))
+    client = ActionClient(client_node, Poke, '/poke_server/poke')
+    assert client.wait_for_server(timeout_sec=15.0)
+    return ros_graph, emulator, server, client_node, client, tmp_path
+
+
+def _goal(**overrides):
+    values = dict(point=[0.5, 0.0, 0.04], normal=[0.0, 0.0, 1.0], force_limit=3.0,
+                  depth_limit=0.008, speed=0.005, standoff=0.008)
+    values.update(overrides)
+    return poke_goal_to_msg(PokeGoal(**values))
+
+
+def _send(graph, client, goal, feedback=None):
+    handle = graph.wait_future(client.send_goal_async(goal, feedback_callback=feedback), 10,
+                               'goal response')
+    return handle
+
+
+def test_poke_end_to_end_with_feedback_and_a_250hz_bag(cell):
+    graph, _, server, client_node, client, tmp_path = cell
+    landed = []
+    client_node.create_subscription(String, '/poke_server/poke_landed',
+                                    lambda m: landed.append(m.data), STREAM)
+    feedback = []
+    handle = _send(graph, client, _goal(), lambda m: feedback.append(m.feedback))
+    assert handle.accepted
+    result = graph.wait_future(handle.get_result_async(), 40, 'poke result').result
+    assert result.outcome == 'force_limit', result.message
+    assert 3.0 <= result.peak_force < 3.6
+    assert result.max_depth == pytest.approx(0.003, abs=0.0006)  # F = k d
+    assert len(feedback) >= 10 and max(f.normal_force for f in feedback) > 1.0
+    graph.wait_for(lambda: landed == [result.poke_id], 5, 'poke_landed')
+    record = read_poke_bag(tmp_path / 'pokes' / result.poke_id)
+    assert len(record) == result.samples
+    dt = np.diff(record.t_controller)
+    rate = 1.0 / np.median(dt)
+    assert rate == pytest.approx(250.0, rel=0.05)
+    assert dt.max() < 0.012, f'gap of {1e3 * dt.max():.1f} ms in the 250 Hz stream'
+    assert np.all(dt > 0)
+    # force against depth in the bag is the spring the emulator simulates
+    d, f = record.displacement(), record.normal_force()
+    loaded = (d > 0.0008) & (d < 0.0028) & (np.gradient(d) > 0)
+    slope = np.polyfit(d[loaded], f[loaded], 1)[0]
+    assert slope == pytest.approx(SPRING['k'], rel=0.1)
+
+
+@pytest.mark.parametrize('overrides, reason', [
+    ({'force_limit': 50.0}, 'force above max_force'),
+    ({'speed': 0.05}, 'speed above max_speed'),
+    ({'depth_limit': -0.001}, 'negative depth'),
+    ({'point': [0.5, 0.0, 0.07]}, 'point 30 mm above the surface'),
+])
+def test_bad_goals_are_rejected_and_nothing_moves(cell, overrides, reason):
+    graph, emulator, server, client_node, client, _ = cell
+    pts = np.column_stack([np.linspace(0.45, 0.55, 30), np.zeros(30), np.full(30, 0.04)])
+    pub = client_node.create_publisher(PointCloud2, '/cloud_capture/surface', LATCHED)
+    pub.publish(surface_to_msg(Surface(points=pts, normals=np.tile([0, 0, 1.0], (30, 1)))))
+    graph.wait_for(lambda: server.surface is not None, 10, 'surface at the server')
+    before = server._connect().tcp_pose()
+    handle = _send(graph, client, _goal(**overrides))
+    assert not handle.accepted, reason
+    time.sleep(0.3)
+    np.testing.assert_allclose(server._connect().tcp_pose(), before, atol=1e-6)
+
+
+def test_non_unit_normal_is_rejected(cell):
+    graph, _, _, _, client, _ = cell
+    goal = _goal()
+    goal.normal.z = 0.5
+    assert not _send(graph, client, goal).accepted
+
+
+def _push_then(graph, client, action, depth=0.001):
+    """Send a deep goal and call ``action()`` once the feedback shows ``depth`` reached."""
+    fired = threading.Event()
+
+    def on_feedback(msg):
+        if msg.feedback.depth > depth and not fired.is_set():
+            fired.set()
+            action()
+    handle = _send(graph, client, _goal(force_limit=8.0, depth_limit=0.012, speed=0.004),
+                   on_feedback)
+    assert handle.accepted
+    return handle, fired
+
+
+def test_protective_stop_mid_push_aborts_and_keeps_the_samples(cell):
+    graph, emulator, server, _, client, tmp_path = cell
+    handle, fired = _push_then(graph, client, emulator.control.protective_stop)
+    result = graph.wait_future(handle.get_result_async(), 40, 'result').result
+    assert fired.is_set()
+    assert result.outcome == 'aborted' and 'protective' in result.message.lower()
+    record = PokeStore(tmp_path / 'pokes').get(result.poke_id)
+    assert record.outcome.startswith('aborted') and len(record) == result.samples > 50
+    assert record.displacement().max() > 0.001
+
+
+def test_ft_stall_mid_push_aborts_and_keeps_the_samples(cell):
+    graph, emulator, server, _, client, tmp_path = cell
+    handle, fired = _push_then(graph, client, lambda: emulator.control.stall('force', 5.0))
+    result = graph.wait_future(handle.get_result_async(), 40, 'result').result
+    assert fired.is_set() and result.outcome == 'aborted'
+    assert 'stall' in result.message.lower() or 'frozen' in result.message.lower()
+    assert PokeStore(tmp_path / 'pokes').get(result.poke_id).outcome.startswith('aborted')
+
+
+def test_cancel_stops_the_arm_and_retracts(cell):
+    graph, emulator, server, _, client, tmp_path = cell
+    box = {}
+    handle, fired = _push_then(graph, client,
+                               lambda: box.setdefault('cancel', box['h'].cancel_goal_async()),
+                               depth=0.0015)
+    box['h'] = handle
+    result = graph.wait_future(handle.get_result_async(), 40, 'result').result
+    assert fired.is_set() and result.outcome == 'canceled'
+    assert result.max_depth < 0.006  # stopped well before the 12 mm depth limit
+    pose = server._connect().tcp_pose()
+    assert pose[2] == pytest.approx(0.04 + 0.008, abs=0.001)  # back at the stand-off
+
+
+def test_second_goal_while_busy_is_rejected(cell):
+    graph, _, _, _, client, _ = cell
+    first = _send(graph, client, _goal(force_limit=8.0, depth_limit=0.012, speed=0.004))
+    assert first.accepted
+    time.sleep(0.3)
+    assert not _send(graph, client, _goal()).accepted
+    graph.wait_future(first.get_result_async(), 40, 'first result')

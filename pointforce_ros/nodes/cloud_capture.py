@@ -11,6 +11,7 @@ keeps serving.
 
 import threading
 import time
+from collections import deque
 from pathlib import Path
 
 from geometry_msgs.msg import PoseStamped
@@ -20,7 +21,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data, Rel
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
-from msg_adapters.geometry import pose_stamped_from_msg
+from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model_io import save_surface
@@ -63,6 +64,7 @@ class CloudCaptureNode(Node):
         self._lock = threading.Lock()
         self._latest = None
         self._camera_pose = None
+        self._pose_history = deque(maxlen=50)
         self._scans = []
         self.surface = None
         self.surface_pub = self.create_publisher(PointCloud2, '~/surface', LATCHED)
@@ -75,8 +77,13 @@ class CloudCaptureNode(Node):
         self.get_logger().info(f'listening for clouds on {topic}')
 
     def _on_cloud(self, msg: PointCloud2):
+        stamp = stamp_to_sec(msg.header.stamp)
         with self._lock:
-            self._latest = msg
+            # the pose of the same instant if one was published (like a tf lookup at the
+            # cloud's stamp), else the newest pose, else the camera_pose parameter
+            pose = next((p for t, p in reversed(self._pose_history) if abs(t - stamp) < 1e-3),
+                        self._camera_pose)
+            self._latest = (msg, pose)
 
     def _on_pose(self, msg: PoseStamped):
         try:
@@ -86,12 +93,14 @@ class CloudCaptureNode(Node):
             return
         with self._lock:
             self._camera_pose = pose
+            self._pose_history.append((stamp_to_sec(msg.header.stamp), pose))
 
     def _scan_from_latest(self) -> Scan:
         with self._lock:
-            msg, pose = self._latest, self._camera_pose or self.default_pose
-        if msg is None:
+            latest = self._latest
+        if latest is None:
             raise PointforceError('no cloud received yet on the camera topic')
+        msg, pose = latest[0], latest[1] or self.default_pose
         cloud = cloud_from_msg(msg, drop_nan=True)
         if len(cloud.points) == 0:
             raise PointforceError('the latest cloud has no valid (finite) point')

@@ -89,3 +89,20 @@ def test_bad_or_missing_cloud_is_refused_and_node_keeps_serving(ros_graph, tmp_p
     second = _call(ros_graph, capture, 'capture with a bad cloud')
     assert not second.success and "no 'z' field" in second.message
     assert not (tmp_path / 's.npz').exists()
+
+
+def test_a_cloud_is_paired_with_the_camera_pose_of_its_own_stamp(ros_graph, tmp_path):
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 's.npz'))]))
+    test_node = ros_graph.add(Node('stamp_driver', context=ros_graph.context))
+    pose_pub = test_node.create_publisher(PoseStamped, '/cloud_capture/camera_pose', 10)
+    cloud_pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    pose_a = look_at([0.5, -0.3, 0.3], [0.5, 0.0, 0.0])
+    pose_b = look_at([0.5, 0.3, 0.3], [0.5, 0.0, 0.0])
+    pose_pub.publish(pose_stamped_to_msg(matrix_to_pose(pose_a), stamp=10.0))
+    pose_pub.publish(pose_stamped_to_msg(matrix_to_pose(pose_b), stamp=10.5))
+    ros_graph.wait_for(lambda: len(node._pose_history) == 2, 10, 'two poses')
+    cloud_pub.publish(msg_from_cloud(np.random.default_rng(1).uniform(0.2, 0.3, (100, 3)),
+                                     stamp=10.0))
+    ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
+    np.testing.assert_allclose(node._scan_from_latest().transform, pose_a, atol=1e-9)

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
-from pointforce_ros.contact.lcp import shape_function, solve_lcp_batch
+from pointforce_ros.contact.lcp import bpp_dense, lcp_residual, shape_function, solve_lcp_batch
 from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import as_array, Mesh, Pose, Surface, Wrench
@@ -157,6 +157,7 @@ class _Projection:
     origin: np.ndarray           # (2,) grid corner
     cell: float
     bound: np.ndarray            # (nx, ny) a sample at height t <= bound cannot touch
+    last: np.ndarray             # (2,) largest cell index per axis (a border of +inf)
 
 
 def normalise_approach(approach) -> np.ndarray:
@@ -292,11 +293,13 @@ class ContactSimulator:
             InvalidInput: non-unit approach, malformed centre or pose, pose in another frame.
 
         """
-        pos, rot = poses_as_arrays([pose], self.surface.frame)
+        if isinstance(pose, Pose) and pose.frame == self.surface.frame:
+            pos, rot = pose.position[None], pose.rotation()[None]
+        else:
+            pos, rot = poses_as_arrays([pose], self.surface.frame)
         a = normalise_approach(approach)
         centre = as_array(torque_centre, 'torque_centre', (3,))
-        with single_threaded_blas():
-            run = self._run(self._samples(mesh), rot, pos, a, centre[None], detail=True)
+        run = self._run(self._samples(mesh), rot, pos, a, centre[None], detail=True)
         return self._result(run, a, centre, return_displacements)
 
     def query_points(self, points: np.ndarray, approach, torque_centre,
@@ -313,9 +316,7 @@ class ContactSimulator:
         a = normalise_approach(approach)
         centre = as_array(torque_centre, 'torque_centre', (3,))
         world = as_array(points, 'points', (None, 3))
-        with single_threaded_blas():
-            run = self._run(world, np.eye(3)[None], np.zeros((1, 3)), a, centre[None],
-                            detail=True)
+        run = self._run(world, np.eye(3)[None], np.zeros((1, 3)), a, centre[None], detail=True)
         return self._result(run, a, centre, return_displacements)
 
     def query_batch(self, mesh: Mesh, poses: Union[Sequence[Pose], np.ndarray], approach,
@@ -402,7 +403,8 @@ class ContactSimulator:
         cos = cos[cos > 0.0]
         if len(idx) < 3:
             empty = np.full((1, 1), np.inf)
-            return _Projection(a, basis, idx, None, 0.0, np.zeros(2), 1.0, empty)
+            return _Projection(a, basis, idx, None, 0.0, np.zeros(2), 1.0, empty,
+                               np.zeros(2, dtype=np.int64))
         uv = self._points[idx] @ basis
         tree = cKDTree(uv)
         max_gap = self.max_gap
@@ -422,7 +424,9 @@ class ContactSimulator:
         per_cell = np.full(tuple(shape), np.inf)
         np.minimum.at(per_cell, (cij[:, 0], cij[:, 1]), tau)
         bound = minimum_filter(per_cell, size=3, mode='constant', cval=np.inf)
-        return _Projection(a, basis, idx, tree, max_gap, origin, cell, bound)
+        bound = np.pad(bound, 1, constant_values=np.inf)
+        return _Projection(a, basis, idx, tree, max_gap, origin - cell, cell, bound,
+                           np.array(bound.shape) - 1)
 
     def _run(self, local: np.ndarray, rot: np.ndarray, pos: np.ndarray, a: np.ndarray,
              centres: np.ndarray, detail: bool) -> dict:
@@ -440,12 +444,8 @@ class ContactSimulator:
         frame = np.column_stack([a, proj.basis])
         coords = np.matmul(local, rot.transpose(0, 2, 1) @ frame) + (pos @ frame)[:, None, :]
         cij = np.floor((coords[..., 1:] - proj.origin) / proj.cell).astype(np.int64)
-        nx, ny = proj.bound.shape
-        inside = ((cij[..., 0] >= 0) & (cij[..., 0] < nx) & (cij[..., 1] >= 0)
-                  & (cij[..., 1] < ny))
-        flat = np.where(inside, cij[..., 0] * ny + cij[..., 1], 0)
-        thr = np.where(inside, proj.bound.ravel()[flat], np.inf)
-        b_idx, r_idx = np.nonzero(coords[..., 0] > thr)
+        np.clip(cij, 0, proj.last, out=cij)  # outside the grid: its border of +inf
+        b_idx, r_idx = np.nonzero(coords[..., 0] > proj.bound[cij[..., 0], cij[..., 1]])
         if len(b_idx) == 0:
             return empty
         # 2. Three nearest surface points in the projection plane (eq. 1).
@@ -470,8 +470,16 @@ class ContactSimulator:
             b_idx, p, nbr, nsum, d = b_idx[sel], p[sel], nbr[sel], nsum[sel], d[sel]
         q = self._points[nbr].mean(axis=1)
         nq = nsum / np.linalg.norm(nsum, axis=1, keepdims=True)
-        # 4. LCP per pose, padded stacks of similar size.
-        x, u, residual = self._solve_grouped(b_idx, q, d, B)
+        # 4. LCP per pose, padded stacks of similar size (one pose: a plain dense solve).
+        if B == 1:
+            diff = q[:, None, :] - q[None, :, :]
+            G = shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), self.c)
+            with single_threaded_blas() if len(d) > 64 else contextlib.nullcontext():
+                x, _ = bpp_dense(G, d)
+            u = G @ x
+            residual = np.array([lcp_residual(G, d, x)])
+        else:
+            x, u, residual = self._solve_grouped(b_idx, q, d, B)
         # 5. Forces and wrench (eq. 4).
         f = np.zeros(len(d))
         act = np.flatnonzero(x > 0.0)
@@ -479,14 +487,21 @@ class ContactSimulator:
             ia = nbr[act].ravel()
             da = np.repeat(d[act], 3)
             xa = np.repeat(x[act], 3)
-            resp = self.response
-            df = (np.asarray(resp.force(ia, da), dtype=np.float64)
-                  - np.asarray(resp.force(ia, da - xa), dtype=np.float64))
-            f[act] = df.reshape(-1, 3).mean(axis=1)
+            both = np.asarray(self.response.force(np.concatenate([ia, ia]),
+                                                  np.concatenate([da, da - xa])),
+                              dtype=np.float64)
+            f[act] = (both[:len(ia)] - both[len(ia):]).reshape(-1, 3).mean(axis=1)
         force = f[:, None] * nq
-        torque = np.cross(p - centres[b_idx], force)
-        wrench = np.column_stack([np.bincount(b_idx, weights=col, minlength=B)
-                                  for col in np.column_stack([force, torque]).T])
+        arm = p - centres[b_idx]
+        torque = np.column_stack([arm[:, 1] * force[:, 2] - arm[:, 2] * force[:, 1],
+                                  arm[:, 2] * force[:, 0] - arm[:, 0] * force[:, 2],
+                                  arm[:, 0] * force[:, 1] - arm[:, 1] * force[:, 0]])
+        if B == 1:
+            wrench = np.concatenate([force.sum(axis=0), torque.sum(axis=0)])[None]
+        else:
+            both = np.hstack([force, torque])
+            wrench = np.zeros((B, 6))
+            np.add.at(wrench, b_idx, both)
         count = np.bincount(b_idx[x > 0.0], minlength=B)
         umax = np.zeros(B)
         np.maximum.at(umax, b_idx, u)
@@ -530,6 +545,8 @@ class ContactSimulator:
             qp[~valid] = 0.0
             sq = np.einsum('bij,bij->bi', qp, qp)
             r2 = sq[:, :, None] + sq[:, None, :] - 2.0 * (qp @ qp.transpose(0, 2, 1))
+            diag = np.arange(m)
+            r2[:, diag, diag] = 0.0  # exact: rounding there would put 1 - 3e-8 on the diagonal
             G = shape_function(np.sqrt(np.maximum(r2, 0.0)), self.c)
             xp, res, _ = solve_lcp_batch(G, dp, valid)
             up = (G @ xp[:, :, None])[:, :, 0]

@@ -78,7 +78,7 @@ def power_response(stiffness: Union[float, np.ndarray], exponent: float,
 
 
 def fibonacci_sphere_mesh(n: int = 150, radius: float = 0.02) -> Mesh:
-    """Closed sphere mesh with exactly ``n`` vertices on a Fibonacci spiral, centred at 0.
+    """Return a closed sphere mesh with exactly ``n`` vertices on a Fibonacci spiral, at 0.
 
     Sampled at a spacing longer than its edges (e.g. 0.01 m for ``n = 150``, ``radius =
     0.02``) it gives exactly its ``n`` vertices: the paper's 150-point, 40 mm sphere.

@@ -38,6 +38,7 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 import numpy as np
 from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from pointforce_ros.contact.lcp import bpp_dense, lcp_residual, shape_function, solve_lcp_batch
 from pointforce_ros.contact.sampling import sample_mesh_surface
@@ -363,10 +364,9 @@ class ContactSimulator:
                              actual: np.ndarray) -> np.ndarray:
         """(N,) displacement along ``-n`` of every surface point, ``sum_i g(|x - q_i|) d~_i``."""
         out = np.zeros(len(self._points))
-        for s in range(0, len(contact_points), 64):
-            q = contact_points[s:s + 64]
-            r = np.linalg.norm(self._points[:, None, :] - q[None], axis=2)
-            out += shape_function(r, self.c) @ actual[s:s + 64]
+        for s in range(0, len(contact_points), 256):
+            r = cdist(self._points, contact_points[s:s + 256])
+            out += shape_function(r, self.c) @ actual[s:s + 256]
         return out
 
     # ------------------------------------------------------------------------------ internals

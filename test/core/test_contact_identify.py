@@ -1,0 +1,81 @@
+"""Shape-constant identification on synthetic dents and second-probe pokes with known c."""
+
+import numpy as np
+import pytest
+
+from pointforce_ros.contact import ContactSimulator
+from pointforce_ros.contact.identify import (dent_profile, identify_shape_constant,
+                                             identify_shape_constant_from_probe)
+from pointforce_ros.contact.synthetic import grid_surface, linear_response
+from pointforce_ros.errors import InvalidInput, NotConverged
+from pointforce_ros.shapes import box, cylinder
+from pointforce_ros.types import Pose
+
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+@pytest.mark.parametrize('c_true', [0.001, 0.004, 0.02])
+def test_noisy_dent_profile_recovers_c(c_true):
+    rng = np.random.default_rng(int(c_true * 1e4))
+    r = rng.uniform(0.0, 0.05, 800)
+    u0 = 0.004
+    u = u0 * c_true / (c_true + r) + rng.normal(0.0, 2e-5, len(r))  # 20 um camera noise
+    fit = identify_shape_constant(r, u)
+    assert fit.c == pytest.approx(c_true, rel=0.05)
+    assert fit.u0 == pytest.approx(u0, rel=0.02)
+    assert fit.rmse == pytest.approx(2e-5, rel=0.15)
+    known = identify_shape_constant(r, u, u0=u0)
+    assert known.c == pytest.approx(c_true, rel=0.03)
+
+
+def test_dent_from_the_simulated_poke_field_and_from_an_observed_cloud():
+    c_true = 0.006
+    surface = grid_surface(half=0.04, step=0.001)
+    sim = ContactSimulator(surface, linear_response(800.0, len(surface)), c=c_true)
+    depth = 0.003
+    tip = np.array([0.00025, 0.00025, -depth])
+    res = sim.query_points(tip[None], DOWN, np.zeros(3), return_displacements=True)
+    displaced = surface.points - res.displacements[:, None] * surface.normals
+    r, u = dent_profile(surface, displaced, res.contact_points[0])
+    fit = identify_shape_constant(r, u, u0=depth)
+    assert fit.c == pytest.approx(c_true, rel=1e-6)
+    # The same dent seen by a camera: a different, noisy point set (no correspondence).
+    rng = np.random.default_rng(2)
+    seen = rng.uniform(-0.035, 0.035, (20000, 2))
+    r_seen = np.linalg.norm(seen - res.contact_points[0, :2], axis=1)
+    z = -depth * c_true / (c_true + r_seen) + rng.normal(0, 1e-5, len(seen))
+    r, u = dent_profile(surface, np.column_stack([seen, z]), res.contact_points[0])
+    assert len(r) > 0.5 * len(surface.points)
+    fit = identify_shape_constant(r, u)
+    assert fit.c == pytest.approx(c_true, rel=0.05)
+
+
+@pytest.mark.parametrize('mesh', [box((0.012, 0.012, 0.004)), cylinder(0.005, 0.02, 16)])
+def test_second_probe_pokes_recover_c(mesh):
+    c_true = 0.004
+    surface = grid_surface(half=0.025, step=0.001)
+    sim = ContactSimulator(surface, linear_response(800.0, len(surface)), c=c_true)
+    depths = np.linspace(0.0005, 0.004, 8)
+    poses = [Pose(position=[0.00023, 0.00041, -d]) for d in depths]
+    measured = -sim.query_batch(mesh, poses, DOWN, np.zeros(3)).wrenches[:, :3] @ DOWN
+    noisy = measured * (1 + np.random.default_rng(0).normal(0, 0.01, len(measured)))
+    fit = identify_shape_constant_from_probe(sim.with_shape_constant(0.05), mesh, poses, DOWN,
+                                             noisy)
+    assert fit.method == 'probe'
+    assert fit.c == pytest.approx(c_true, rel=0.1)
+    exact = identify_shape_constant_from_probe(sim, mesh, poses, DOWN, measured)
+    assert exact.c == pytest.approx(c_true, rel=1e-3)
+
+
+def test_undetermined_and_bad_input():
+    r = np.linspace(0, 0.02, 50)
+    with pytest.raises(NotConverged, match='bound'):
+        identify_shape_constant(r, np.full(50, 0.002))  # flat: c -> infinity
+    with pytest.raises(InvalidInput, match='>= 3'):
+        identify_shape_constant(r[:2], r[:2])
+    with pytest.raises(InvalidInput, match='no positive'):
+        identify_shape_constant(r, -r)
+    with pytest.raises(InvalidInput, match='c_bounds'):
+        identify_shape_constant(r, r + 1e-3, c_bounds=(0.1, 0.01))
+    with pytest.raises(InvalidInput, match='non-finite'):
+        identify_shape_constant(r, np.full(50, np.nan))

@@ -64,7 +64,7 @@ def _analytic_predict(features: np.ndarray, d: np.ndarray) -> np.ndarray:
 
 
 def bench_contact(n_ours: int = 300, n_paper: int = 15, n_grid: int = 201, half: float = 0.1,
-                  regressor: str = 'extra_trees', seed: int = 0) -> Dict:
+                  regressor: str = 'extra_trees', seed: int = 0, quick: bool = False) -> Dict:
     """Time one wrench query, ours against the paper's algorithm (module docstring).
 
     Args:
@@ -74,6 +74,7 @@ def bench_contact(n_ours: int = 300, n_paper: int = 15, n_grid: int = 201, half:
         regressor: ``'extra_trees'`` (the paper's model family, needs scikit-learn) or
             ``'analytic'`` (skip the regressor variant).
         seed: pose and regressor seed.
+        quick: 60 of our queries and 3 of each paper variant (same scene), for CI.
 
     Returns:
         dict with medians in seconds (wall clock, and ``*_cpu_s`` process CPU time, which a
@@ -82,6 +83,8 @@ def bench_contact(n_ours: int = 300, n_paper: int = 15, n_grid: int = 201, half:
         computes the same model) and the paper LCP scheme's failures.
 
     """
+    if quick:
+        n_ours, n_paper = min(n_ours, 60), min(n_paper, 3)
     surface, response, mesh = _scene(n_grid, half)
     rng = np.random.default_rng(seed)
     xy = rng.uniform(-0.4 * half, 0.4 * half, (n_ours, 2))
@@ -139,11 +142,13 @@ def bench_contact(n_ours: int = 300, n_paper: int = 15, n_grid: int = 201, half:
 
 
 def bench_batch(n_xy: int = 25, n_z: int = 16, n_paper: int = 5, workers: int = 2,
-                n_grid: int = 201, half: float = 0.1, seed: int = 0) -> Dict:
+                n_grid: int = 201, half: float = 0.1, seed: int = 0,
+                quick: bool = False) -> Dict:
     """Time :meth:`ContactSimulator.query_batch` on a packing-style grid of sphere poses.
 
     The grid is ``n_xy`` x ``n_xy`` positions over +-40 % of the surface and ``n_z`` heights
-    from 5 mm above the cap's top to 10 mm below it (``25 * 25 * 16 = 10 000`` poses).
+    from 5 mm above the cap's top to 10 mm below it (``25 * 25 * 16 = 10 000`` poses);
+    ``quick`` uses 10 x 10 x 10 poses and 2 paper queries.
 
     Returns:
         dict with the batch time, time per pose, the fraction of poses in contact and
@@ -151,6 +156,8 @@ def bench_batch(n_xy: int = 25, n_z: int = 16, n_paper: int = 5, workers: int = 
         measured on ``n_paper`` of the same poses in this run.
 
     """
+    if quick:
+        n_xy, n_z, n_paper = min(n_xy, 10), min(n_z, 10), min(n_paper, 2)
     surface, response, mesh = _scene(n_grid, half)
     ticks = np.linspace(-0.4 * half, 0.4 * half, n_xy)
     heights = np.linspace(0.005, -0.010, n_z) + SPHERE_RADIUS

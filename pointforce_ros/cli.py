@@ -47,6 +47,10 @@ def _cmd_demo(args) -> int:
     return _load('pointforce_ros.nodes.demo:run_demo')(out=args.out, quick=args.quick)
 
 
+def _cmd_replay(args) -> int:
+    return _load('pointforce_ros.nodes.replay:run_replay')(args.bag, rate=args.rate)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser of the ``pointforce`` command."""
     parser = argparse.ArgumentParser(prog='pointforce', description=__doc__.splitlines()[0])
@@ -56,6 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument('--out', default='out/demo', help='output directory (bags, model, plots)')
     demo.add_argument('--quick', action='store_true', help='fewer pokes and queries')
     demo.set_defaults(func=_cmd_demo)
+
+    replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
+    replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')
+    replay.add_argument('--rate', type=float, default=1.0, help='speed-up factor (1 = real time)')
+    replay.set_defaults(func=_cmd_replay)
 
     bench = sub.add_parser('bench', help='benchmarks; ratios against a baseline in the same run')
     bench.add_argument('name', choices=sorted(BENCHMARKS) + ['all'])

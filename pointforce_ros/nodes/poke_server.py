@@ -9,9 +9,11 @@ receive interface streams TCP pose and wrench at 250 Hz, de-duplicated on contro
 Cancel stops the arm (asynchronous moveL + stopL) and retracts. A protective stop, a lost
 connection or a stalled F/T stream aborts with a message, after retracting where possible.
 Every poke, completed, canceled or aborted, is written to the poke store (rosbag2 MCAP) before
-the result is sent; completed ones are announced on ``~/poke_landed``.
+the result is sent, and published as ``~/poke_record`` (the bag's JSON header, so a remote
+recorder can rebuild it from the streams); completed ones are announced on ``~/poke_landed``.
 """
 
+import json
 import threading
 import time
 
@@ -32,7 +34,7 @@ from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.errors import DeviceFault, PointforceError
 from pointforce_ros.nodes.common import declare, run
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
-from pointforce_ros.pokes.store import PokeStore
+from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.transforms import (matrix_to_quaternion, rotvec_aligning_z,
                                        rotvec_to_matrix)
 from pointforce_ros.types import PokeRecord
@@ -83,6 +85,7 @@ class PokeServerNode(Node):
         self.wrench_pub = self.create_publisher(WrenchStamped, '~/wrench', STREAM)
         self.pose_pub = self.create_publisher(PoseStamped, '~/tcp_pose', STREAM)
         self.landed_pub = self.create_publisher(String, '~/poke_landed', STREAM)
+        self.record_pub = self.create_publisher(String, '~/poke_record', STREAM)
         self.create_subscription(PointCloud2, '/cloud_capture/surface', self._on_surface,
                                  LATCHED, callback_group=group)
         self.create_service(Trigger, '~/zero_ftsensor', self._on_zero, callback_group=group)
@@ -227,6 +230,7 @@ class PokeServerNode(Node):
                                       'surface_index': goal.surface_index,
                                       'robot_ip': self.robot_ip})
             self.store.add(record)  # on disk before any result is sent
+            self.record_pub.publish(String(data=json.dumps(record_header(record))))
             saved_id, samples = poke_id, len(record)
             peak = float(np.max(record.normal_force()))
             depth = float(np.max(record.displacement()))

@@ -7,9 +7,11 @@ poke store directory the poke server writes; a refit is triggered by ``/poke_ser
 ``~/suggest_poke``. On restart it reloads the stored pokes and produces the same model.
 """
 
+import json
 import threading
 from pathlib import Path
 
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import SuggestPoke
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -18,17 +20,20 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
-from msg_adapters.geometry import sec_to_stamp
+from msg_adapters.geometry import sec_to_stamp, stamp_to_sec
 from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.learner import OnlineLearner
 from pointforce_ros.model_io import load_surface
 from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.pokes.recorder import StreamRecorder
+from pointforce_ros.pokes.store import PokeStore
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+RECORDER = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class StiffnessLearnerNode(Node):
@@ -52,8 +57,13 @@ class StiffnessLearnerNode(Node):
         self.exclude_radius = declare(self, 'suggest_exclude_radius', 0.01,
                                       'Suggestions keep this far from each other and from '
                                       'pokes, m', bounds=(0.0, 0.2))
+        record = declare(self, 'record_topics', False,
+                         'Rebuild pokes from the /poke_server/tcp_pose, wrench and poke_record '
+                         'topics into store_dir (a learner away from the poke server, or a bag '
+                         'replay)')
         self._lock = threading.Lock()
         self.learner = None
+        self.recorder = StreamRecorder() if record else None
         self.model_pub = self.create_publisher(ModelStatus, '~/model', LATCHED)
         refit_group = MutuallyExclusiveCallbackGroup()
         if surface_file:
@@ -66,6 +76,15 @@ class StiffnessLearnerNode(Node):
         self.create_subscription(String, '/poke_server/poke_landed', self._on_poke,
                                  RELIABLE, callback_group=refit_group)
         self.create_timer(poll, self.refit, callback_group=refit_group)
+        if self.recorder is not None:
+            self._record_store = PokeStore(self.store_dir)
+            stream = ReentrantCallbackGroup()
+            self.create_subscription(PoseStamped, '/poke_server/tcp_pose', self._on_pose,
+                                     RECORDER, callback_group=stream)
+            self.create_subscription(WrenchStamped, '/poke_server/wrench', self._on_wrench,
+                                     RECORDER, callback_group=stream)
+            self.create_subscription(String, '/poke_server/poke_record', self._on_record,
+                                     RELIABLE, callback_group=refit_group)
         self.create_service(SuggestPoke, '~/suggest_poke', self._on_suggest,
                             callback_group=ReentrantCallbackGroup())
 
@@ -82,6 +101,29 @@ class StiffnessLearnerNode(Node):
             self._set_surface(surface_from_msg(msg))
         except PointforceError as exc:
             self.get_logger().error(f'ignoring surface: {exc}')
+
+    def _on_pose(self, msg: PoseStamped):
+        p, q = msg.pose.position, msg.pose.orientation
+        self.recorder.add_pose(stamp_to_sec(msg.header.stamp), (p.x, p.y, p.z),
+                               (q.x, q.y, q.z, q.w))
+
+    def _on_wrench(self, msg: WrenchStamped):
+        f, m = msg.wrench.force, msg.wrench.torque
+        self.recorder.add_wrench(stamp_to_sec(msg.header.stamp), (f.x, f.y, f.z),
+                                 (m.x, m.y, m.z))
+
+    def _on_record(self, msg: String):
+        try:
+            header = json.loads(msg.data)
+            record = self.recorder.finish(header)
+            if record.poke_id not in self._record_store.ids():
+                self._record_store.add(record)
+            self.get_logger().info(f'recorded {record.poke_id} ({len(record)} samples) from '
+                                   'the topics')
+        except (ValueError, PointforceError) as exc:
+            self.get_logger().error(f'cannot record poke from the topics: {exc}')
+            return
+        self.refit()
 
     def _on_poke(self, msg: String):
         self.get_logger().info(f'poke {msg.data} landed')

@@ -55,14 +55,52 @@ def _stamp(t: float):
     return _Time(sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
 
 
-def _record_header(record: PokeRecord) -> dict:
+def record_header(record: PokeRecord) -> dict:
+    """JSON-able description of ``record`` without its pose/wrench series (``poke_record``).
+
+    Carries the controller timestamps and the ROS-time span ``t_start``..``t_end`` of the
+    samples, so a recorder listening to the pose and wrench topics can cut the poke out.
+    """
     return {
         'format': RECORD_FORMAT, 'poke_id': record.poke_id,
         'point': record.point.tolist(), 'normal': record.normal.tolist(),
         'speed': record.speed, 'probe': record.probe, 'outcome': record.outcome,
         'samples': len(record), 't_controller': record.t_controller.tolist(),
+        't_start': float(record.t[0]) if len(record) else 0.0,
+        't_end': float(record.t[-1]) if len(record) else 0.0,
         'meta': dict(record.meta),
     }
+
+
+def record_from_samples(header: dict, pose_rows: np.ndarray, wrench_tool: np.ndarray
+                        ) -> PokeRecord:
+    """Rebuild a record from its header and the samples as they travel on the topics.
+
+    Args:
+        header: :func:`record_header` output.
+        pose_rows: (T, 8) ``[t, x, y, z, qx, qy, qz, qw]`` of ``tcp_pose`` (``base``).
+        wrench_tool: (T, 6) wrench in ``tool0_controller``; rotated back to base orientation.
+
+    Raises:
+        InvalidInput: counts that disagree with the header, or an invalid record.
+
+    """
+    pose_rows = np.asarray(pose_rows, dtype=np.float64).reshape(-1, 8)
+    wrench_tool = np.asarray(wrench_tool, dtype=np.float64).reshape(-1, 6)
+    if not (len(pose_rows) == len(wrench_tool) == header['samples']
+            == len(header['t_controller'])):
+        raise InvalidInput(f'{header.get("poke_id")}: sample counts disagree (pose '
+                           f'{len(pose_rows)}, wrench {len(wrench_tool)}, record '
+                           f'{header["samples"]})')
+    rotvec = quaternion_to_rotvec(pose_rows[:, 4:8])
+    rot = rotvec_to_matrix(rotvec)
+    wrench = np.hstack([np.einsum('nij,nj->ni', rot, wrench_tool[:, :3]),
+                        np.einsum('nij,nj->ni', rot, wrench_tool[:, 3:])])
+    return PokeRecord(poke_id=header['poke_id'], point=header['point'], normal=header['normal'],
+                      t=pose_rows[:, 0], t_controller=header['t_controller'],
+                      tcp_pose=np.hstack([pose_rows[:, 1:4], rotvec]), wrench=wrench,
+                      speed=header['speed'], probe=header['probe'], outcome=header['outcome'],
+                      meta=header.get('meta', {}))
 
 
 def write_poke_bag(record: PokeRecord, path) -> Path:
@@ -115,7 +153,7 @@ def write_poke_bag(record: PokeRecord, path) -> Path:
                 writer.write(wrench_conn, t_ns,
                              TYPESTORE.serialize_cdr(msg, 'geometry_msgs/msg/WrenchStamped'))
             end_ns = int(round((record.t[-1] if len(record) else 0.0) * 1e9)) + 1
-            text = _T['std_msgs/msg/String'](data=json.dumps(_record_header(record)))
+            text = _T['std_msgs/msg/String'](data=json.dumps(record_header(record)))
             writer.write(rec_conn, end_ns, TYPESTORE.serialize_cdr(text, 'std_msgs/msg/String'))
         for f in tmp_bag.iterdir():
             with open(f, 'rb') as fh:
@@ -158,22 +196,8 @@ def read_poke_bag(path) -> PokeRecord:
         raise DataError(f'{path}: cannot read bag: {type(exc).__name__}: {exc}') from exc
     if header is None or header.get('format') != RECORD_FORMAT:
         raise DataError(f'{path}: no {RECORD_TOPIC} record of format {RECORD_FORMAT}')
-    if not (len(poses) == len(wrenches) == header['samples'] == len(header['t_controller'])):
-        raise DataError(f'{path}: sample counts disagree (pose {len(poses)}, wrench '
-                        f'{len(wrenches)}, record {header["samples"]})')
-    pose_arr = np.array(poses, dtype=np.float64).reshape(-1, 8)
-    w_tool = np.array(wrenches, dtype=np.float64).reshape(-1, 6)
-    rotvec = quaternion_to_rotvec(pose_arr[:, 4:8])
-    rot = rotvec_to_matrix(rotvec)
-    wrench = np.hstack([np.einsum('nij,nj->ni', rot, w_tool[:, :3]),
-                        np.einsum('nij,nj->ni', rot, w_tool[:, 3:])])
     try:
-        return PokeRecord(poke_id=header['poke_id'], point=header['point'],
-                          normal=header['normal'], t=pose_arr[:, 0],
-                          t_controller=header['t_controller'],
-                          tcp_pose=np.hstack([pose_arr[:, 1:4], rotvec]), wrench=wrench,
-                          speed=header['speed'], probe=header['probe'],
-                          outcome=header['outcome'], meta=header.get('meta', {}))
+        return record_from_samples(header, np.array(poses), np.array(wrenches))
     except InvalidInput as exc:
         raise DataError(f'{path}: invalid poke record: {exc}') from exc
 

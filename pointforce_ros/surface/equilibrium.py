@@ -13,8 +13,9 @@ Pipeline, one call for one or more scans given as arrays (a ROS adapter turns
 7. orient the normals outward. Rule ``'camera'`` (default): a point's normal must point to the
    side of the surface that the sensors which saw the point were on, i.e. ``n . v > 0`` with
    ``v`` the sum of unit vectors from the point to the viewpoint of every scan, each weighted by
-   the number of that scan's raw points within one voxel diagonal of it (a camera only sees
-   the outside of an object; the weighting outvotes stray flying pixels). Rule
+   the number of that scan's raw points around it (in the 8 nearest occupied voxel cells within
+   1.5 voxel diagonals; a camera only sees the outside of an object, and the weighting
+   outvotes stray flying pixels). Rule
    ``'centroid'``: ``n . (p - centroid) > 0`` (for a closed, roughly convex object). Rule
    ``'up'``: ``n . up > 0`` with ``up`` a direction in ``base`` (an object lying on a table).
 
@@ -307,16 +308,28 @@ def _outward_directions(points: np.ndarray, raw: np.ndarray, owner: np.ndarray,
     centroid_rule = points - points.mean(axis=0)
     if config.orientation == 'centroid':
         return centroid_rule
-    reach = config.voxel_size * np.sqrt(3.0) * 1.01
+    voxel = config.voxel_size
+    reach = 1.5 * np.sqrt(3.0) * voxel * 1.01
     towards = np.zeros_like(points)
     seen = np.zeros(len(points), dtype=bool)
     for i, view in enumerate(views):
         mine = raw[owner == i]
         if len(mine) == 0:
             continue
-        # Vote by how many raw points of this scan fall near the point: a stray flying pixel
-        # of a scan that cannot see this face carries one vote against dozens.
-        votes = cKDTree(mine).query_ball_point(points, reach, return_length=True)
+        # Vote by how many raw points of this scan lie near the point (counted per voxel cell,
+        # the 8 nearest occupied cells within reach): a stray flying pixel of a scan that
+        # cannot see this face carries one vote against dozens.
+        cells = np.floor(mine / voxel).astype(np.int64)
+        cells -= cells.min(axis=0)
+        span = cells.max(axis=0) + 1
+        key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+        key, first, count = np.unique(key, return_index=True, return_counts=True)
+        centres = (np.floor(mine[first] / voxel) + 0.5) * voxel
+        k = min(8, len(centres))
+        dist, idx = cKDTree(centres).query(points, k=k, distance_upper_bound=reach)
+        dist, idx = dist.reshape(len(points), k), idx.reshape(len(points), k)
+        found = np.isfinite(dist)
+        votes = np.where(found, count[np.minimum(idx, len(count) - 1)], 0).sum(axis=1)
         hit = votes > 0
         ray = view - points[hit]
         towards[hit] += votes[hit, None] * ray / np.maximum(

@@ -231,3 +231,16 @@ def test_bad_parameters_raise_invalid_input():
         SurfaceConfig(orientation='inward')
     with pytest.raises(InvalidInput, match='no scans'):
         equilibrium_surface([])
+
+
+def test_up_rule_orients_a_plane_seen_from_below_upward():
+    rng = np.random.default_rng(12)
+    xy = rng.uniform(-0.03, 0.03, (4000, 2))
+    pts = np.column_stack([xy, rng.normal(0.0, 2e-4, len(xy))])
+    below = np.eye(4)
+    below[:3, 3] = [0.0, 0.0, -0.3]  # camera under the plane (identity rotation: looks up)
+    cam = pts - below[:3, 3]
+    by_camera = surface_from_cloud(cam, transform=below)
+    up = surface_from_cloud(cam, transform=below, config=SurfaceConfig(orientation='up'))
+    assert np.all(by_camera.normals[:, 2] < -0.95)  # towards the camera
+    assert np.all(up.normals[:, 2] > 0.95)

@@ -124,3 +124,37 @@ def test_model_topic_hot_swaps_without_dropping_requests(served):
     assert {v for _, v, _ in answers} <= {1, 2}
     assert after.model_version == 2
     assert after.wrench.force.z == pytest.approx(2.0 * before.wrench.force.z, rel=1e-9)
+
+
+def test_eight_concurrent_clients_500_calls_each_no_failure(served):
+    graph, node, _, _, _, _, _ = served
+    clients = []
+    for i in range(8):
+        n = graph.add(Node(f'planner_{i}', context=graph.context))
+        c = n.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+        assert c.wait_for_service(timeout_sec=15.0)
+        clients.append(c)
+    failures, forces = [], [[] for _ in clients]
+    rng = np.random.default_rng(8)
+    depths = rng.uniform(0.0, 0.004, (8, 500))
+
+    def run(i):
+        for depth in depths[i]:
+            try:
+                r = graph.wait_future(clients[i].call_async(_request(depth)[0]), 30, 'call')
+                if not r.success:
+                    failures.append(r.message)
+                forces[i].append(r.wrench.force.z)
+            except RuntimeError as exc:
+                failures.append(str(exc))
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=600)
+    assert not failures, failures[:3]
+    assert sum(len(f) for f in forces) == 4000 and node.requests_served >= 4000
+    # answers are the right ones for their own request: monotone in the requested depth
+    for i in range(8):
+        order = np.argsort(depths[i])
+        assert np.all(np.diff(np.asarray(forces[i])[order]) >= -1e-9)

@@ -1,5 +1,7 @@
 """pointforce_ros.contact: the semi-empirical contact simulator (seed 000, section IV)."""
 
+from pointforce_ros.contact.identify import (dent_profile, identify_shape_constant,
+                                             identify_shape_constant_from_probe, ShapeFit)
 from pointforce_ros.contact.lcp import (lcp_residual, LcpSolution, shape_function, shape_matrix,
                                         solve_lcp, solve_lcp_batch, solve_lcp_paper)
 from pointforce_ros.contact.paper import PaperContactSimulator
@@ -8,5 +10,7 @@ from pointforce_ros.contact.simulator import (BatchContactResult, ContactResult,
                                               ContactSimulator, normalise_approach)
 
 __all__ = ['BatchContactResult', 'ContactResult', 'ContactSimulator', 'LcpSolution',
-           'PaperContactSimulator', 'lcp_residual', 'normalise_approach', 'sample_mesh_surface',
-           'shape_function', 'shape_matrix', 'solve_lcp', 'solve_lcp_batch', 'solve_lcp_paper']
+           'PaperContactSimulator', 'ShapeFit', 'dent_profile', 'identify_shape_constant',
+           'identify_shape_constant_from_probe', 'lcp_residual', 'normalise_approach',
+           'sample_mesh_surface', 'shape_function', 'shape_matrix', 'solve_lcp',
+           'solve_lcp_batch', 'solve_lcp_paper']

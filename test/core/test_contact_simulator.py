@@ -238,6 +238,28 @@ def test_only_the_front_most_sample_counts(flat):
         paper.query(plate, pose, DOWN, np.zeros(3))
 
 
+def test_occluded_samples_are_removed_and_the_deepest_kept():
+    from pointforce_ros.contact.simulator import _deepest_per_key, _deepest_per_triple
+    key = np.array([5, 3, 5, 7, 3])
+    d = np.array([1.0, 4.0, 2.0, 0.5, 3.0])
+    np.testing.assert_array_equal(np.sort(_deepest_per_key(key, d)), [1, 2, 3])
+    assert _deepest_per_key(np.array([1, 9, 4]), d[:3]) is None
+    b = np.array([0, 0, 0, 1])
+    tri = np.array([[1, 2, 3], [1, 2, 3], [1, 2, 4], [1, 2, 3]])
+    np.testing.assert_array_equal(_deepest_per_triple(b, tri, np.array([1.0, 2, 3, 4])),
+                                  [1, 2, 3])
+    assert _deepest_per_triple(b[:3], tri[[0, 2, 3]] + [[0, 0, 0], [0, 0, 0], [0, 0, 9]],
+                               d[:3]) is None
+
+
+def test_rigid_samples_farther_than_max_gap_from_the_surface_do_not_touch():
+    patch = grid_surface(half=0.02, step=0.001)
+    point = np.array([[0.023, 0.00013, -0.005]])  # 3 mm beyond the patch edge, below its top
+    for gap, touches in ((0.005, True), (0.002, False)):
+        sim = ContactSimulator(patch, linear_response(K, len(patch)), c=C, max_gap=gap)
+        assert sim.query_points(point, DOWN, np.zeros(3)).contact_count == int(touches)
+
+
 def test_a_body_beside_the_surface_does_not_touch_it():
     patch = grid_surface(half=0.02, step=0.001)
     sim = ContactSimulator(patch, linear_response(K, len(patch)), c=C)

@@ -46,8 +46,10 @@ Force model plug-in
 ``wrench(tcp_pose6: np.ndarray, t: float) -> np.ndarray`` of shape (6,): the base-oriented
 wrench ``[fx, fy, fz, tx, ty, tz]`` (N, N m) the environment applies to the tool when the TCP is
 at ``tcp_pose6`` at controller time ``t`` (s). An optional ``set_params(**kwargs)`` method lets
-the fault channel change parameters live. The built-in :class:`HalfSpaceSpring` is a flat
-elastic table top.
+the fault channel change parameters live. An optional ``tare(t)`` method means the model owns
+the sensor offset: ``zeroFtSensor`` (and a program start) then call it and the emulator
+subtracts nothing; without it the emulator subtracts the mean of the last 10 raw samples.
+The built-in :class:`HalfSpaceSpring` is a flat elastic table top.
 
 Fault-injection channel (TCP, port 30099 on the same address; one command per line, one JSON
 reply line ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``)
@@ -712,7 +714,11 @@ class Controller:
             self.motion_owner = 'orphan'
 
     def _tare(self) -> None:
-        if self.raw_recent:
+        model_tare = getattr(self.model, 'tare', None)
+        if callable(model_tare):
+            model_tare(self.timestamp)
+            self.tare = np.zeros(6)
+        elif self.raw_recent:
             self.tare = np.mean(np.array(self.raw_recent), axis=0)
 
     # -- async progress register (output_int_register_2) --------------------------------------
@@ -1089,6 +1095,7 @@ class Emulator:
         self.force_stall_until: Optional[float] = None
         self.stream_stall_until: Optional[float] = None
         self.late_ticks = 0
+        """Controller periods skipped because the process was starved (the clock dilated)."""
         self.threads: List[threading.Thread] = []
         self.listeners: List[socket.socket] = []
 
@@ -1186,12 +1193,17 @@ class Emulator:
 
     # -- the 500 Hz loop ----------------------------------------------------------------------
     def _tick_loop(self) -> None:
+        # One controller period per pass. When the process was starved for more than one
+        # period the backlog is dropped rather than sent in a burst: the controller clock then
+        # runs slower than the wall clock, but every period is computed and streamed (a burst
+        # would make ur_rtde keep only its last package, i.e. drop samples a real controller
+        # would have delivered).
         next_time = time.perf_counter()
         while not self.stop_event.is_set():
             now = time.perf_counter()
             if now < next_time:
                 time.sleep(next_time - now)
-            elif now - next_time > 0.25:
+            elif now - next_time > DT:
                 self.late_ticks += int((now - next_time) / DT)
                 next_time = now
             next_time += DT

@@ -2,17 +2,23 @@
 
 This is the only module of the package that imports ``rtde_control`` / ``rtde_receive``.
 
-Interfaces held by :class:`UrArm` (each is its own TCP connection to the controller):
+Connections held by :class:`UrArm` (each its own TCP connection to the controller):
 
 - ``RTDEControlInterface`` (``frequency``, 500 Hz on an e-Series): every command.
 - ``RTDEReceiveInterface`` for status queries made by the caller's thread.
-- a second ``RTDEReceiveInterface``, also at ``frequency``, owned by a dedicated stream thread.
-  The thread polls every 0.5 ms, keeps one controller sample per ``1 / stream_hz`` slot of
-  controller time (de-duplicating on ``getTimestamp``; a slot has two 500 Hz samples, so one
-  sample lost under CPU load does not open a gap), re-reads a sample whose timestamp changed
-  mid-read, and hands :class:`ArmSample` records to callbacks, to a bounded ring buffer and to
-  any running :meth:`UrArm.push_until`. ``waitPeriod`` is not used: it truncates the period to
-  whole milliseconds.
+- the stream: a second ``RTDEReceiveInterface``, also at ``frequency``, owned by a small worker
+  process (``python -m pointforce_ros.drivers.ur_arm --stream-worker ...``, started and stopped
+  by :class:`UrArm`). ur_rtde keeps only the newest controller sample, so whoever polls it must
+  never be late by more than a period; in a ROS node the executor threads hold the GIL for
+  milliseconds at a time (measured here: two busy Python threads cut a polling thread from
+  250 Hz to ~100 Hz), so the poller has a GIL of its own. It polls every 0.5 ms, keeps one
+  controller sample per ``1 / stream_hz`` slot of controller time (de-duplicated on
+  ``getTimestamp``; a slot holds two 500 Hz samples, so one sample lost under load opens no
+  gap), re-reads a sample whose timestamp changed mid-read, and detects the faults below. A
+  reader thread in this process hands the :class:`ArmSample` records to callbacks, a bounded
+  ring buffer and any running :meth:`UrArm.push_until`; the pipe between them buffers ~2 s, so
+  a late reader delays samples but loses none. ``waitPeriod`` is not used: it truncates the
+  period to whole milliseconds.
 
 Faults are reported as :class:`ArmEvent` records, never silently: ``stall`` (no new controller
 sample for ``stall_timeout``), ``ft_frozen`` (``actual_TCP_force`` bitwise identical for
@@ -26,10 +32,18 @@ in rad) in ``base``; wrench ``[fx, fy, fz, tx, ty, tz]`` (N, N m) base-oriented,
 reaction of the environment on the tool.
 """
 
+import argparse
 from collections import deque
 from dataclasses import dataclass, field
+import json
 import math
+import os
+from pathlib import Path
+import signal
 import socket
+import struct
+import subprocess
+import sys
 import threading
 import time
 from typing import Callable, List, Optional, Sequence, Tuple
@@ -54,6 +68,10 @@ EVENT_CONNECTION_LOST = 'connection_lost'
 FAULT_KINDS = (EVENT_CONNECTION_LOST, EVENT_PROTECTIVE_STOP, EVENT_PROGRAM_STOPPED,
                EVENT_STALL, EVENT_FT_FROZEN)
 """Fault kinds, most fundamental first (a protective stop also pauses the program)."""
+
+_HEADER = struct.Struct('<cH')       # worker -> parent message: kind, payload length
+_SAMPLE = struct.Struct('<14d')      # t_wall, t_controller, pose (6), wrench (6)
+_PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 
 
 @dataclass(frozen=True)
@@ -231,31 +249,31 @@ class UrArm:
         self._sample_count = 0
         self._speeding = False
         self._closed = False
-        self._stop = threading.Event()
-        self._ctrl = self._rx = self._stream_rx = None
-        self._thread: Optional[threading.Thread] = None
+        self._ctrl = self._rx = None
+        self._worker: Optional[subprocess.Popen] = None
+        self._reader: Optional[threading.Thread] = None
+        self._worker_state = {'ready': False, 'error': None}
 
         deadline = time.monotonic() + connect_timeout
         self._probe_ports(deadline)
         try:
             self._ctrl = rtde_control.RTDEControlInterface(host, self.frequency)
             self._rx = rtde_receive.RTDEReceiveInterface(host, self.frequency, STATUS_VARIABLES)
-            self._stream_rx = rtde_receive.RTDEReceiveInterface(host, self.frequency,
-                                                                STREAM_VARIABLES)
         except (RuntimeError, ValueError, OSError) as exc:
             self._disconnect_all()
             raise DeviceFault(f'UR controller {host}: ur_rtde could not connect: {exc}') from exc
-        self._thread = threading.Thread(target=self._stream_loop, name=f'ur_arm_stream_{host}',
-                                        daemon=True)
-        self._thread.start()
+        self._start_worker()
         with self._cond:
-            while self._sample_count == 0 and time.monotonic() < deadline:
+            while (self._sample_count == 0 and self._worker_state['error'] is None
+                   and time.monotonic() < deadline):
                 self._cond.wait(0.05)
             got_sample = self._sample_count > 0
+            error = self._worker_state['error']
         if not got_sample:
             self.close()
-            raise DeviceFault(f'UR controller {host}: no RTDE sample within '
-                              f'{connect_timeout:g} s of connecting')
+            raise DeviceFault(f'UR controller {host}: no RTDE sample on the stream within '
+                              f'{connect_timeout:g} s of connecting'
+                              + (f': {error}' if error else ''))
 
     # -- connection ---------------------------------------------------------------------------
     def _probe_ports(self, deadline: float) -> None:
@@ -272,14 +290,13 @@ class UrArm:
                                   f'answer ({exc}); is the robot on and reachable?') from exc
 
     def close(self) -> None:
-        """Stop the stream thread, stop the control script and disconnect (idempotent)."""
+        """Stop the stream worker, stop the control script and disconnect (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-        if self._ctrl is not None and self._safe_connected(self._ctrl):
+        self._stop_worker()
+        if (self._ctrl is not None and self._safe_connected(self._ctrl)
+                and self._controller_alive()):
             try:
                 if self._ctrl.isProgramRunning():
                     self._ctrl.stopScript()
@@ -289,7 +306,7 @@ class UrArm:
 
     def _disconnect_all(self) -> None:
         threads = []
-        for iface in (self._ctrl, self._rx, self._stream_rx):
+        for iface in (self._ctrl, self._rx):
             if iface is not None:
                 thread = threading.Thread(target=self._quiet_disconnect, args=(iface,))
                 thread.start()
@@ -317,89 +334,74 @@ class UrArm:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    # -- stream thread ------------------------------------------------------------------------
-    def _stream_loop(self) -> None:
-        rx = self._stream_rx
-        slot_period = 1.0 / self.stream_hz
-        slot_offset = 0.5 / self.frequency
-        last_t = None
-        last_slot = None
-        last_new = time.monotonic()
-        last_wrench = None
-        frozen_since = None
-        protective = False
-        playing = None
-        while not self._stop.is_set():
-            if not self._safe_connected(rx):
-                self._emit(EVENT_CONNECTION_LOST, f'RTDE connection to {self.host} lost')
-                return
-            try:
-                t = rx.getTimestamp()
-            except RuntimeError as exc:
-                self._emit(EVENT_CONNECTION_LOST, f'RTDE read from {self.host} failed: {exc}')
-                return
-            now = time.monotonic()
-            if t != last_t:
-                last_new = now
-                if last_t is not None and t < last_t:
-                    last_slot = None
-                last_t = t
-                self._clear(EVENT_STALL, 'controller samples flowing again')
-                slot = math.floor((t + slot_offset) / slot_period)
-                if last_slot is None or slot > last_slot:
-                    sample = self._read_sample(rx, t)
-                    if sample is not None:
-                        last_slot = math.floor((sample.t_controller + slot_offset)
-                                               / slot_period)
-                        last_t = sample.t_controller
-                        self._deliver(sample)
-                        if self.ft_freeze_timeout is not None:
-                            if last_wrench is not None and np.array_equal(sample.wrench,
-                                                                          last_wrench):
-                                if frozen_since is None:
-                                    frozen_since = sample.t_controller
-                                elif (sample.t_controller - frozen_since
-                                      >= self.ft_freeze_timeout - 1e-9):
-                                    held = sample.t_controller - frozen_since
-                                    self._emit(EVENT_FT_FROZEN, 'actual_TCP_force bitwise '
-                                               f'constant for {held:.3f} s of controller time')
-                            else:
-                                frozen_since = None
-                                self._clear(EVENT_FT_FROZEN, 'F/T values changing again')
-                            last_wrench = sample.wrench
-                try:
-                    now_protective = bool(rx.isProtectiveStopped())
-                    now_playing = rx.getRuntimeState() == RUNTIME_PLAYING
-                except RuntimeError:
-                    continue
-                if now_protective and not protective:
-                    self._emit(EVENT_PROTECTIVE_STOP, f'{self.host} is protective stopped')
-                elif protective and not now_protective:
-                    self._clear(EVENT_PROTECTIVE_STOP, 'protective stop released')
-                protective = now_protective
-                if playing and not now_playing:
-                    self._emit(EVENT_PROGRAM_STOPPED, f'control program on {self.host} is no '
-                               f'longer running (runtime_state {rx.getRuntimeState()})')
-                elif now_playing and playing is False:
-                    self._clear(EVENT_PROGRAM_STOPPED, 'control program running')
-                playing = now_playing
-            elif now - last_new > self.stall_timeout:
-                self._emit(EVENT_STALL, f'no new controller sample for {now - last_new:.3f} s')
-            time.sleep(0.0005)
+    # -- stream worker ------------------------------------------------------------------------
+    def _start_worker(self) -> None:
+        env = dict(os.environ)
+        env['PYTHONPATH'] = os.pathsep.join(
+            [_PACKAGE_ROOT] + [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p])
+        freeze = 'none' if self.ft_freeze_timeout is None else repr(self.ft_freeze_timeout)
+        cmd = [sys.executable, '-m', 'pointforce_ros.drivers.ur_arm', '--stream-worker',
+               self.host, repr(self.frequency), repr(self.stream_hz), repr(self.stall_timeout),
+               freeze, str(os.getpid())]
+        try:
+            self._worker = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
+                                            stdout=subprocess.PIPE, env=env)
+        except OSError as exc:
+            self._disconnect_all()
+            raise DeviceFault(f'UR controller {self.host}: cannot start the stream worker: '
+                              f'{exc}') from exc
+        self._reader = threading.Thread(target=self._read_worker, daemon=True,
+                                        name=f'ur_arm_stream_{self.host}')
+        self._reader.start()
 
-    def _read_sample(self, rx, t: float) -> Optional[ArmSample]:
-        for _ in range(3):
+    def _stop_worker(self) -> None:
+        worker = self._worker
+        if worker is not None and worker.poll() is None:
+            worker.send_signal(signal.SIGTERM)
             try:
-                pose = rx.getActualTCPPose()
-                wrench = rx.getActualTCPForce()
-                t_after = rx.getTimestamp()
-            except RuntimeError:
-                return None
-            if t_after == t:
-                return ArmSample(time.time(), t, np.array(pose, dtype=float),
-                                 np.array(wrench, dtype=float))
-            t = t_after
-        return None
+                worker.wait(3.0)
+            except subprocess.TimeoutExpired:
+                worker.kill()
+                worker.wait(3.0)
+        if self._reader is not None:
+            self._reader.join(timeout=2.0)
+        if worker is not None and worker.stdout is not None:
+            worker.stdout.close()
+
+    def _read_worker(self) -> None:
+        pipe = self._worker.stdout
+        while True:
+            head = pipe.read(_HEADER.size)
+            if len(head) < _HEADER.size:
+                break
+            kind, size = _HEADER.unpack(head)
+            payload = pipe.read(size) if size else b''
+            if len(payload) < size:
+                break
+            if kind == b'S':
+                row = _SAMPLE.unpack(payload)
+                self._deliver(ArmSample(row[0], row[1], np.array(row[2:8]),
+                                        np.array(row[8:14])))
+            elif kind == b'E':
+                info = json.loads(payload)
+                if info['cleared']:
+                    self._clear(info['kind'], info['message'], info['t_wall'])
+                else:
+                    self._emit(info['kind'], info['message'], info['t_wall'])
+            elif kind == b'X':
+                with self._cond:
+                    self._worker_state['error'] = json.loads(payload)['message']
+                    self._cond.notify_all()
+        code = self._worker.wait()
+        if not self._closed:
+            with self._cond:
+                if self._worker_state['error'] is None and self._sample_count == 0:
+                    self._worker_state['error'] = f'stream worker exited with code {code}'
+                    self._cond.notify_all()
+            self._emit(EVENT_CONNECTION_LOST,
+                       f'stream from {self.host} ended (worker exit code {code})'
+                       + (f': {self._worker_state["error"]}'
+                          if self._worker_state['error'] else ''))
 
     def _deliver(self, sample: ArmSample) -> None:
         with self._cond:
@@ -412,19 +414,20 @@ class UrArm:
         for callback in callbacks:
             callback(sample)
 
-    def _emit(self, kind: str, message: str) -> None:
+    def _emit(self, kind: str, message: str, t_wall: Optional[float] = None) -> None:
         with self._cond:
             if kind in self._active:
                 return
             self._active.add(kind)
-        self._publish(ArmEvent(kind, time.time(), message))
+        self._publish(ArmEvent(kind, time.time() if t_wall is None else t_wall, message))
 
-    def _clear(self, kind: str, message: str) -> None:
+    def _clear(self, kind: str, message: str, t_wall: Optional[float] = None) -> None:
         with self._cond:
             if kind not in self._active:
                 return
             self._active.discard(kind)
-        self._publish(ArmEvent(kind + '_cleared', time.time(), message))
+        self._publish(ArmEvent(kind + '_cleared', time.time() if t_wall is None else t_wall,
+                               message))
 
     def _publish(self, event: ArmEvent) -> None:
         with self._cond:
@@ -487,18 +490,21 @@ class UrArm:
     # -- status ---------------------------------------------------------------------------------
     def is_connected(self) -> bool:
         """Return True while every ur_rtde interface is connected."""
-        return all(self._safe_connected(i) for i in (self._ctrl, self._rx, self._stream_rx)
-                   if i is not None) and EVENT_CONNECTION_LOST not in self._active
+        worker_alive = self._worker is not None and self._worker.poll() is None
+        return (worker_alive and EVENT_CONNECTION_LOST not in self._active
+                and all(self._safe_connected(i) for i in (self._ctrl, self._rx)))
 
     def is_protective_stopped(self) -> bool:
-        """``isProtectiveStopped`` of the status receive interface.
+        """Return True if the status interface or the stream thread sees a protective stop.
 
         Raises:
             DeviceFault: the connection is lost.
 
         """
         self._require_connection('isProtectiveStopped')
-        return bool(self._rx.isProtectiveStopped())
+        with self._lock:
+            seen_by_stream = EVENT_PROTECTIVE_STOP in self._active
+        return seen_by_stream or bool(self._rx.isProtectiveStopped())
 
     def is_program_running(self) -> bool:
         """Return True while the ur_rtde control script runs on the controller."""
@@ -517,7 +523,7 @@ class UrArm:
 
     def _controller_alive(self, window: float = 0.03) -> bool:
         """Return True when the status interface sees the controller timestamp advance."""
-        if not self.is_connected():
+        if self._rx is None or not self._safe_connected(self._rx):
             return False
         try:
             first = self._rx.getTimestamp()
@@ -539,7 +545,7 @@ class UrArm:
     def _diagnose(self, what: str) -> str:
         if not self.is_connected():
             return f'{what} on {self.host} failed: connection lost'
-        if self._rx.isProtectiveStopped():
+        if self.is_protective_stopped():
             return f'{what} on {self.host} failed: protective stop'
         if self._rx.getRuntimeState() != RUNTIME_PLAYING:
             return (f'{what} on {self.host} failed: control program not running '
@@ -547,8 +553,7 @@ class UrArm:
         return f'{what} on {self.host} failed: the controller rejected or timed out the command'
 
     def _check_ready(self, what: str) -> None:
-        self._require_connection(what)
-        if self._rx.isProtectiveStopped():
+        if self.is_protective_stopped():
             raise DeviceFault(f'{what} on {self.host}: the robot is protective stopped')
         if self._rx.getRuntimeState() != RUNTIME_PLAYING:
             raise DeviceFault(f'{what} on {self.host}: control program not running')
@@ -840,3 +845,174 @@ class UrArm:
             if time.monotonic() > deadline:
                 raise DeviceFault(f'{what} on {self.host} still running after {timeout:.1f} s')
             self.wait_samples(1, 0.05)
+
+
+# ------------------------------------------------------------------------------------------------
+# the stream worker process
+
+class _StreamPoller:
+    """Polling loop over one ``RTDEReceiveInterface``: slots, de-duplication, fault detection.
+
+    ``on_sample(t_wall, t_controller, pose, wrench)`` gets every kept sample;
+    ``on_event(kind, message, cleared)`` gets each change of a fault condition.
+    """
+
+    def __init__(self, rx, host: str, frequency: float, stream_hz: float, stall_timeout: float,
+                 ft_freeze_timeout: Optional[float], on_sample, on_event):
+        self.rx = rx
+        self.host = host
+        self.slot_period = 1.0 / stream_hz
+        self.slot_offset = 0.5 / frequency
+        self.stall_timeout = stall_timeout
+        self.ft_freeze_timeout = ft_freeze_timeout
+        self.on_sample = on_sample
+        self.on_event = on_event
+        self.active = set()
+
+    def _event(self, kind: str, message: str, cleared: bool = False) -> None:
+        if cleared == (kind not in self.active):
+            return
+        if cleared:
+            self.active.discard(kind)
+        else:
+            self.active.add(kind)
+        self.on_event(kind, message, cleared)
+
+    def _read(self, t: float):
+        for _ in range(3):
+            pose = self.rx.getActualTCPPose()
+            wrench = self.rx.getActualTCPForce()
+            t_after = self.rx.getTimestamp()
+            if t_after == t:
+                return t, pose, wrench
+            t = t_after
+        return None
+
+    def run(self, should_stop: Callable[[], bool]) -> None:
+        """Poll every 0.5 ms until ``should_stop()`` or the connection is lost."""
+        rx = self.rx
+        last_t = None
+        last_slot = None
+        last_new = time.monotonic()
+        last_wrench = None
+        frozen_since = None
+        protective = False
+        playing = None
+        while not should_stop():
+            try:
+                if not rx.isConnected():
+                    self._event(EVENT_CONNECTION_LOST, f'RTDE connection to {self.host} lost')
+                    return
+                t = rx.getTimestamp()
+                now = time.monotonic()
+                if t == last_t:
+                    if now - last_new > self.stall_timeout:
+                        self._event(EVENT_STALL,
+                                    f'no new controller sample for {now - last_new:.3f} s')
+                    time.sleep(0.0005)
+                    continue
+                last_new = now
+                if last_t is not None and t < last_t:
+                    last_slot = None
+                last_t = t
+                self._event(EVENT_STALL, 'controller samples flowing again', cleared=True)
+                slot = math.floor((t + self.slot_offset) / self.slot_period)
+                if last_slot is None or slot > last_slot:
+                    got = self._read(t)
+                    if got is not None:
+                        t, pose, wrench = got
+                        last_t = t
+                        last_slot = math.floor((t + self.slot_offset) / self.slot_period)
+                        self.on_sample(time.time(), t, pose, wrench)
+                        if self.ft_freeze_timeout is not None:
+                            if wrench == last_wrench:
+                                if frozen_since is None:
+                                    frozen_since = t
+                                elif t - frozen_since >= self.ft_freeze_timeout - 1e-9:
+                                    self._event(EVENT_FT_FROZEN, 'actual_TCP_force bitwise '
+                                                f'constant for {t - frozen_since:.3f} s of '
+                                                'controller time')
+                            else:
+                                frozen_since = None
+                                self._event(EVENT_FT_FROZEN, 'F/T values changing again',
+                                            cleared=True)
+                            last_wrench = wrench
+                now_protective = bool(rx.isProtectiveStopped())
+                runtime = rx.getRuntimeState()
+            except RuntimeError as exc:
+                self._event(EVENT_CONNECTION_LOST, f'RTDE read from {self.host} failed: {exc}')
+                return
+            if now_protective != protective:
+                self._event(EVENT_PROTECTIVE_STOP,
+                            f'{self.host} is protective stopped' if now_protective
+                            else 'protective stop released', cleared=not now_protective)
+            protective = now_protective
+            now_playing = runtime == RUNTIME_PLAYING
+            if playing and not now_playing:
+                self._event(EVENT_PROGRAM_STOPPED, f'control program on {self.host} is no '
+                            f'longer running (runtime_state {runtime})')
+            elif now_playing and playing is False:
+                self._event(EVENT_PROGRAM_STOPPED, 'control program running', cleared=True)
+            playing = now_playing
+            time.sleep(0.0005)
+
+
+def _stream_worker(argv: Sequence[str]) -> int:
+    """Entry of the stream worker process; writes framed messages to its original stdout."""
+    parser = argparse.ArgumentParser(prog='ur_arm --stream-worker')
+    parser.add_argument('host')
+    parser.add_argument('frequency', type=float)
+    parser.add_argument('stream_hz', type=float)
+    parser.add_argument('stall_timeout', type=float)
+    parser.add_argument('ft_freeze_timeout')
+    parser.add_argument('parent_pid', type=int)
+    args = parser.parse_args(argv)
+    out_fd = os.dup(1)
+    os.dup2(2, 1)   # anything ur_rtde prints goes to stderr, never into the message pipe
+    stop = {'flag': False}
+
+    def on_signal(signum, frame):
+        stop['flag'] = True
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    def send(kind: bytes, payload: bytes) -> None:
+        data = _HEADER.pack(kind, len(payload)) + payload
+        while data:
+            data = data[os.write(out_fd, data):]
+
+    def on_sample(t_wall, t, pose, wrench):
+        send(b'S', _SAMPLE.pack(t_wall, t, *pose, *wrench))
+
+    def on_event(kind, message, cleared):
+        send(b'E', json.dumps({'kind': kind, 'message': message, 'cleared': cleared,
+                               't_wall': time.time()}).encode())
+    try:
+        try:
+            rx = rtde_receive.RTDEReceiveInterface(args.host, args.frequency, STREAM_VARIABLES)
+        except (RuntimeError, ValueError, OSError) as exc:
+            send(b'X', json.dumps({'message': f'stream RTDEReceiveInterface: {exc}'}).encode())
+            return 1
+        freeze = None if args.ft_freeze_timeout == 'none' else float(args.ft_freeze_timeout)
+        poller = _StreamPoller(rx, args.host, args.frequency, args.stream_hz,
+                               args.stall_timeout, freeze, on_sample, on_event)
+        checks = {'n': 0}
+
+        def should_stop() -> bool:
+            checks['n'] += 1
+            if checks['n'] % 200 == 0 and os.getppid() != args.parent_pid:
+                return True
+            return stop['flag']
+        poller.run(should_stop)
+        if rx.isConnected():
+            rx.disconnect()
+        return 0
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == '__main__':
+    if len(sys.argv) > 1 and sys.argv[1] == '--stream-worker':
+        sys.exit(_stream_worker(sys.argv[2:]))
+    sys.exit('usage: python -m pointforce_ros.drivers.ur_arm --stream-worker HOST FREQUENCY '
+             'STREAM_HZ STALL_TIMEOUT FT_FREEZE_TIMEOUT|none PARENT_PID')

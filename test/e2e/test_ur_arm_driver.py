@@ -45,8 +45,8 @@ def _inject_when(arm, condition, action):
 
 def test_connect_failure_names_the_host():
     t0 = time.monotonic()
-    with pytest.raises(DeviceFault, match='127.0.0.254'):
-        UrArm('127.0.0.254', connect_timeout=2.0)
+    with pytest.raises(DeviceFault, match='127.254.254.254'):
+        UrArm('127.254.254.254', connect_timeout=2.0)
     assert time.monotonic() - t0 < 2.5
 
 
@@ -59,6 +59,8 @@ def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
     t = np.array([s.t_controller for s in got])
     wall = np.array([s.t_wall for s in got])
     rate = (len(t) - 1) / (t[-1] - t[0])
+    print(f'stream: {len(got)} samples in 3 s, {rate:.1f} Hz, max gap '
+          f'{np.diff(t).max() * 1e3:.1f} ms, max wall gap {np.diff(wall).max() * 1e3:.1f} ms')
     assert abs(rate - 250.0) / 250.0 < 0.05, f'{rate:.1f} Hz'
     assert len(got) >= 0.95 * 750
     assert np.all(np.diff(t) > 0), 'duplicated or reordered controller timestamps'
@@ -66,6 +68,34 @@ def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
     assert np.diff(wall).max() < 0.03
     assert len(arm.samples()) >= len(got)
     assert not arm.active_faults()
+
+
+def test_move_speed_and_stop_commands(cell):
+    emu, arm = cell
+    start = arm.tcp_pose()
+    with pytest.raises(UnsafeCommand):
+        arm.move_linear(start, speed=2.0)
+    with pytest.raises(InvalidInput):
+        arm.move_linear(start[:5])
+    target = start.copy()
+    target[0] += 0.05
+    arm.move_linear(target, 0.05, 0.5, asynchronous=True)
+    assert arm.is_moving()
+    time.sleep(0.3)
+    arm.stop(0.5)
+    assert not arm.is_moving()
+    x = arm.tcp_pose()[0]
+    assert start[0] + 0.005 < x < target[0] - 0.02
+    arm.speed_linear([0.0, 0.02, 0.0, 0.0, 0.0, 0.0], accel=0.5)
+    time.sleep(0.3)
+    arm.stop(0.5)
+    moved = arm.tcp_pose()[1] - start[1]
+    assert 0.002 < moved < 0.008
+    arm.move_linear(start, 0.1, 0.5)
+    np.testing.assert_allclose(arm.tcp_pose(), start, atol=1e-9)
+    arm.tare()
+    np.testing.assert_allclose(arm.tcp_wrench(), np.zeros(6), atol=0.03)
+    assert arm.is_program_running() and not arm.is_protective_stopped()
 
 
 def test_push_stops_at_force_limit_and_retracts(cell):
@@ -79,6 +109,7 @@ def test_push_stops_at_force_limit_and_retracts(cell):
     res = arm.push_until(STANDOFF, DOWN, force_limit=limit, travel_limit=0.01, speed=0.004)
     assert res.outcome == 'force_limit'
     force = res.push_force()
+    print(f'force limit {limit} N at 4 mm/s into {K:.0f} N/m: peak {res.peak_force:.3f} N')
     # 4 mm/s into 2000 N/m is 8 N/s: one 4 ms sample plus the stop is ~0.05 N
     assert limit <= res.peak_force < limit + 0.1
     assert force.max() == pytest.approx(res.peak_force)
@@ -90,6 +121,7 @@ def test_push_stops_at_force_limit_and_retracts(cell):
     assert abs(force[0]) < 0.05
     inside = res.travel() > 0.0025
     slope = np.polyfit(res.travel()[inside], force[inside], 1)[0]
+    print(f'slope through UrArm: {slope:.0f} N/m (k = {K:.0f})')
     assert abs(slope - K) / K < 0.05
 
 
@@ -137,6 +169,7 @@ def test_ft_stall_raises_within_100_ms(cell, what, kind):
     fault = info.value
     assert fault.kind == kind
     latency = fault.detected_wall - fired['t']
+    print(f'{kind} detected {latency * 1e3:.0f} ms after the injection')
     assert latency < 0.1, f'{kind} detected after {latency * 1e3:.0f} ms'
     assert len(fault.result) > 50, (fired['t'] - fault.result.t_wall[0], fault.result.events,
                                     fault.result.push_force()[-5:])

@@ -47,6 +47,17 @@ def _cmd_demo(args) -> int:
     return _load('pointforce_ros.nodes.demo:run_demo')(out=args.out, quick=args.quick)
 
 
+def _cmd_cell(args) -> int:
+    if args.action == 'generate':
+        return _load('pointforce_ros.cell.generate:run_generate')(
+            object_name=args.object, scenario=args.scenario, pokes=args.pokes,
+            probes=[p for p in args.probes.split(',') if p], seed=args.seed,
+            out=args.out or f'out/data/{args.object}-{args.scenario}')
+    return _load('pointforce_ros.nodes.cell:run_cell')(
+        out=args.out or 'out/cell', object_name=args.object, scenario=args.scenario,
+        robot_ip=args.robot_ip, camera_topic=args.camera_topic, duration=args.duration)
+
+
 def _cmd_replay(args) -> int:
     return _load('pointforce_ros.nodes.replay:run_replay')(args.bag, rate=args.rate)
 
@@ -60,6 +71,24 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument('--out', default='out/demo', help='output directory (bags, model, plots)')
     demo.add_argument('--quick', action='store_true', help='fewer pokes and queries')
     demo.set_defaults(func=_cmd_demo)
+
+    cell = sub.add_parser('cell', help='run the node suite on the simulated (or a real) cell; '
+                          '"cell generate" writes data sets')
+    cell.add_argument('action', nargs='?', choices=['run', 'generate'], default='run',
+                      help='run the cell (default) or generate a data set')
+    cell.add_argument('--object', default='lamb', help='simulated object (config/objects)')
+    cell.add_argument('--scenario', default='realistic',
+                      help='simulated sensor effects (config/scenarios)')
+    cell.add_argument('--robot-ip', default=None, help='a real UR controller (no emulator)')
+    cell.add_argument('--camera-topic', default=None,
+                      help='a real PointCloud2 topic (no simulated camera)')
+    cell.add_argument('--out', default=None, help='output directory')
+    cell.add_argument('--duration', type=float, default=None, help='seconds to run (run)')
+    cell.add_argument('--pokes', type=int, default=20, help='point pokes (generate)')
+    cell.add_argument('--probes', default='point,line,cylinder',
+                      help='probe kinds to generate, comma-separated (generate)')
+    cell.add_argument('--seed', type=int, default=0, help='seed (generate)')
+    cell.set_defaults(func=_cmd_cell)
 
     replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
     replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')

@@ -11,6 +11,7 @@ Before a poke joins the training set, the current model predicts it: that *prequ
 a genuine held-out figure, reported as ``validation_rmse``.
 """
 
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,6 +105,7 @@ class OnlineLearner:
         self.skipped: Dict[str, str] = {}
         self._prequential: List[np.ndarray] = []
         self.status: Optional[LearnerStatus] = None
+        self._lock = threading.RLock()  # update() mutates the model that suggest() reads
 
     def _new_curves(self) -> List[PokeCurve]:
         self.store.refresh()
@@ -126,6 +128,10 @@ class OnlineLearner:
 
     def update(self) -> Optional[LearnerStatus]:
         """Fit the pokes that arrived since the last call; return the new status or ``None``."""
+        with self._lock:
+            return self._update()
+
+    def _update(self) -> Optional[LearnerStatus]:
         fresh = self._new_curves()
         if not fresh:
             return None
@@ -182,4 +188,6 @@ class OnlineLearner:
         if not 1 <= int(count) <= 50:
             raise InvalidInput(f'count: must be 1..50, got {count}')
         from pointforce_ros.response.suggest import suggest_pokes
-        return suggest_pokes(self.model, self.surface, int(count), exclude_radius=exclude_radius)
+        with self._lock:
+            return suggest_pokes(self.model, self.surface, int(count),
+                                 exclude_radius=exclude_radius)

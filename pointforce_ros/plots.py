@@ -1,0 +1,124 @@
+"""PNG figures a person looks at: force curves with the model, stiffness map, deformed surface.
+
+Matplotlib with the Agg backend (no display needed). Every function writes one PNG and returns
+its path; units on the axes are millimetres and newtons.
+"""
+
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from pointforce_ros.types import Surface
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _nearest(surface: Surface, points: np.ndarray) -> np.ndarray:
+    from scipy.spatial import cKDTree
+    return cKDTree(surface.points).query(np.atleast_2d(points))[1]
+
+
+def plot_force_curves(curves: Sequence, model, surface: Surface, path, *,
+                      max_curves: int = 8, title: str = 'Force response: measured and learned'
+                      ) -> Path:
+    """Measured loading curves (dots) and the model's prediction at each poke point (lines).
+
+    ``curves`` are :class:`~pointforce_ros.pokes.curves.PokeCurve`; ``model`` any force-response
+    model with ``predict`` (and ``predict_std`` for a band, if it has one).
+    """
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    colours = plt.cm.viridis(np.linspace(0, 0.9, min(len(curves), max_curves)))
+    for curve, colour in zip(list(curves)[:max_curves], colours):
+        idx = _nearest(surface, curve.point)[0]
+        ax.plot(1e3 * curve.d[::3], curve.f[::3], '.', ms=2.5, color=colour, alpha=0.6)
+        d = np.linspace(curve.d.min(), curve.d.max(), 120)
+        feats = np.repeat(surface.features[idx][None], len(d), axis=0)
+        f = model.predict(feats, d)
+        ax.plot(1e3 * d, f, '-', lw=1.8, color=colour, label=curve.poke_id)
+        std = model.predict_std(feats, d) if hasattr(model, 'predict_std') else None
+        if std is not None:
+            ax.fill_between(1e3 * d, f - 2 * std, f + 2 * std, color=colour, alpha=0.12)
+    ax.set_xlabel('displacement d along -n (mm)')
+    ax.set_ylabel('normal force f (N)')
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2, loc='upper left')
+    return _save(fig, path)
+
+
+def plot_stiffness_map(surface: Surface, forces: np.ndarray, path, *, depth: float,
+                       pokes: Optional[np.ndarray] = None, truth: Optional[np.ndarray] = None,
+                       title: str = 'Learned force at depth') -> Path:
+    """Top view of the surface coloured by the force (N) at ``depth`` (m); pokes as crosses.
+
+    With ``truth`` (N,) a second panel shows the ground truth on the same colour scale.
+    """
+    plt = _plt()
+    panels = 2 if truth is not None else 1
+    fig, axes = plt.subplots(1, panels, figsize=(6.2 * panels, 4.8), squeeze=False)
+    vmax = float(np.nanmax(forces if truth is None else np.concatenate([forces, truth])))
+    for ax, values, name in zip(axes[0], [forces, truth], ['learned', 'ground truth']):
+        if values is None:
+            continue
+        sc = ax.scatter(1e3 * surface.points[:, 0], 1e3 * surface.points[:, 1], c=values, s=4,
+                        cmap='magma', vmin=0.0, vmax=vmax)
+        if pokes is not None and len(pokes):
+            ax.plot(1e3 * pokes[:, 0], 1e3 * pokes[:, 1], 'x', color='cyan', ms=7, mew=2,
+                    label='pokes')
+            ax.legend(loc='upper right', fontsize=8)
+        ax.set_aspect('equal')
+        ax.set_xlabel('x (mm, base)')
+        ax.set_ylabel('y (mm, base)')
+        ax.set_title(f'{title} {1e3 * depth:.1f} mm: {name}')
+        fig.colorbar(sc, ax=ax, label='force (N)')
+    return _save(fig, path)
+
+
+def plot_deformed_surface(surface: Surface, displacement: np.ndarray, path, *,
+                          rigid_points: Optional[np.ndarray] = None,
+                          title: str = 'Deformed surface') -> Path:
+    """Surface coloured by displacement (mm), seen from above and from the side (y-z).
+
+    ``displacement`` (N,) metres along ``-n``; the deformed points are ``p - u n``.
+    """
+    plt = _plt()
+    deformed = surface.points - displacement[:, None] * surface.normals
+    fig, (top, side) = plt.subplots(1, 2, figsize=(12, 4.8))
+    sc = top.scatter(1e3 * deformed[:, 0], 1e3 * deformed[:, 1], c=1e3 * displacement, s=4,
+                     cmap='plasma')
+    top.set_aspect('equal')
+    top.set_xlabel('x (mm)')
+    top.set_ylabel('y (mm)')
+    top.set_title(f'{title}: top view')
+    fig.colorbar(sc, ax=top, label='displacement (mm)')
+    band = np.abs(deformed[:, 0] - np.average(deformed[:, 0], weights=displacement + 1e-9)) < 0.003
+    side.scatter(1e3 * surface.points[band, 1], 1e3 * surface.points[band, 2], s=3, c='0.7',
+                 label='equilibrium')
+    side.scatter(1e3 * deformed[band, 1], 1e3 * deformed[band, 2], s=4,
+                 c=1e3 * displacement[band], cmap='plasma', label='deformed')
+    if rigid_points is not None and len(rigid_points):
+        side.plot(1e3 * rigid_points[:, 1], 1e3 * rigid_points[:, 2], '.', ms=3, color='k',
+                  label='rigid body samples')
+    side.set_aspect('equal')
+    side.set_xlabel('y (mm)')
+    side.set_ylabel('z (mm)')
+    side.set_title('section through the contact (|x - x_c| < 3 mm)')
+    side.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def _save(fig, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    return path

@@ -1,0 +1,135 @@
+"""Held-out evaluation of force-response models: learning curves (seed 000, Fig. 3a).
+
+The protocol of the paper: train on random subsets of the poked locations, test on the *other*
+locations, repeat over subsets and report the error against the number of training pokes. A
+model is never scored on a poke it was trained on.
+
+Error: root-mean-square of ``predict - f`` over the held-out samples in the ``contact`` region
+(``d >= onset_d - 0.5 mm`` of the held-out curve, the default: the long force-free approach
+would otherwise dilute the error) or over ``all`` loading samples.
+"""
+
+from typing import Callable, Dict, List, Mapping, Sequence, Union
+
+import numpy as np
+
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.pokes.curves import PokeCurve
+from pointforce_ros.response.common import curve_features
+from pointforce_ros.types import Surface
+
+CONTACT_MARGIN = 0.0005
+"""Samples from this far before the held-out curve's onset on count in the contact region, m."""
+
+
+def heldout_errors(model, curves: Sequence[PokeCurve], surface: Surface,
+                   region: str = 'contact') -> np.ndarray:
+    """Concatenated residuals ``predict - f`` (newtons) of ``model`` on ``curves``.
+
+    Raises:
+        InvalidInput: unknown ``region``, or a curve the model was trained on.
+
+    """
+    if region not in ('contact', 'all'):
+        raise InvalidInput(f"region must be 'contact' or 'all', got {region!r}")
+    trained = set(getattr(model, 'poke_ids', []))
+    leak = [c.poke_id for c in curves if c.poke_id in trained]
+    if leak:
+        raise InvalidInput(f'held-out evaluation on training pokes {leak[:3]}: refused')
+    feats = curve_features(curves, surface)
+    xs, ds, fs = [], [], []
+    for c, x in zip(curves, feats):
+        keep = c.d >= c.onset_d - CONTACT_MARGIN if region == 'contact' else np.ones(len(c), bool)
+        xs.append(np.repeat(x[None], int(keep.sum()), axis=0))
+        ds.append(c.d[keep])
+        fs.append(c.f[keep])
+    x, d, f = np.vstack(xs), np.concatenate(ds), np.concatenate(fs)
+    return model.predict(x, d) - f
+
+
+def rmse(model, curves: Sequence[PokeCurve], surface: Surface, region: str = 'contact') -> float:
+    """Held-out RMSE in newtons (see :func:`heldout_errors`)."""
+    e = heldout_errors(model, curves, surface, region)
+    return float(np.sqrt(np.mean(e * e)))
+
+
+def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
+                   model_factory: Union[Callable, Mapping[str, Callable]],
+                   sizes: Sequence[int] = (2, 3, 5, 10, 20), repeats: int = 10, seed: int = 0,
+                   region: str = 'contact') -> List[Dict]:
+    """Held-out RMSE against the number of training pokes.
+
+    Args:
+        curves: every poked location's curve (the pool).
+        surface: equilibrium surface the pokes were made on.
+        model_factory: callable returning a fresh model, or ``{name: callable}`` to compare
+            several models on the *same* training subsets.
+        sizes: training-set sizes; sizes leaving no held-out poke are skipped.
+        repeats: random subsets per size.
+        seed: seed of the subset draws.
+        region: ``contact`` or ``all`` (see the module docstring).
+
+    Returns:
+        One row per (model, size): ``model``, ``size``, ``median``, ``q25``, ``q75``, ``mean``
+        (RMSE in newtons over the repeats), ``rmse`` (the list), ``fit_s`` (median fit time).
+
+    Raises:
+        InvalidInput: fewer than 2 curves, ``repeats < 1``, or an unknown region.
+
+    """
+    curves = list(curves)
+    if len(curves) < 2:
+        raise InvalidInput('learning_curve: need at least 2 curves (one to train, one to test)')
+    if repeats < 1:
+        raise InvalidInput('learning_curve: repeats must be >= 1')
+    factories = dict(model_factory) if isinstance(model_factory, Mapping) \
+        else {'model': model_factory}
+    rng = np.random.default_rng(seed)
+    rows = []
+    results = {(name, s): ([], []) for name in factories for s in sizes}
+    for size in sizes:
+        if not 1 <= size < len(curves):
+            continue
+        for _ in range(repeats):
+            train_idx = rng.choice(len(curves), size=size, replace=False)
+            mask = np.zeros(len(curves), bool)
+            mask[train_idx] = True
+            train = [curves[i] for i in train_idx]
+            test = [c for c, m in zip(curves, mask) if not m]
+            for name, factory in factories.items():
+                model = factory().fit(train, surface)
+                errs, times = results[(name, size)]
+                errs.append(rmse(model, test, surface, region))
+                times.append(float(getattr(model, 'fit_seconds', np.nan)))
+    for name in factories:
+        for size in sizes:
+            errs, times = results[(name, size)]
+            if not errs:
+                continue
+            e = np.array(errs)
+            rows.append({'model': name, 'size': int(size), 'median': float(np.median(e)),
+                         'q25': float(np.percentile(e, 25)), 'q75': float(np.percentile(e, 75)),
+                         'mean': float(e.mean()), 'rmse': e.tolist(),
+                         'fit_s': float(np.median(times))})
+    return rows
+
+
+def plot_learning_curve(rows: Sequence[Mapping], path, title: str = 'Held-out RMSE') -> None:
+    """Write a PNG of median RMSE (with the inter-quartile band) against training pokes."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(5.0, 3.6), dpi=120)
+    for name in dict.fromkeys(r['model'] for r in rows):
+        sel = sorted((r for r in rows if r['model'] == name), key=lambda r: r['size'])
+        x = [r['size'] for r in sel]
+        ax.plot(x, [r['median'] for r in sel], marker='o', label=name)
+        ax.fill_between(x, [r['q25'] for r in sel], [r['q75'] for r in sel], alpha=0.2)
+    ax.set_xlabel('training pokes')
+    ax.set_ylabel('held-out RMSE [N]')
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -1,0 +1,387 @@
+"""Ours: a monotone contact law per poke whose parameters a Gaussian process spreads over x.
+
+The seed's Extra-Trees regressor treats ``(x, d)`` as ten anonymous inputs. Three facts it does
+not use are built in here:
+
+1. **Zero before contact, monotone in depth.** Each poke's loading curve is fitted with
+   ``f = F * ((d - d0)_+ / s_ref) ** p`` (``F`` = force at the reference contact depth
+   ``s_ref``, ``p`` > 0), which is zero before the onset ``d0`` (where camera bias puts it)
+   and increasing after it, and extrapolates beyond the poked depth like the material does
+   (``p = 1.5`` is Hertz for a sphere; ``p`` is fitted).
+2. **Smooth over the surface.** The parameters ``theta = (d0, log F, p)`` vary smoothly over
+   the object: each is a Gaussian process over ``x = [p, rgb, n]`` (:mod:`.gp`; position
+   dominates, colour and normal enter when the likelihood says they help).
+3. **Uncertainty.** The processes give a mean and a standard deviation of ``theta`` anywhere;
+   the force's standard deviation follows by the delta method::
+
+       var f = f^2 var(log F) + (f log(s / s_ref))^2 var(p) + (f p / s)^2 var(d0)
+
+   (zero before the predicted onset; the ``d0`` term dominates just after it).
+
+A refit is: one bounded least-squares fit for the new poke (cached for the others), then three
+small GP fits on a fixed hyperparameter grid; baking 40 000 points is a handful of (N, K) numpy
+expressions (see :mod:`.bench` for timings).
+"""
+
+import time
+from typing import List, Mapping, Optional, Sequence
+
+import numpy as np
+
+from pointforce_ros.errors import InvalidInput, ModelNotReady
+from pointforce_ros.pokes.curves import fit_power_onset, PokeCurve
+from pointforce_ros.response.baked import BakedResponse
+from pointforce_ros.response.common import (check_curves, check_depths, check_query,
+                                            curve_features, DEFAULT_MAX_SURFACE_DISTANCE)
+from pointforce_ros.response.gp import BASES, FeatureFrame, FeatureGp, GpGrid, GpState
+from pointforce_ros.types import Surface
+
+KIND = 'pointforce.response.contact_gp'
+FORMAT = 1
+PARAMS = ('d0', 'log_force', 'exponent')
+
+
+class ContactGpModel:
+    """Per-poke monotone contact law + GP over the surface (see the module docstring).
+
+    Args:
+        ref_depth: reference contact depth ``s_ref`` at which ``F`` is defined, metres.
+        exponent_bounds: allowed range of the contact exponent ``p``.
+        prior_scales: prior standard deviations of ``(d0 [m], log F, p)`` about their mean
+            over the object (they matter only with very few pokes).
+        max_surface_distance: farthest a poke may be from the surface, metres.
+        bases: linear-term basis of the process of each parameter ``(d0, log F, p)``:
+            ``rigid`` (camera extrinsic error: the onset's natural structure), ``colour``,
+            ``none`` (see :mod:`.gp`).
+        grid: GP hyperparameter grid (:class:`~pointforce_ros.response.gp.GpGrid`).
+
+    Raises:
+        InvalidInput: non-positive ``ref_depth`` or prior scales, bad exponent bounds.
+
+    """
+
+    kind = KIND
+
+    def __init__(self, ref_depth: float = 0.003, exponent_bounds=(0.7, 3.5),
+                 prior_scales=(0.003, 1.0, 0.4),
+                 max_surface_distance: float = DEFAULT_MAX_SURFACE_DISTANCE,
+                 bases=('rigid', 'colour', 'none'), grid: Optional[GpGrid] = None):
+        if not (np.isfinite(ref_depth) and ref_depth > 0):
+            raise InvalidInput(f'ContactGpModel: ref_depth must be > 0 m, got {ref_depth}')
+        lo, hi = (float(v) for v in exponent_bounds)
+        if not (0 < lo < hi):
+            raise InvalidInput(f'ContactGpModel: exponent_bounds must satisfy 0 < lo < hi, got '
+                               f'{exponent_bounds}')
+        scales = np.asarray(prior_scales, dtype=float)
+        if scales.shape != (3,) or not np.all(scales > 0):
+            raise InvalidInput('ContactGpModel: prior_scales must be three positive numbers')
+        self.ref_depth = float(ref_depth)
+        self.exponent_bounds = (lo, hi)
+        self.prior_scales = tuple(float(s) for s in scales)
+        self.max_surface_distance = float(max_surface_distance)
+        bases = tuple(bases)
+        if len(bases) != 3 or any(b not in BASES for b in bases):
+            raise InvalidInput(f'ContactGpModel: bases must be three of {BASES}, got {bases}')
+        self.bases = bases
+        self.grid = grid or GpGrid()
+        self.version = 0
+        self._curves: List[PokeCurve] = []
+        self._ids: List[str] = []
+        self._features = np.zeros((0, 9))
+        self._theta = np.zeros((0, 3))
+        self._fit_rms = np.zeros(0)
+        self._frame: Optional[FeatureFrame] = None
+        self._gps: Optional[List[FeatureGp]] = None
+        self._surface: Optional[Surface] = None
+        self.fit_seconds = 0.0
+
+    # ----------------------------------------------------------------------------- fitting
+    @property
+    def poke_ids(self) -> List[str]:
+        """Ids of the training pokes, in training order."""
+        return list(self._ids)
+
+    @property
+    def poke_points(self) -> np.ndarray:
+        """(n, 3) surface positions of the training pokes, metres, ``base``."""
+        return self._features[:, :3].copy()
+
+    @property
+    def poke_params(self) -> np.ndarray:
+        """(n, 3) per-poke ``(d0 [m], log F [log N], p)`` fitted to each training curve."""
+        return self._theta.copy()
+
+    def fit_curve(self, curve: PokeCurve) -> np.ndarray:
+        """Fit the contact law to one curve; return ``((d0, log F, p), rms)``; stores nothing.
+
+        Raises:
+            InvalidInput: the curve has no force above zero (nothing to fit).
+
+        """
+        if not np.any(curve.f > 0):
+            raise InvalidInput(f'poke {curve.poke_id}: no positive force, cannot fit a contact '
+                               'law')
+        fit = fit_power_onset(curve.d, curve.f, with_bias=False,
+                              exponent_bounds=self.exponent_bounds, max_samples=600)
+        force_ref = max(fit.a * self.ref_depth ** fit.p, 1e-9)
+        return np.array([fit.d0, np.log(force_ref), fit.p]), fit.rms
+
+    def fit(self, curves: Sequence[PokeCurve], surface: Surface) -> 'ContactGpModel':
+        """Fit from scratch on ``curves`` poked on ``surface``; returns ``self``.
+
+        Raises:
+            InvalidInput: no curves, duplicate ids, pokes off the surface, curves without force.
+
+        """
+        start = time.perf_counter()
+        curves = check_curves(curves, surface)
+        feats = curve_features(curves, surface, self.max_surface_distance)
+        fits = [self.fit_curve(c) for c in curves]
+        self._curves = list(curves)
+        self._ids = [c.poke_id for c in curves]
+        self._features = feats
+        self._theta = np.stack([th for th, _ in fits])
+        self._fit_rms = np.array([rms for _, rms in fits])
+        self._frame = FeatureFrame.of_surface(surface.points, surface.colors)
+        self._surface = surface
+        self._fit_processes()
+        self.fit_seconds = time.perf_counter() - start
+        return self
+
+    def partial_fit(self, curve: PokeCurve, surface: Optional[Surface] = None
+                    ) -> 'ContactGpModel':
+        """Add one poke (earlier per-poke fits are reused) and refit the processes.
+
+        Raises:
+            InvalidInput: duplicate poke id, no surface known yet, poke off the surface.
+
+        """
+        start = time.perf_counter()
+        surface = surface if surface is not None else self._surface
+        if surface is None:
+            raise InvalidInput('partial_fit: pass the surface (the model has not seen one)')
+        check_curves([curve], surface)
+        if curve.poke_id in self._ids:
+            raise InvalidInput(f'partial_fit: poke {curve.poke_id} is already in the model')
+        feat = curve_features([curve], surface, self.max_surface_distance)
+        theta, rms = self.fit_curve(curve)
+        self._curves.append(curve)
+        self._ids.append(curve.poke_id)
+        self._features = np.vstack([self._features, feat])
+        self._theta = np.vstack([self._theta, theta[None]])
+        self._fit_rms = np.append(self._fit_rms, rms)
+        if self._frame is None or surface is not self._surface:
+            self._frame = FeatureFrame.of_surface(surface.points, surface.colors)
+        self._surface = surface
+        self._fit_processes()
+        self.fit_seconds = time.perf_counter() - start
+        return self
+
+    def _fit_processes(self, states: Optional[Sequence[GpState]] = None) -> None:
+        gps = []
+        for j in range(3):
+            gp = FeatureGp(self._frame, self.prior_scales[j], basis=self.bases[j],
+                           grid=self.grid)
+            if states is None:
+                gp.fit(self._features, self._theta[:, j])
+            else:
+                gp.condition(self._features, self._theta[:, j], states[j])
+            gps.append(gp)
+        self._gps = gps
+        if states is None:
+            self.version += 1
+
+    # ---------------------------------------------------------------------------- prediction
+    def _require(self) -> None:
+        if self._gps is None:
+            raise ModelNotReady('ContactGpModel: no pokes yet; fit the model first')
+
+    def predict_params(self, features: np.ndarray, return_std: bool = False):
+        """Mean (M, 3) and optionally std (M, 3) of ``(d0 [m], log F, p)`` at ``features``.
+
+        The exponent's mean is clipped to ``exponent_bounds``.
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: features not (M, 9) or not finite.
+
+        """
+        self._require()
+        features, _ = check_query(features, 0.0)
+        sq = {}
+        out = [gp.predict(features, return_std=return_std, sq=sq) for gp in self._gps]
+        if not return_std:
+            mean = np.stack(out, axis=1)
+            mean[:, 2] = np.clip(mean[:, 2], *self.exponent_bounds)
+            return mean
+        mean = np.stack([m for m, _ in out], axis=1)
+        std = np.stack([s for _, s in out], axis=1)
+        mean[:, 2] = np.clip(mean[:, 2], *self.exponent_bounds)
+        return mean, std
+
+    def _law(self, theta: np.ndarray, d: np.ndarray, dtype=np.float64):
+        """Force ``f``, ``s = d - d0`` and ``log(s / s_ref)`` of the contact law (broadcast).
+
+        ``theta`` is (M, 3); ``d`` is (M, 1) or (1, K). Where ``s <= 0`` the force is 0 (the
+        log is then meaningless but finite). ``dtype`` float32 halves the work of a bake.
+        """
+        d0 = theta[:, 0:1].astype(dtype)
+        log_f = theta[:, 1:2].astype(dtype)
+        p = theta[:, 2:3].astype(dtype)
+        s = np.asarray(d, dtype=dtype) - d0
+        tiny = dtype(1e-9)
+        log_rel = np.log(np.maximum(s, tiny) * dtype(1.0 / self.ref_depth))
+        f = np.exp(log_f + p * log_rel)
+        f *= s > 0
+        return f, s, log_rel
+
+    def _std(self, theta, sd, f, s, log_rel):
+        """Delta-method force std from parameter std ``sd`` (M, 3), same shape as ``f``."""
+        dtype = f.dtype.type
+        p = theta[:, 2:3].astype(dtype)
+        sd = sd.astype(dtype)
+        rate = p / np.maximum(s, dtype(1e-9))
+        rate *= sd[:, 0:1]
+        var = rate * rate
+        term = log_rel * sd[:, 2:3]
+        var += term * term
+        var += sd[:, 1:2] ** 2
+        np.sqrt(var, out=var)
+        var *= f
+        return var
+
+    def predict(self, features: np.ndarray, d) -> np.ndarray:
+        """Mean force (M,), newtons, at ``features`` (M, 9) and depths ``d`` (M,) metres.
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: malformed query.
+
+        """
+        self._require()
+        features, d = check_query(features, d)
+        theta = self.predict_params(features)
+        f, _, _ = self._law(theta, d[:, None])
+        return f[:, 0]
+
+    def predict_std(self, features: np.ndarray, d) -> np.ndarray:
+        """Predictive standard deviation (M,) of the force curve, newtons (delta method).
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: malformed query.
+
+        """
+        self._require()
+        features, d = check_query(features, d)
+        theta, sd = self.predict_params(features, return_std=True)
+        f, s, log_rel = self._law(theta, d[:, None])
+        return self._std(theta, sd, f, s, log_rel)[:, 0]
+
+    def bake(self, surface: Surface, depths) -> BakedResponse:
+        """Tabulate force, std and extrapolation slope on every point of ``surface``.
+
+        Args:
+            surface: N points; features ``surface.features``.
+            depths: (K,) strictly increasing displacement grid, metres; start it below the
+                earliest onset (negative depths are fine) so the table begins at zero force.
+
+        Returns:
+            ``BakedResponse`` with forces (N, K), std (N, K) and slopes (N,) = the law's
+            derivative ``F p s^(p-1) / s_ref^p`` at ``depths[-1]`` (0 where not yet in contact).
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: bad grid or surface.
+
+        """
+        self._require()
+        if not isinstance(surface, Surface):
+            raise InvalidInput(f'bake: expected a Surface, got {type(surface).__name__}')
+        depths = check_depths(depths)
+        theta, sd = self.predict_params(surface.features, return_std=True)
+        forces, s, log_rel = self._law(theta, depths[None, :], dtype=np.float32)
+        std = self._std(theta, sd, forces, s, log_rel)   # float32: BakedResponse widens them
+        s_last = depths[-1] - theta[:, 0]
+        f_last = forces[:, -1].astype(np.float64)
+        slopes = np.where(s_last > 0, f_last * theta[:, 2] / np.where(s_last > 0, s_last, 1.0),
+                          0.0)
+        return BakedResponse(depths=depths, forces=forces, slopes=slopes, std=std,
+                             version=self.version,
+                             meta={'model': self.kind, 'n_pokes': len(self._ids),
+                                   'poke_ids': list(self._ids), 'ref_depth': self.ref_depth})
+
+    def reference_depth(self) -> float:
+        """Return a depth where every trained location is in contact (max onset + ``ref_depth``)."""
+        self._require()
+        return float(self._theta[:, 0].max() + self.ref_depth)
+
+    # ------------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict:
+        """JSON-serialisable state (config, per-poke parameters, GP hyperparameters)."""
+        return {
+            'kind': self.kind, 'format': FORMAT, 'version': int(self.version),
+            'config': {'ref_depth': self.ref_depth, 'exponent_bounds': list(self.exponent_bounds),
+                       'prior_scales': list(self.prior_scales),
+                       'max_surface_distance': self.max_surface_distance,
+                       'bases': list(self.bases), 'grid': _grid_to_dict(self.grid)},
+            'frame': None if self._frame is None else self._frame.to_dict(),
+            'pokes': [{'poke_id': i, 'features': f.tolist(), 'params': th.tolist(),
+                       'fit_rms': float(r)}
+                      for i, f, th, r in zip(self._ids, self._features, self._theta,
+                                             self._fit_rms)],
+            'processes': None if self._gps is None else [gp.state.to_dict() for gp in self._gps],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> 'ContactGpModel':
+        """Rebuild a model saved by :meth:`to_dict` (no refit: hyperparameters are reused).
+
+        Raises:
+            InvalidInput: wrong kind or format, or missing fields.
+
+        """
+        if data.get('kind') != KIND or data.get('format') != FORMAT:
+            raise InvalidInput(f'ContactGpModel.from_dict: not a {KIND} v{FORMAT} model '
+                               f'(kind={data.get("kind")!r}, format={data.get("format")!r})')
+        try:
+            cfg = data['config']
+            model = cls(ref_depth=cfg['ref_depth'], exponent_bounds=cfg['exponent_bounds'],
+                        prior_scales=cfg['prior_scales'],
+                        max_surface_distance=cfg['max_surface_distance'],
+                        bases=cfg['bases'], grid=_grid_from_dict(cfg['grid']))
+            pokes = data['pokes']
+            model.version = int(data['version'])
+            model._frame = None if data['frame'] is None \
+                else FeatureFrame.from_dict(data['frame'])
+            model._ids = [p['poke_id'] for p in pokes]
+            model._features = np.array([p['features'] for p in pokes], dtype=float
+                                       ).reshape(-1, 9)
+            model._theta = np.array([p['params'] for p in pokes], dtype=float).reshape(-1, 3)
+            model._fit_rms = np.array([p['fit_rms'] for p in pokes], dtype=float)
+            if data['processes'] is not None:
+                states = [GpState.from_dict(s) for s in data['processes']]
+                model._fit_processes(states)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InvalidInput(f'ContactGpModel.from_dict: malformed model data: {exc}') from exc
+        return model
+
+
+def _grid_to_dict(grid: GpGrid) -> dict:
+    def enc(values):
+        return [None if not np.isfinite(v) else float(v) for v in values]
+    return {'position': enc(grid.position), 'colour': enc(grid.colour),
+            'normal': enc(grid.normal), 'linear': enc(grid.linear),
+            'nugget': enc(grid.nugget),
+            'position_prior': list(grid.position_prior),
+            'nugget_prior': list(grid.nugget_prior)}
+
+
+def _grid_from_dict(data: Mapping) -> GpGrid:
+    def dec(values):
+        return tuple(np.inf if v is None else float(v) for v in values)
+    return GpGrid(position=dec(data['position']), colour=dec(data['colour']),
+                  normal=dec(data['normal']), linear=dec(data['linear']),
+                  nugget=dec(data['nugget']),
+                  position_prior=tuple(data['position_prior']),
+                  nugget_prior=tuple(data['nugget_prior']))

@@ -312,7 +312,7 @@ class ContactGpModel:
                                    'poke_ids': list(self._ids), 'ref_depth': self.ref_depth})
 
     def reference_depth(self) -> float:
-        """Return a depth where every trained location is in contact (max onset + ``ref_depth``)."""
+        """Return a depth (m) where every trained location is in contact: max onset + ref."""
         self._require()
         return float(self._theta[:, 0].max() + self.ref_depth)
 

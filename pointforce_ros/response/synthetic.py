@@ -114,7 +114,7 @@ class SyntheticObject:
                                               + 0.3 * np.sin(3.0 * np.pi * y))
 
     def force(self, points: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """Return the true normal force (M,) at ``points`` (M, 3) and depths ``d`` (M,)."""
+        """Return the true (M,) normal force in newtons at positions (M, 3) and depths (M,)."""
         points = np.atleast_2d(points)
         s = np.maximum(np.asarray(d, dtype=float) - self.onset(points), 0.0)
         stiff = 1.0 + (s / self.stiffening_depth) ** 2 if np.isfinite(self.stiffening_depth) \

@@ -114,7 +114,7 @@ def active_vs_random_curve(curves: Sequence[PokeCurve], surface: Surface,
     The pool ``curves`` stands for the locations a cell could poke (the paper pokes a grid).
     Each repeat splits it into a fixed test set (``test_fraction``, never trained on) and
     candidates; both strategies start from the same ``start`` random candidates, then add one
-    poke at a time: *active* takes :func:`suggest_pokes` restricted to the remaining
+    poke at a time (``partial_fit``): *active* takes :func:`suggest_pokes` restricted to the remaining
     candidates, *random* a random remaining candidate.
 
     Returns:
@@ -147,14 +147,15 @@ def active_vs_random_curve(curves: Sequence[PokeCurve], surface: Surface,
         for strategy in ('active', 'random'):
             chosen = list(first)
             errs = []
+            model = model_factory().fit([curves[i] for i in chosen], surface)
             while True:
-                model = model_factory().fit([curves[i] for i in chosen], surface)
                 errs.append(rmse(model, test, surface, region))
                 if len(chosen) == max_pokes:
                     break
                 remaining = [i for i in pool if i not in chosen]
                 if strategy == 'random':
                     chosen.append(int(rng.choice(remaining)))
+                    model.partial_fit(curves[chosen[-1]], surface)
                     continue
                 pick = suggest_pokes(model, surface, 1, exclude_radius,
                                      candidates=on_surface[remaining]).indices
@@ -163,6 +164,7 @@ def active_vs_random_curve(curves: Sequence[PokeCurve], surface: Surface,
                                          candidates=on_surface[remaining]).indices
                 by_index = {int(on_surface[i]): i for i in remaining}
                 chosen.append(int(by_index[int(pick[0])]))
+                model.partial_fit(curves[chosen[-1]], surface)
             out[strategy].append(errs)
     result = {'sizes': sizes, 'test_fraction': test_fraction, 'repeats': repeats}
     for strategy, runs in out.items():

@@ -114,8 +114,8 @@ def active_vs_random_curve(curves: Sequence[PokeCurve], surface: Surface,
     The pool ``curves`` stands for the locations a cell could poke (the paper pokes a grid).
     Each repeat splits it into a fixed test set (``test_fraction``, never trained on) and
     candidates; both strategies start from the same ``start`` random candidates, then add one
-    poke at a time (``partial_fit``): *active* takes :func:`suggest_pokes` restricted to the remaining
-    candidates, *random* a random remaining candidate.
+    poke at a time (``partial_fit``): *active* takes :func:`suggest_pokes` restricted to the
+    remaining candidates, *random* a random remaining candidate.
 
     Returns:
         ``{'sizes': [...], 'active': {'median', 'q25', 'q75', 'rmse'}, 'random': {...}}``

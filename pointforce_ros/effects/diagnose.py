@@ -1,0 +1,519 @@
+"""``pointforce diagnose``: attribute held-out residuals to candidate effects, or say it cannot.
+
+Procedure (``diagnose``):
+
+1. Load point pokes (store, bag, CSV table or records) and prepare a batch
+   (:func:`~pointforce_ros.effects.data.make_batch`). Probe trials are counted but not scored.
+2. Split the pokes, seeded and by poke, into ``folds`` groups. Each group is held out once: the
+   global parameters (exponent and effect parameters) are fitted on the other groups, and the
+   held-out pokes are scored with them (their per-poke amplitude and contact direction, the
+   nuisance of :mod:`~pointforce_ros.effects.model`, are solved on the poke itself). Every poke
+   thus has one held-out error from a model that never saw it.
+3. Greedy forward selection. In each round every remaining library effect is added in turn to
+   the accepted set, refitted on the training folds and scored on the held-out pokes. A
+   candidate is *significant* when all three hold:
+
+   * paired one-sided Wilcoxon signed-rank test on the per-poke held-out mean squared errors
+     (current set vs current set + candidate): ``p < alpha``;
+   * held-out RMSE drops by at least ``min_improvement`` (relative);
+   * the penalised held-out score ``n ln(MSE) + k ln(n)`` (``n`` pokes, ``k`` fitted effect
+     parameters: a BIC counted per poke, the unit of independent data) drops.
+
+   The significant candidate with the lowest penalised score is accepted; the next round
+   starts from it. After each acceptance a backward check drops any earlier effect that is no
+   longer significant (same three tests, the model without it against the model with it):
+   an effect that only stood in for one found later does not stay. Selection stops when no
+   candidate is significant.
+4. The accepted set is refitted on all pokes; parameter uncertainty is a bootstrap over pokes.
+5. The held-out residual after selection is compared with the sensor noise (estimated from
+   sample-to-sample differences). When its systematic part exceeds ``tolerance`` times the
+   median peak force, the report says "unexplained residual" and shows its structure (by depth,
+   phase, time in the poke, poke order, poke, and the best-fitting periodic component) instead
+   of inventing a cause.
+"""
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+from scipy.signal import lombscargle
+from scipy.stats import wilcoxon
+
+from pointforce_ros.effects.data import load_pokes, make_batch, PokeBatch
+from pointforce_ros.effects.library import LIBRARY, NOT_TESTABLE_ON_POKES
+from pointforce_ros.effects.model import (Fit, fit_global, fold_indices, heldout_sse,
+                                          residual_table)
+from pointforce_ros.errors import InvalidInput, NotConverged, PointforceError
+
+
+@dataclass(frozen=True)
+class CandidateResult:
+    """One candidate effect scored in one selection round.
+
+    Attributes:
+        name: effect name.
+        n_params: parameters it adds.
+        rmse: pooled held-out RMSE of the force vector with it, N.
+        improvement: relative RMSE drop against the round's current set (1 - new / old).
+        p_value: one-sided Wilcoxon signed-rank p on per-poke held-out MSE.
+        delta_score: change of the penalised score ``n ln(MSE) + k ln(n)``.
+        improved: number of pokes whose held-out error dropped.
+        significant: passed all three tests.
+        values: fitted parameters on the first training fold (for the record).
+
+    """
+
+    name: str
+    n_params: int
+    rmse: float
+    improvement: float
+    p_value: float
+    delta_score: float
+    improved: int
+    significant: bool
+    values: Dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SelectionRound:
+    """One round of greedy forward selection.
+
+    Attributes:
+        current: effects accepted before the round.
+        rmse: held-out RMSE of the current set, N.
+        candidates: every candidate tried, best penalised score first.
+        chosen: the effect accepted in this round, or None (selection stops).
+        removed: effects accepted earlier that the backward check dropped after ``chosen``
+            joined (no longer significant given it).
+
+    """
+
+    current: Tuple[str, ...]
+    rmse: float
+    candidates: Tuple[CandidateResult, ...]
+    chosen: Optional[str]
+    removed: Tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class AcceptedEffect:
+    """An accepted effect with its parameters fitted on all pokes.
+
+    Attributes:
+        name: library name.
+        title: human name.
+        params: value of each parameter (SI) and the fixed settings.
+        std: bootstrap standard deviation of each fitted parameter.
+        low, high: bootstrap 2.5 % and 97.5 % quantiles.
+
+    """
+
+    name: str
+    title: str
+    params: Dict[str, float]
+    std: Dict[str, float]
+    low: Dict[str, float]
+    high: Dict[str, float]
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One view of the residual's structure.
+
+    Attributes:
+        factor: ``depth``, ``phase``, ``time_in_poke``, ``poke_order``, ``poke``, ``speed`` or
+            ``periodic``.
+        explained: fraction of the normal-residual variance the factor explains (0..1).
+        detail: one line for the report.
+        groups: ``(label, mean residual N, rms residual N, samples)`` per group.
+
+    """
+
+    factor: str
+    explained: float
+    detail: str
+    groups: Tuple[Tuple[str, float, float, int], ...] = ()
+
+
+@dataclass
+class DiagnoseReport:
+    """Result of :func:`diagnose` (see the module docstring for the procedure).
+
+    RMSE figures are pooled over the held-out samples of all pokes (force vector, N);
+    ``systematic_*`` remove the estimated sensor-noise variance.
+    """
+
+    source: str
+    settings: Dict[str, float]
+    ids: Tuple[str, ...]
+    points: np.ndarray
+    notes: List[str]
+    rounds: List[SelectionRound]
+    accepted: List[AcceptedEffect]
+    exponent: float
+    rmse_before: float
+    rmse_after: float
+    noise_rms: float
+    systematic_before: float
+    systematic_after: float
+    poke_rmse_before: np.ndarray
+    poke_rmse_after: np.ndarray
+    unexplained: bool
+    tolerance: float
+    structure_before: List[Finding]
+    structure_after: List[Finding]
+    residual_before: Dict[str, np.ndarray]
+    residual_after: Dict[str, np.ndarray]
+    probe_trials: int
+    not_testable: Dict[str, str]
+
+    @property
+    def accepted_names(self) -> List[str]:
+        """Names of the accepted effects in the order they were accepted."""
+        return [a.name for a in self.accepted]
+
+    def effects(self) -> Dict[str, Dict[str, float]]:
+        """Return the accepted effects as ``{name: {param: value}}`` (``ContactModel.effects``)."""
+        return {a.name: dict(a.params) for a in self.accepted}
+
+    def summary(self) -> str:
+        """Return a few lines for the console."""
+        lines = [f'{len(self.ids)} pokes; held-out RMSE {self.rmse_before:.4g} N -> '
+                 f'{self.rmse_after:.4g} N (sensor noise {self.noise_rms:.3g} N)']
+        for a in self.accepted:
+            params = ', '.join(f'{k}={v:.4g}' + (f'+-{a.std[k]:.2g}' if k in a.std else '')
+                               for k, v in a.params.items())
+            lines.append(f'accepted {a.name}: {params}')
+        if not self.accepted:
+            lines.append('no effect accepted')
+        if self.unexplained:
+            top = self.structure_after[0] if self.structure_after else None
+            lines.append('unexplained residual: systematic part '
+                         f'{self.systematic_after:.3g} N > tolerance {self.tolerance:.3g} N'
+                         + (f'; strongest structure: {top.detail}' if top else ''))
+        return '\n'.join(lines)
+
+
+# --------------------------------------------------------------------------- selection
+
+
+def _cross_fit(batch: PokeBatch, folds: Sequence[np.ndarray], effects: Sequence[str],
+               starts: Optional[Sequence[Dict]] = None) -> List[Tuple[np.ndarray, Fit]]:
+    everything = np.arange(len(batch))
+    out = []
+    for k, held in enumerate(folds):
+        train = np.setdiff1d(everything, held)
+        start = starts[k] if starts is not None else None
+        out.append((held, fit_global(batch, effects, pokes=train, start=start)))
+    return out
+
+
+def _poke_mse(batch: PokeBatch, sse: np.ndarray) -> np.ndarray:
+    return sse / np.diff(batch.starts)
+
+
+def _pooled_rmse(batch: PokeBatch, sse: np.ndarray) -> float:
+    return float(np.sqrt(np.sum(sse) / batch.n_samples))
+
+
+def _score(batch: PokeBatch, sse: np.ndarray, k: int) -> float:
+    n = len(batch)
+    return n * np.log(max(np.sum(sse) / batch.n_samples, 1e-300)) + k * np.log(n)
+
+
+def _compare(batch, sse_old, sse_new, k_add, alpha, min_improvement):
+    mse_old, mse_new = _poke_mse(batch, sse_old), _poke_mse(batch, sse_new)
+    diff = mse_old - mse_new
+    if np.all(np.abs(diff) <= 1e-15 * np.maximum(mse_old, 1e-300)):
+        p_value = 1.0
+    else:
+        p_value = float(wilcoxon(mse_old, mse_new, alternative='greater',
+                                 zero_method='wilcox').pvalue)
+    rmse_old, rmse_new = _pooled_rmse(batch, sse_old), _pooled_rmse(batch, sse_new)
+    improvement = 1.0 - rmse_new / rmse_old if rmse_old > 0 else 0.0
+    delta = _score(batch, sse_new, k_add) - _score(batch, sse_old, 0)
+    significant = (p_value < alpha) and (improvement >= min_improvement) and (delta < 0)
+    return rmse_new, improvement, p_value, delta, int(np.count_nonzero(diff > 0)), significant
+
+
+# --------------------------------------------------------------------------- residual analysis
+
+
+def noise_rms(batch: PokeBatch, resid: Dict[str, np.ndarray]) -> float:
+    """Sensor-noise RMS of the force vector (N) from sample-to-sample differences.
+
+    White noise of variance ``s^2`` gives differences of variance ``2 s^2``; the smooth,
+    systematic part of a residual hardly enters differences. Robust (median absolute
+    deviation), within pokes only.
+    """
+    same = batch.seg[1:] == batch.seg[:-1]
+    total = 0.0
+    for key in ('rx', 'ry', 'rz'):
+        diff = np.diff(resid[key])[same]
+        if len(diff):
+            mad = np.median(np.abs(diff - np.median(diff)))
+            total += (1.4826 * mad) ** 2 / 2.0
+    return float(np.sqrt(total))
+
+
+def _phase_labels(resid: Dict[str, np.ndarray], batch: PokeBatch) -> np.ndarray:
+    v = resid['v']
+    slow = np.abs(v) < 0.1 * batch.per_sample(batch.speed)
+    labels = np.where(resid['d'] < 0, 'd<0',
+                      np.where(slow, 'hold', np.where(v > 0, 'loading', 'unloading')))
+    return labels
+
+
+def _grouped(values: np.ndarray, labels: np.ndarray, order=None):
+    total = float(np.sum((values - values.mean()) ** 2))
+    keys = order if order is not None else sorted(set(labels.tolist()))
+    groups = []
+    between = 0.0
+    for key in keys:
+        sel = labels == key
+        if not np.any(sel):
+            continue
+        mean = float(values[sel].mean())
+        groups.append((str(key), mean, float(np.sqrt(np.mean(values[sel] ** 2))),
+                       int(np.count_nonzero(sel))))
+        between += np.count_nonzero(sel) * (mean - values.mean()) ** 2
+    return (between / total if total > 0 else 0.0), tuple(groups)
+
+
+def analyse_structure(batch: PokeBatch, resid: Dict[str, np.ndarray]) -> List[Finding]:
+    """Describe the residual's structure, strongest first (see :class:`Finding`)."""
+    r = resid['normal']
+    findings = []
+    edges_mm = np.array([-np.inf, 0.0, 1.0, 2.0, 3.0, 4.0, 6.0, np.inf])
+    depth_bin = np.digitize(resid['d'] * 1e3, edges_mm[1:-1])
+    names = ['d<0', '0-1 mm', '1-2 mm', '2-3 mm', '3-4 mm', '4-6 mm', '>6 mm']
+    frac, groups = _grouped(r, np.asarray(names)[depth_bin], order=names)
+    findings.append(Finding('depth', frac, f'by depth: {frac:.0%} of the variance', groups))
+    phase = _phase_labels(resid, batch)
+    frac, groups = _grouped(r, phase, order=['d<0', 'loading', 'hold', 'unloading'])
+    findings.append(Finding('phase', frac, f'by phase: {frac:.0%} of the variance', groups))
+    span = max(float(resid['t'].max()), 1e-9)
+    tbin = np.minimum((resid['t'] / span * 6).astype(int), 5)
+    labels = np.array([f'{k * span / 6:.1f}-{(k + 1) * span / 6:.1f} s' for k in range(6)])
+    frac, groups = _grouped(r, labels[tbin], order=list(labels))
+    findings.append(Finding('time_in_poke', frac, f'by time in the poke: {frac:.0%} of the '
+                            'variance', groups))
+    n = len(batch)
+    thirds = np.minimum((batch.order.argsort().argsort() * 3) // max(n, 1), 2)
+    labels = np.array(['first third', 'middle third', 'last third'])[thirds][batch.seg]
+    frac, groups = _grouped(r, labels, order=['first third', 'middle third', 'last third'])
+    findings.append(Finding('poke_order', frac, f'by poke order: {frac:.0%} of the variance',
+                            groups))
+    frac, groups = _grouped(r, np.asarray(batch.ids)[batch.seg], order=list(batch.ids))
+    findings.append(Finding('poke', frac, f'by poke (location): {frac:.0%} of the variance',
+                            groups))
+    t_abs = resid['t_abs']
+    duration = float(t_abs.max() - t_abs.min())
+    dt = float(np.median(batch.dt))
+    if duration > 0 and len(r) > 20:
+        f_lo = max(2.0 / duration, 0.05)
+        f_hi = min(0.25 / dt, 20.0)
+        if f_hi > f_lo:
+            freqs = np.geomspace(f_lo, f_hi, 600)
+            centred = r - r.mean()
+            power = lombscargle(t_abs, centred, 2 * np.pi * freqs, normalize=True)
+            k = int(np.argmax(power))
+            frac = float(power[k])
+            findings.append(Finding('periodic', frac, f'periodic component at {freqs[k]:.3g} Hz'
+                                    f' (period {1 / freqs[k]:.3g} s): {frac:.0%} of the variance',
+                                    ((f'{freqs[k]:.4g} Hz', 0.0, float(np.sqrt(2 * frac)
+                                                                       * centred.std()),
+                                      len(r)),)))
+    findings.sort(key=lambda f: -f.explained)
+    return findings
+
+
+# --------------------------------------------------------------------------- main entry
+
+
+def _bootstrap(batch: PokeBatch, effects: Sequence[str], start: Dict, n_boot: int,
+               seed: int) -> List[Dict]:
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7919]))
+    out = []
+    for _ in range(int(n_boot)):
+        idx = rng.integers(0, len(batch), len(batch))
+        try:
+            out.append(fit_global(batch, effects, pokes=idx, start=start,
+                                  multistart=False).values)
+        except NotConverged:
+            continue
+    return out
+
+
+def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
+             min_improvement: float = 0.03, tolerance: float = 0.005, bootstrap: int = 20,
+             max_rate: float = 50.0, window: float = 0.002,
+             candidates: Optional[Sequence[str]] = None, log=None) -> DiagnoseReport:
+    """Find which library effects explain the residual of held-out pokes (module docstring).
+
+    Args:
+        data: a PokeStore directory, a bag directory, a CSV table or a sequence of
+            :class:`~pointforce_ros.types.PokeRecord`.
+        seed: seed of the train/held-out split and of the bootstrap.
+        alpha: significance level of the one-sided Wilcoxon signed-rank test.
+        folds: number of held-out groups (each poke is held out once).
+        min_improvement: least relative drop of the held-out RMSE to accept an effect.
+        tolerance: a systematic residual above ``tolerance`` times the median peak force (or
+            above the noise, whichever is larger) is reported as unexplained.
+        bootstrap: bootstrap resamples over pokes for the parameter uncertainty (0: none).
+        max_rate: samples are block-averaged down to at most this rate, Hz.
+        window: samples farther than this outside the surface are ignored, metres.
+        candidates: restrict the library (names); all by default.
+        log: ``log(str)`` progress callback (e.g. ``print``), or None.
+
+    Raises:
+        DataError: unreadable data or fewer than 4 usable point pokes.
+        InvalidInput: bad settings or unknown candidate names.
+
+    """
+    say = log if log is not None else (lambda message: None)
+    if not 0 < alpha < 1:
+        raise InvalidInput(f'diagnose: alpha must be in (0, 1), got {alpha}')
+    if min_improvement < 0 or tolerance < 0 or bootstrap < 0:
+        raise InvalidInput('diagnose: min_improvement, tolerance and bootstrap must be >= 0')
+    names = list(LIBRARY) if candidates is None else list(candidates)
+    unknown = [c for c in names if c not in LIBRARY]
+    if unknown:
+        raise InvalidInput(f'diagnose: unknown candidate(s) {unknown}; known: {list(LIBRARY)}')
+    records = load_pokes(data)
+    source = str(data) if not isinstance(data, (list, tuple)) else f'{len(records)} records'
+    probes = sum(1 for r in records if r.probe != 'point')
+    batch, notes = make_batch(records, window=window, max_rate=max_rate)
+    say(f'diagnose: {len(batch)} point pokes, {batch.n_samples} samples'
+        + (f', {probes} probe trial(s) not scored' if probes else ''))
+    groups = fold_indices(len(batch), int(folds), seed)
+    current: List[str] = []
+    fits = _cross_fit(batch, groups, current)
+    sse = heldout_sse(batch, fits)
+    first_fits, first_sse = fits, sse
+    say(f'base model: held-out RMSE {_pooled_rmse(batch, sse):.4g} N')
+    rounds: List[SelectionRound] = []
+    while True:
+        results = []
+        trial = {}
+        for name in names:
+            if name in current:
+                continue
+            try:
+                cand_fits = _cross_fit(batch, groups, current + [name],
+                                       starts=[f.values for _, f in fits])
+            except NotConverged as exc:
+                notes.append(f'{name}: fit failed ({exc})')
+                continue
+            cand_sse = heldout_sse(batch, cand_fits)
+            rmse, imp, p_value, delta, improved, sig = _compare(
+                batch, sse, cand_sse, LIBRARY[name].n_params, alpha, min_improvement)
+            trial[name] = (cand_fits, cand_sse)
+            results.append(CandidateResult(name, LIBRARY[name].n_params, rmse, imp, p_value,
+                                           delta, improved, sig,
+                                           dict(cand_fits[0][1].values.get(name, {}))))
+        results.sort(key=lambda c: (not c.significant, c.delta_score))
+        chosen = results[0].name if results and results[0].significant else None
+        rounds.append(SelectionRound(tuple(current), _pooled_rmse(batch, sse), tuple(results),
+                                     chosen))
+        if chosen is None:
+            say('no further effect reduces the held-out error significantly')
+            break
+        best = results[0]
+        say(f'accepted {chosen}: held-out RMSE {_pooled_rmse(batch, sse):.4g} -> '
+            f'{best.rmse:.4g} N (p = {best.p_value:.2g}, {best.improved}/{len(batch)} pokes '
+            'better)')
+        current.append(chosen)
+        fits, sse = trial[chosen]
+        removed = []
+        while len(current) > 1:
+            weakest = None
+            for name in current[:-1]:
+                rest = [c for c in current if c != name]
+                try:
+                    rest_fits = _cross_fit(batch, groups, rest,
+                                           starts=[f.values for _, f in fits])
+                except NotConverged:
+                    continue
+                rest_sse = heldout_sse(batch, rest_fits)
+                *_, delta, _, sig = _compare(batch, rest_sse, sse, LIBRARY[name].n_params,
+                                             alpha, min_improvement)
+                if not sig and (weakest is None or delta > weakest[1]):
+                    weakest = (name, delta, rest_fits, rest_sse)
+            if weakest is None:
+                break
+            name, _, fits, sse = weakest
+            current.remove(name)
+            removed.append(name)
+            say(f'dropped {name}: no longer significant once {chosen} is in the model')
+        if removed:
+            rounds[-1] = SelectionRound(rounds[-1].current, rounds[-1].rmse,
+                                        rounds[-1].candidates, chosen, tuple(removed))
+    ordered = [name for name in LIBRARY if name in current]
+    start = {}
+    for _, f in fits:
+        for eff, params in f.values.items():
+            start.setdefault(eff, {}).update(params)
+    final = fit_global(batch, ordered, start=start, multistart=False)
+    boots = _bootstrap(batch, ordered, final.values, bootstrap, seed) if current else []
+    accepted = []
+    for name in current:
+        params = dict(final.values[name])
+        fitted = [p.name for p in LIBRARY[name].params]
+        samples = {k: np.array([b[name][k] for b in boots]) for k in fitted} if boots else {}
+        accepted.append(AcceptedEffect(
+            name, LIBRARY[name].title, params,
+            {k: float(np.std(v, ddof=1)) for k, v in samples.items() if len(v) > 1},
+            {k: float(np.quantile(v, 0.025)) for k, v in samples.items() if len(v) > 1},
+            {k: float(np.quantile(v, 0.975)) for k, v in samples.items() if len(v) > 1}))
+    resid_before = residual_table(batch, first_fits)
+    resid_after = residual_table(batch, fits)
+    noise = noise_rms(batch, resid_after)
+    rmse_before, rmse_after = _pooled_rmse(batch, first_sse), _pooled_rmse(batch, sse)
+    sys_before = float(np.sqrt(max(rmse_before ** 2 - noise ** 2, 0.0)))
+    sys_after = float(np.sqrt(max(rmse_after ** 2 - noise ** 2, 0.0)))
+    tol = max(float(tolerance) * float(np.median(batch.peak)), noise)
+    structure_after = analyse_structure(batch, resid_after)
+    unexplained = sys_after > tol
+    if unexplained:
+        say(f'unexplained residual: {sys_after:.3g} N systematic (tolerance {tol:.3g} N); '
+            f'strongest structure: {structure_after[0].detail}')
+    lengths = np.diff(batch.starts)
+    return DiagnoseReport(
+        source=source,
+        settings={'seed': int(seed), 'alpha': float(alpha), 'folds': int(folds),
+                  'min_improvement': float(min_improvement), 'tolerance': float(tolerance),
+                  'bootstrap': int(bootstrap), 'max_rate': float(max_rate),
+                  'window': float(window)},
+        ids=batch.ids, points=batch.point.copy(), notes=notes, rounds=rounds,
+        accepted=accepted, exponent=float(final.values['base']['exponent']),
+        rmse_before=rmse_before, rmse_after=rmse_after, noise_rms=noise,
+        systematic_before=sys_before, systematic_after=sys_after,
+        poke_rmse_before=np.sqrt(first_sse / lengths), poke_rmse_after=np.sqrt(sse / lengths),
+        unexplained=bool(unexplained), tolerance=tol,
+        structure_before=analyse_structure(batch, resid_before),
+        structure_after=structure_after, residual_before=resid_before,
+        residual_after=resid_after, probe_trials=probes,
+        not_testable=dict(NOT_TESTABLE_ON_POKES))
+
+
+def run_diagnose(data, out_dir, seed: int = 0, **kwargs) -> int:
+    """CLI entry: diagnose ``data``, write the report into ``out_dir``, print progress.
+
+    Returns:
+        0 on success (whatever was found), 2 when the data cannot be diagnosed (the reason is
+        printed to stderr).
+
+    """
+    from pointforce_ros.effects.report import write_report
+    try:
+        report = diagnose(data, seed=seed, log=print, **kwargs)
+        path = write_report(report, out_dir)
+    except PointforceError as exc:
+        print(f'pointforce diagnose: {exc}', file=sys.stderr)
+        return 2
+    print(report.summary())
+    print(f'report: {Path(path)}')
+    return 0

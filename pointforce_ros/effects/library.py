@@ -1,0 +1,416 @@
+"""The candidate-effect library: named, parameterised terms the force model can add.
+
+Each :class:`EffectSpec` says what the effect is, its parameters (with units, bounds and the
+scale the optimiser works in), the residual signature it explains against the structured base
+model of :mod:`pointforce_ros.effects.model`, and how a record is corrected for it
+(:mod:`pointforce_ros.effects.correct`). The physics of the terms lives here as small
+vectorised functions shared by the forward model and the corrections:
+
+* :func:`prony_filter` / :func:`prony_inverse`: Prony-series relaxation as a linear filter of
+  the elastic force (exact for a force piecewise linear in time) and its inverse.
+* :func:`hysteresis_branch`: the loading/unloading branch variable ``z`` in [-1, 1].
+* :func:`plastic_depth`: permanent set after ``n`` earlier pokes at a spot.
+* :func:`friction_direction`: regularised friction direction of a tip sliding over a surface.
+
+Units are SI at every interface. A parameter marked ``log`` is optimised as ``log10`` of its
+value; the value itself (seconds, metres, ...) is what reports and model files carry.
+"""
+
+from dataclasses import dataclass
+from typing import Dict, Mapping, Tuple
+
+import numpy as np
+from scipy.signal import lfilter
+
+from pointforce_ros.errors import InvalidInput
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter of an effect.
+
+    Attributes:
+        name: key in the effect's parameter mapping.
+        unit: SI unit of the value.
+        lower, upper: bounds of the optimised coordinate (``log10(value)`` when ``log``).
+        start: starting points of the optimised coordinate (the best one is kept).
+        scale: typical size of the optimised coordinate (the optimiser works in ``x / scale``).
+        log: optimise ``log10(value)`` (positive values spanning decades).
+        description: one line for reports.
+
+    """
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    start: Tuple[float, ...]
+    scale: float
+    log: bool = False
+    description: str = ''
+
+    def to_value(self, x: float) -> float:
+        """Return the parameter value for the optimised coordinate ``x``."""
+        return float(10.0 ** x) if self.log else float(x)
+
+    def to_coordinate(self, value: float) -> float:
+        """Return the optimised coordinate of a parameter value (clipped into the bounds).
+
+        Raises:
+            InvalidInput: a non-positive value for a ``log`` parameter, or a non-finite one.
+
+        """
+        value = float(value)
+        if not np.isfinite(value) or (self.log and value <= 0):
+            raise InvalidInput(f'{self.name}: value {value} is not allowed (must be finite'
+                               f'{" and > 0" if self.log else ""})')
+        x = np.log10(value) if self.log else value
+        return float(np.clip(x, self.lower, self.upper))
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """A candidate effect: name, parameters, the signature it explains, how data are corrected.
+
+    Attributes:
+        name: key used in reports and in ``ContactModel.effects``.
+        title: human name.
+        params: its parameters.
+        signature: the residual structure (against the base model) the effect explains.
+        correction: how :func:`pointforce_ros.effects.correct.correct_records` removes it.
+        needs: what the data must contain for the effect to be identifiable.
+        settings: fixed (not fitted) settings stored with the parameters.
+
+    """
+
+    name: str
+    title: str
+    params: Tuple[ParamSpec, ...]
+    signature: str
+    correction: str
+    needs: str = ''
+    settings: Tuple[Tuple[str, float], ...] = ()
+
+    @property
+    def n_params(self) -> int:
+        """Number of fitted parameters (the penalty counts these)."""
+        return len(self.params)
+
+    def defaults(self) -> Dict[str, float]:
+        """Values of the fixed settings."""
+        return dict(self.settings)
+
+
+STICK_VELOCITY = 1e-4
+"""Regularisation speed of the friction term, m/s (below it friction grows linearly)."""
+
+PLASTIC_RADIUS = 0.004
+"""Default lateral radius within which earlier pokes count towards a plastic set, metres."""
+
+EXPONENT = ParamSpec('exponent', '1', 0.7, 4.0, (1.5,), 0.1,
+                     description='contact-law exponent p of f = A (s / s_ref)^p (base model)')
+
+LIBRARY: Dict[str, EffectSpec] = {}
+"""All candidate effects by name, in the order they are tried."""
+
+
+def _add(spec: EffectSpec) -> None:
+    LIBRARY[spec.name] = spec
+
+
+_add(EffectSpec(
+    'surface_offset', 'displacement offset (camera depth bias)',
+    (ParamSpec('offset', 'm', -0.01, 0.01, (0.0,), 1e-3,
+               description='true surface lies this far outside the observed one along n'),),
+    signature='force starts before (offset > 0) or after d = 0 by the same amount on every '
+              'poke: low-depth residual of one sign',
+    correction='move the poke point by +offset along the normal',
+    needs='onset tied to the observed surface (pokes start in free space)'))
+
+_add(EffectSpec(
+    'ft_bias', 'F/T bias (not tared)',
+    (ParamSpec('fx', 'N', -50.0, 50.0, (0.0,), 0.1),
+     ParamSpec('fy', 'N', -50.0, 50.0, (0.0,), 0.1),
+     ParamSpec('fz', 'N', -50.0, 50.0, (0.0,), 0.1)),
+    signature='constant force vector in free space and in contact (base orientation)',
+    correction='subtract the bias from the force',
+    needs='free-space samples (a tare right before each push removes it)'))
+
+_add(EffectSpec(
+    'ft_drift', 'F/T drift since the tare',
+    (ParamSpec('rx', 'N/s', -2.0, 2.0, (0.0,), 0.01),
+     ParamSpec('ry', 'N/s', -2.0, 2.0, (0.0,), 0.01),
+     ParamSpec('rz', 'N/s', -2.0, 2.0, (0.0,), 0.01)),
+    signature='force offset growing linearly with time since the tare (free space after the '
+              'poke differs from before it)',
+    correction='subtract rate * (t - t_tare) from the force'))
+
+_add(EffectSpec(
+    'time_offset', 'pose/force time offset',
+    (ParamSpec('offset', 's', -0.2, 0.2, (0.0,), 0.01,
+               description='force stream lags the pose stream by this (negative: leads)'),),
+    signature='loading force low and unloading force high (lag) in proportion to speed times '
+              'slope; transients at the turning point',
+    correction='re-sample the force at t + offset'))
+
+_add(EffectSpec(
+    'viscoelastic', 'rate dependence and relaxation (one-term Prony series)',
+    (ParamSpec('g', '1', 0.0, 0.95, (0.1,), 0.05, description='relaxing fraction'),
+     ParamSpec('tau', 's', -2.0, 2.0, (-0.5, 0.5), 0.3, log=True,
+               description='relaxation time')),
+    signature='force decays during a hold, unloading below loading, stiffer at higher speed',
+    correction='deconvolve the force with the inverse Prony filter (elastic response)',
+    needs='holds or different speeds'))
+
+_add(EffectSpec(
+    'hysteresis', 'rate-independent loading/unloading hysteresis',
+    (ParamSpec('eta', '1', 0.0, 0.9, (0.05,), 0.05, description='unloading force deficit'),
+     ParamSpec('transition', 'm', -5.0, -2.3, (-3.3,), 0.3, log=True,
+               description='depth over which the branch switches')),
+    signature='unloading force a constant fraction below loading at any speed; no change '
+              'during a hold',
+    correction='divide the force by the branch factor 1 - eta (1 - z) / 2'))
+
+_add(EffectSpec(
+    'series_compliance', 'series compliance (table or arm)',
+    (ParamSpec('compliance', 'm/N', 0.0, 2e-3, (1e-5,), 1e-4,
+               description='tip retreats compliance * F along the normal'),),
+    signature='curve softens with force independently of the local stiffness: stiff spots '
+              'bend more than soft ones (Oliver-Pharr frame compliance)',
+    correction='subtract compliance * F_n from the displacement'))
+
+_add(EffectSpec(
+    'plastic_set', 'plastic set with repeated pokes',
+    (ParamSpec('max_set', 'm', 0.0, 5e-3, (5e-4,), 2e-4, description='saturation set'),
+     ParamSpec('n0', 'pokes', -1.0, 2.0, (0.3,), 0.3, log=True,
+               description='pokes to reach 63 % of the saturation')),
+    signature='onset moves deeper at a spot each time it is poked again',
+    correction='move the poke point by -set(n) along the normal (n earlier pokes within '
+               'radius)',
+    needs='repeated pokes at the same spots',
+    settings=(('radius', PLASTIC_RADIUS),)))
+
+_add(EffectSpec(
+    'friction', 'Coulomb friction on oblique contact',
+    (ParamSpec('mu', '1', 0.0, 2.0, (0.1,), 0.05, description='friction coefficient'),),
+    signature='lateral force flips with the direction of motion (loading vs unloading) when '
+              'the push is not along the contact normal',
+    correction='keep only the force along the per-poke contact normal',
+    needs='oblique pokes (push axis off the contact normal) and the full force vector',
+    settings=(('stick_velocity', STICK_VELOCITY),)))
+
+NOT_TESTABLE_ON_POKES = {
+    'spatial_coupling': 'spatial coupling beyond the shape function acts between contact '
+                        'points: it needs probe trials (rigid probes pressed into the object), '
+                        'a point probe has one contact point',
+}
+"""Library members that point pokes cannot identify, with the reason (shown in reports)."""
+
+
+def spec(name: str) -> EffectSpec:
+    """Return the library entry ``name``.
+
+    Raises:
+        InvalidInput: an unknown effect (the message lists the known ones).
+
+    """
+    if name not in LIBRARY:
+        raise InvalidInput(f'unknown effect {name!r}; known: {", ".join(LIBRARY)}')
+    return LIBRARY[name]
+
+
+def check_params(name: str, params: Mapping) -> Dict[str, float]:
+    """Validate a parameter mapping of effect ``name``; return it as floats with settings.
+
+    Raises:
+        InvalidInput: unknown effect, missing/unknown parameters or non-finite values.
+
+    """
+    entry = spec(name)
+    if not isinstance(params, Mapping):
+        raise InvalidInput(f'effect {name}: parameters must be a mapping, got '
+                           f'{type(params).__name__}')
+    wanted = {p.name for p in entry.params}
+    settings = entry.defaults()
+    unknown = set(params) - wanted - set(settings)
+    if unknown:
+        raise InvalidInput(f'effect {name}: unknown parameter(s) {sorted(unknown)}; expected '
+                           f'{sorted(wanted | set(settings))}')
+    missing = wanted - set(params)
+    if missing:
+        raise InvalidInput(f'effect {name}: missing parameter(s) {sorted(missing)}')
+    out = dict(settings)
+    for key, value in params.items():
+        try:
+            out[key] = float(value)
+        except (TypeError, ValueError):
+            raise InvalidInput(f'effect {name}.{key}: must be a number, got {value!r}')
+        if not np.isfinite(out[key]):
+            raise InvalidInput(f'effect {name}.{key}: must be finite, got {value!r}')
+    for p in entry.params:
+        if p.log and out[p.name] <= 0:
+            raise InvalidInput(f'effect {name}.{p.name}: must be > 0, got {out[p.name]}')
+    return out
+
+
+# --------------------------------------------------------------------------- physics
+
+
+def _prony_coefficients(dt: float, g, tau):
+    """Numerator and denominator (in ``z^-1``) of the Prony filter ``f_e -> f``."""
+    g = np.atleast_1d(np.asarray(g, dtype=np.float64))
+    tau = np.atleast_1d(np.asarray(tau, dtype=np.float64))
+    ratio = dt / tau
+    a = np.exp(-ratio)
+    r = np.where(ratio > 1e-8, -np.expm1(-ratio) / np.maximum(ratio, 1e-300), 1.0 - 0.5 * ratio)
+    g_inf = 1.0 - float(g.sum())
+    den = np.array([1.0])
+    for ai in a:
+        den = np.polymul(den, [1.0, -ai])
+    num = g_inf * den
+    for i in range(len(g)):
+        term = np.array([g[i] * r[i], -g[i] * r[i]])
+        for j, aj in enumerate(a):
+            if j != i:
+                term = np.polymul(term, [1.0, -aj])
+        num = num + term  # both have K + 1 coefficients in powers of z^-1
+    return num, den
+
+
+def prony_filter(f_e: np.ndarray, dt: float, g, tau) -> np.ndarray:
+    """Relax an elastic force series: ``f = g_inf f_e + sum_i g_i h_i`` (material at rest before).
+
+    ``h_i`` is the hereditary integral ``int exp(-(t - s) / tau_i) df_e(s)``, updated exactly
+    for ``f_e`` piecewise linear between samples ``dt`` apart.
+
+    Args:
+        f_e: (T,) or (T, k) elastic force, uniformly sampled, newtons.
+        dt: sample spacing, seconds.
+        g: relaxing fractions (K,), sum < 1.
+        tau: relaxation times (K,), seconds.
+
+    Returns:
+        Array shaped like ``f_e`` (not clamped).
+
+    """
+    num, den = _prony_coefficients(dt, g, tau)
+    return lfilter(num, den, f_e, axis=0)
+
+
+def prony_inverse(f: np.ndarray, dt: float, g, tau) -> np.ndarray:
+    """Invert :func:`prony_filter`: the elastic force whose relaxed response is ``f``."""
+    num, den = _prony_coefficients(dt, g, tau)
+    return lfilter(den, num, f, axis=0)
+
+
+def hysteresis_branch(s: np.ndarray, transition: float, z0=1.0, starts=None,
+                      deadband: float = 2e-7) -> np.ndarray:
+    """Branch variable ``z`` (T,) in [-1, 1] along the axial tip path ``s`` (T,), metres.
+
+    ``dz = (sign(ds) - z) |ds| / transition`` integrated exactly per sample; steps smaller than
+    ``deadband`` (encoder noise) leave ``z`` unchanged. ``z = 1`` on the loading branch, -1 on
+    the unloading one.
+
+    Args:
+        s: (T,) tip positions along the push axis, metres (several pokes concatenated when
+            ``starts`` is given).
+        transition: branch-switching depth, metres, > 0.
+        z0: ``z`` before the first sample, scalar or one per poke.
+        starts: (P + 1,) sample offsets of the pokes (each restarts from its ``z0``); one poke
+            when None.
+        deadband: smallest step that counts as motion, metres.
+
+    """
+    s = np.asarray(s, dtype=np.float64)
+    n = len(s)
+    starts = np.array([0, n]) if starts is None else np.asarray(starts)
+    z0 = np.broadcast_to(np.asarray(z0, dtype=np.float64), (len(starts) - 1,))
+    ds = np.diff(s, prepend=s[:1])
+    ds[starts[:-1][starts[:-1] < n]] = 0.0
+    ds = np.where(np.abs(ds) > deadband, ds, 0.0)
+    poke = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
+    moving = np.flatnonzero(ds)
+    z = z0[poke].copy()
+    if len(moving) == 0:
+        return z
+    direction = np.sign(ds[moving])
+    mpoke = poke[moving]
+    cum = np.cumsum(np.abs(ds[moving]) / float(transition))
+    new_run = np.ones(len(moving), dtype=bool)
+    new_run[1:] = (direction[1:] != direction[:-1]) | (mpoke[1:] != mpoke[:-1])
+    first = np.flatnonzero(new_run)
+    last = np.concatenate([first[1:], [len(moving)]]) - 1
+    base = np.where(first > 0, cum[first - 1], 0.0)
+    decay_run = np.exp(-(cum[last] - base))
+    z_start = np.empty(len(first))
+    prev_poke, z_end = -1, 0.0
+    for k, (i, d_run, decay) in enumerate(zip(first, direction[first], decay_run)):
+        start = z0[mpoke[i]] if mpoke[i] != prev_poke else z_end
+        z_start[k] = start
+        z_end = d_run + (start - d_run) * decay
+        prev_poke = mpoke[i]
+    run = np.cumsum(new_run) - 1
+    z_moving = direction + (z_start[run] - direction) * np.exp(-(cum - base[run]))
+    # samples that do not move keep the last moving sample's value within their poke
+    index = np.full(n, -1)
+    index[moving] = np.arange(len(moving))
+    index = np.maximum.accumulate(index)
+    valid = index >= 0
+    same_poke = np.zeros(n, dtype=bool)
+    same_poke[valid] = mpoke[index[valid]] == poke[valid]
+    z[same_poke] = z_moving[index[same_poke]]
+    return z
+
+
+def hysteresis_factor(z: np.ndarray, eta: float) -> np.ndarray:
+    """Force factor ``1 - eta (1 - z) / 2`` of the branch variable ``z``."""
+    return 1.0 - float(eta) * 0.5 * (1.0 - np.asarray(z))
+
+
+def plastic_depth(count, max_set: float, n0: float) -> np.ndarray:
+    """Permanent set (metres) after ``count`` earlier pokes: ``max_set (1 - exp(-n / n0))``."""
+    return float(max_set) * -np.expm1(-np.asarray(count, dtype=np.float64) / float(n0))
+
+
+def friction_direction(inward: np.ndarray, contact_normal: np.ndarray, motion: np.ndarray,
+                       speed: np.ndarray, stick_velocity: float = STICK_VELOCITY) -> np.ndarray:
+    """Return the regularised slip direction (T, 3) of a tip moving along a fixed axis.
+
+    Friction on the probe is ``-mu F_n`` times it. The tip moves along ``inward`` ((T, 3) unit
+    push direction) with signed ``motion`` in [-1, 1] (+1 pushing in, -1 retracting, fractions
+    for a sample interval that holds both: the mean sign over the raw samples it averages) at
+    ``speed`` m/s while moving. The slip is the part of the motion across ``contact_normal``
+    ((T, 3) unit); its length is ``|slip| / max(|slip|, stick_velocity)`` (sticking below
+    ``stick_velocity``).
+    """
+    along = np.einsum('ij,ij->i', inward, contact_normal)
+    across = inward - along[:, None] * contact_normal
+    sin = np.sqrt(np.einsum('ij,ij->i', across, across))
+    unit = across / np.where(sin > 0, sin, 1.0)[:, None]
+    factor = np.asarray(motion) * np.minimum(1.0, np.asarray(speed) * sin / float(stick_velocity))
+    return factor[:, None] * unit
+
+
+def count_earlier(points: np.ndarray, normals: np.ndarray, peak_force: np.ndarray,
+                  radius: float = PLASTIC_RADIUS, min_force: float = 0.5) -> np.ndarray:
+    """Earlier pokes within ``radius`` across each poke's axis (pokes in time order).
+
+    Args:
+        points: (P, 3) poke points, metres, in time order.
+        normals: (P, 3) unit normals.
+        peak_force: (P,) peak normal force, N; pokes below ``min_force`` leave no set.
+        radius: lateral radius, metres.
+        min_force: least peak force of a poke that counts, N.
+
+    Returns:
+        (P,) int counts.
+
+    """
+    points = np.asarray(points, dtype=np.float64)
+    rel = points[None, :, :] - points[:, None, :]                    # (i, j, 3) p_j - p_i
+    along = np.einsum('ijk,ik->ij', rel, normals)
+    across = rel - along[:, :, None] * normals[:, None, :]
+    near = np.einsum('ijk,ijk->ij', across, across) <= float(radius) ** 2
+    earlier = np.tril(np.ones((len(points), len(points)), dtype=bool), k=-1)
+    strong = np.asarray(peak_force) >= float(min_force)
+    return np.count_nonzero(near & earlier & strong[None, :], axis=1)

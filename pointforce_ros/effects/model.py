@@ -1,0 +1,469 @@
+"""The structured base model of a point poke and its extension by library effects.
+
+Base model (what residuals are measured against). For poke ``i`` and sample ``t``::
+
+    F_hat(t) = phi(s(t)) * c_i                      s(t) = d(t)      (onset tied to the surface)
+    phi(s)   = (max(s, 0) / s_ref) ** p             p global, s_ref = 3 mm
+
+``d`` is the displacement along ``-n_i`` past the *observed* surface point (so contact must start
+at ``d = 0``), ``F`` the full measured force vector, ``c_i`` (3,) the force at ``s_ref`` along
+the poke's contact direction: a per-poke nuisance (the local stiffness of a heterogeneous object
+and the contact normal), solved in closed form for any poke, training or held-out, by linear
+least squares (variable projection). Everything else is global and fitted on training pokes only:
+the exponent ``p`` and the parameters of the active effects, which enter in the physical order
+
+1. ``time_offset``: the pose is read ``offset`` earlier: ``d(t - offset)``.
+2. ``surface_offset``, ``plastic_set``, ``series_compliance``: ``s = d + offset - set(n_i) -
+   compliance * F_n`` (``F_n`` the measured normal force, corrected for the sensor terms: the
+   Oliver-Pharr frame-compliance correction).
+3. ``hysteresis`` (branch factor along the tip path) and ``viscoelastic`` (Prony filter of
+   ``phi`` over time, no adhesion) shape ``phi``.
+4. ``friction``: ``F_hat = phi (c_i - mu |c_i| slip_dir(v, c_i / |c_i|))``.
+5. ``ft_bias`` and ``ft_drift``: ``+ b + r (t - t_tare)``.
+
+Because the per-poke amplitude and direction are profiled out, an effect only improves the fit
+when it explains the *shape* of the curves (onset, loading vs unloading, hold, time, repetition,
+lateral force), which is what makes each effect leave its own signature.
+"""
+
+from dataclasses import dataclass
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from pointforce_ros.effects.data import PokeBatch, velocity
+from pointforce_ros.effects.library import (EXPONENT, hysteresis_branch, hysteresis_factor,
+                                            friction_direction, LIBRARY, ParamSpec,
+                                            plastic_depth, prony_filter, STICK_VELOCITY)
+from pointforce_ros.errors import InvalidInput, NotConverged
+
+S_REF = 0.003
+"""Reference depth of the per-poke amplitude, metres."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Order of the global parameters for a set of active effects.
+
+    Attributes:
+        effects: active effect names (library order).
+        entries: ``(effect, ParamSpec)`` per coordinate; the first is the base exponent.
+
+    """
+
+    effects: Tuple[str, ...]
+    entries: Tuple[Tuple[str, ParamSpec], ...]
+
+    @classmethod
+    def of(cls, effects: Sequence[str]) -> 'Layout':
+        """Layout of the base model plus ``effects`` (unknown names raise InvalidInput)."""
+        for name in effects:
+            if name not in LIBRARY:
+                raise InvalidInput(f'unknown effect {name!r}; known: {", ".join(LIBRARY)}')
+        ordered = tuple(name for name in LIBRARY if name in set(effects))
+        entries = [('base', EXPONENT)]
+        for name in ordered:
+            entries += [(name, p) for p in LIBRARY[name].params]
+        return cls(ordered, tuple(entries))
+
+    def __len__(self) -> int:
+        """Return the number of fitted coordinates."""
+        return len(self.entries)
+
+    @property
+    def n_effect_params(self) -> int:
+        """Parameters added by the effects (the base exponent excluded)."""
+        return len(self.entries) - 1
+
+    def values(self, x: np.ndarray) -> Dict[str, Dict[str, float]]:
+        """Map optimised coordinates ``x`` to ``{effect: {param: value}}`` (with settings)."""
+        out: Dict[str, Dict[str, float]] = {'base': {}}
+        for name in self.effects:
+            out[name] = LIBRARY[name].defaults()
+        for (name, p), xi in zip(self.entries, x):
+            out[name][p.name] = p.to_value(xi)
+        return out
+
+    def coordinates(self, values: Mapping[str, Mapping[str, float]]) -> np.ndarray:
+        """Optimised coordinates of ``values``; missing entries take their first start."""
+        x = []
+        for name, p in self.entries:
+            given = values.get(name, {})
+            x.append(p.to_coordinate(given[p.name]) if p.name in given else p.start[0])
+        return np.asarray(x, dtype=np.float64)
+
+
+def _padded(batch: PokeBatch):
+    """Row and column of every sample in a (P, T_max) padded layout."""
+    return batch.seg, np.arange(batch.n_samples) - batch.starts[batch.seg]
+
+
+def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.ndarray,
+           g: float, tau: float) -> Tuple[np.ndarray, np.ndarray]:
+    """Prony-relaxed shape of every poke and the history carried in from earlier pokes.
+
+    Returns:
+        ``(own, carry)``: ``own`` (N,) is the relaxed response to the poke's own shape
+        (unit amplitude, unclamped: ``g_inf phi + g h``); ``carry`` (N,) newtons is what the
+        material remembers of the earlier pokes (``g H exp(-(t - t_0) / tau)``), non-zero
+        only for a complete, time-ordered batch (in a subset each poke starts at rest).
+
+    """
+    rows, cols = _padded(batch)
+    own = np.empty_like(phi)
+    dts = np.round(batch.dt, 9)
+    for dt in np.unique(dts):
+        take = dts[rows] == dt
+        grid = np.zeros((len(batch), int(cols.max()) + 1))
+        grid[rows[take], cols[take]] = phi[take]
+        own[take] = prony_filter(grid.T, float(dt), [g], [tau]).T[rows[take], cols[take]]
+    carry = np.zeros_like(phi)
+    if not np.array_equal(batch.order, np.arange(len(batch))) or g <= 0:
+        return own, carry
+    first = batch.starts[:-1]
+    last = batch.starts[1:] - 1
+    decay = np.exp(-(batch.t - batch.per_sample(batch.t[first])) / tau)
+    act_own = np.where(active, own, 0.0)
+    s_oy = batch.sums(act_own * target_n)
+    s_od = batch.sums(act_own * decay)
+    s_oo = batch.sums(act_own * act_own)
+    g_inf = 1.0 - g
+    h_last = (own[last] - g_inf * phi[last]) / g
+    decay_last = decay[last]
+    gap = np.exp(-(batch.t[first[1:]] - batch.t[last[:-1]]) / tau)
+    carried = np.zeros(len(batch))
+    h_in = 0.0
+    for k in range(len(batch)):
+        carried[k] = h_in
+        amp = max((s_oy[k] - g * h_in * s_od[k]) / s_oo[k], 0.0) if s_oo[k] > 0 else 0.0
+        if k + 1 < len(batch):
+            h_in = (amp * h_last[k] + h_in * decay_last[k]) * gap[k]
+    return own, g * batch.per_sample(carried) * decay
+
+
+def _solve_amplitudes(batch: PokeBatch, phi: np.ndarray, carry: Optional[np.ndarray],
+                      active: np.ndarray, target: np.ndarray, mu: float, stick: float,
+                      motion) -> Tuple[np.ndarray, np.ndarray]:
+    """Per-poke amplitude ``c`` (P, 3) and the predicted force (N, 3) without sensor terms.
+
+    Model: ``F = M (m - mu friction_direction(-n, m, motion))`` with
+    ``M = max(|c| phi + carry, 0)`` in contact (``active``) and ``m = c / |c|``; ``c`` by
+    linear least squares on ``phi``, iterated when the carry or friction terms are present (they
+    are moved to the data side with the last ``c``).
+    """
+    reg = np.where(active, phi, 0.0)
+    sw = batch.sums(reg * reg)
+    safe = np.where(sw > 0, sw, 1.0)
+
+    def amplitudes(y):
+        return np.where(sw[:, None] > 0, batch.sums(reg[:, None] * y) / safe[:, None], 0.0)
+
+    def direction(c):
+        norm = np.linalg.norm(c, axis=1)
+        unit = np.where(norm[:, None] > 0, c / np.where(norm > 0, norm, 1.0)[:, None],
+                        batch.normal)
+        return norm, unit
+
+    has_carry = carry is not None and np.any(carry != 0.0)
+    friction = motion is not None and mu != 0.0
+    inward = -batch.per_sample(batch.normal)
+
+    def slip(unit_s):
+        return friction_direction(inward, unit_s, motion[0], motion[1], stick)
+
+    c = amplitudes(target)
+    for _ in range(3 if (has_carry or friction) else 0):
+        norm, unit = direction(c)
+        unit_s = batch.per_sample(unit)
+        y = target
+        if has_carry:
+            y = y - carry[:, None] * unit_s
+        if friction:
+            y = y + mu * (batch.per_sample(norm) * reg)[:, None] * slip(unit_s)
+        c = amplitudes(y)
+    norm, unit = direction(c)
+    unit_s = batch.per_sample(unit)
+    magnitude = batch.per_sample(norm) * phi
+    if has_carry:
+        magnitude = magnitude + carry
+    magnitude = np.where(active, np.maximum(magnitude, 0.0), 0.0)
+    if friction:
+        return magnitude[:, None] * (unit_s - mu * slip(unit_s)), c
+    return magnitude[:, None] * unit_s, c
+
+
+def forward(batch: PokeBatch, values: Mapping[str, Mapping[str, float]]
+            ) -> Tuple[np.ndarray, np.ndarray]:
+    """Predicted force (N, 3) of every sample and the per-poke amplitudes ``c`` (P, 3).
+
+    Args:
+        batch: the pokes. When it is complete (every poke of the data set, in time order), the
+            viscoelastic history is carried from poke to poke (decaying over the gaps);
+            in a subset each poke starts from a material at rest.
+        values: ``{effect: {param: value}}``; ``values['base']['exponent']`` is ``p``; an effect
+            that is absent is off.
+
+    """
+    p = float(values['base']['exponent'])
+    n_seg = batch.per_sample(batch.normal)
+    sensor = np.zeros_like(batch.force)
+    if 'ft_bias' in values:
+        b = values['ft_bias']
+        sensor += np.array([b['fx'], b['fy'], b['fz']])
+    if 'ft_drift' in values:
+        r = values['ft_drift']
+        sensor += np.outer(batch.t - batch.per_sample(batch.t_ref), [r['rx'], r['ry'], r['rz']])
+    target = batch.force - sensor
+    d = batch.d
+    if 'time_offset' in values:
+        tau = float(values['time_offset']['offset'])
+        lo = batch.tv[batch.starts[:-1]]
+        hi = batch.tv[batch.starts[1:] - 1]
+        query = np.clip(batch.tv - tau, batch.per_sample(lo), batch.per_sample(hi))
+        d = np.interp(query, batch.tv, batch.d)
+    s_kin = d
+    if 'surface_offset' in values:
+        s_kin = s_kin + float(values['surface_offset']['offset'])
+    if 'plastic_set' in values:
+        ps = values['plastic_set']
+        s_kin = s_kin - batch.per_sample(plastic_depth(batch.count, ps['max_set'], ps['n0']))
+    branch = None
+    if 'hysteresis' in values:
+        h = values['hysteresis']
+        z = hysteresis_branch(s_kin, h['transition'], z0=np.where(batch.order > 0, -1.0, 1.0),
+                              starts=batch.starts)
+        branch = hysteresis_factor(z, h['eta'])
+    visco = values.get('viscoelastic')
+    fric = values.get('friction')
+    mu = float(fric['mu']) if fric else 0.0
+    stick = float(fric.get('stick_velocity', STICK_VELOCITY)) if fric else STICK_VELOCITY
+    motion = None
+    if fric:
+        motion = (batch.motion, batch.moving_speed)
+        if 'time_offset' in values:
+            motion = (np.interp(query, batch.tv, batch.motion),
+                      np.interp(query, batch.tv, batch.moving_speed))
+    target_n = np.einsum('ij,ij->i', target, n_seg)
+
+    def evaluate(s):
+        phi_e = (np.maximum(s, 0.0) / S_REF) ** p
+        phi = phi_e * branch if branch is not None else phi_e
+        active = phi_e > 0
+        carry = None
+        if visco is not None:
+            phi, carry = _relax(batch, phi, target_n, active, float(visco['g']),
+                                float(visco['tau']))
+        return _solve_amplitudes(batch, phi, carry, active, target, mu, stick, motion)
+
+    if 'series_compliance' in values:
+        # Frame compliance: the tip retreats compliance * F_n. F_n starts as the smoothed
+        # measured force and is then replaced by the model's own prediction (fixed point), so
+        # that measurement noise never enters the displacement (errors in variables).
+        compliance = float(values['series_compliance']['compliance'])
+        f_n = np.maximum(_smooth(batch, target_n), 0.0)
+        for _ in range(3):
+            pred, _ = evaluate(s_kin - compliance * f_n)
+            f_n = np.maximum(np.einsum('ij,ij->i', pred, n_seg), 0.0)
+        pred, c = evaluate(s_kin - compliance * f_n)
+    else:
+        pred, c = evaluate(s_kin)
+    return pred + sensor, c
+
+
+def _smooth(batch: PokeBatch, values: np.ndarray, half: int = 5) -> np.ndarray:
+    """Return the moving average of ``values`` (N,) over ``2 half + 1`` samples of one poke.
+
+    Samples whose window would reach into a neighbouring poke keep their own value.
+    """
+    kernel = np.ones(2 * half + 1)
+    count = np.convolve(np.ones_like(values), kernel, mode='same')
+    out = np.convolve(values, kernel, mode='same') / count
+    seg = batch.seg.astype(np.float64)
+    mixed = np.abs(np.convolve(seg, kernel, mode='same') - seg * count) > 1e-9
+    out[mixed] = values[mixed]
+    return out
+
+
+def _coupled(batch: PokeBatch, effects) -> bool:
+    """Tell whether pokes interact (material history), so the whole batch must be evaluated."""
+    return 'viscoelastic' in effects and np.array_equal(batch.order, np.arange(len(batch)))
+
+
+def _sample_index(batch: PokeBatch, pokes: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.arange(batch.starts[i], batch.starts[i + 1]) for i in pokes])
+
+
+def predict(batch: PokeBatch, values, pokes=None) -> Tuple[np.ndarray, np.ndarray]:
+    """Predicted force (M, 3) of the samples of ``pokes`` (all when None) and their indices.
+
+    When the pokes interact (viscoelastic history over a complete batch) the whole batch is
+    evaluated and the requested samples are taken from it; otherwise only ``pokes`` are.
+    """
+    if pokes is None:
+        pred, _ = forward(batch, values)
+        return pred, np.arange(batch.n_samples)
+    pokes = np.asarray(pokes, dtype=np.int64)
+    take = _sample_index(batch, pokes)
+    if _coupled(batch, values):
+        pred, _ = forward(batch, values)
+        return pred[take], take
+    pred, _ = forward(batch.subset(pokes), values)
+    return pred, take
+
+
+def poke_sse(batch: PokeBatch, values, pokes=None) -> np.ndarray:
+    """Sum of squared force residuals (N^2) of each poke in ``pokes`` (all when None)."""
+    pokes = np.arange(len(batch)) if pokes is None else np.asarray(pokes, dtype=np.int64)
+    pred, take = predict(batch, values, pokes)
+    r = batch.force[take] - pred
+    lengths = np.diff(batch.starts)[pokes]
+    offsets = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    return np.add.reduceat(np.einsum('ij,ij->i', r, r), offsets)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """Global parameters fitted on some pokes.
+
+    Attributes:
+        layout: parameter order.
+        x: (k,) optimised coordinates.
+        values: ``{effect: {param: value}}``.
+        cost: mean squared force residual per sample on the fitted pokes, N^2.
+        nfev: model evaluations used.
+
+    """
+
+    layout: Layout
+    x: np.ndarray
+    values: Dict[str, Dict[str, float]]
+    cost: float
+    nfev: int
+
+
+def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
+               start: Optional[Mapping[str, Mapping[str, float]]] = None,
+               max_nfev: int = 60, multistart: bool = True) -> Fit:
+    """Fit the exponent and the parameters of ``effects`` on ``pokes`` (bounded least squares).
+
+    Args:
+        batch: the whole data set (pokes in time order).
+        effects: active effect names.
+        pokes: indices of the training pokes, repeats allowed (bootstrap); all when None.
+        start: values to start from (e.g. the previous round's fit); parameters not in it start
+            from each of their library starts (``multistart``) and the best is kept.
+        max_nfev: most model evaluations per start.
+        multistart: try every combination of library starts of the new parameters.
+
+    Raises:
+        NotConverged: the optimiser failed on every start.
+
+    """
+    layout = Layout.of(effects)
+    scale = np.array([p.scale for _, p in layout.entries])
+    lower = np.array([p.lower for _, p in layout.entries]) / scale
+    upper = np.array([p.upper for _, p in layout.entries]) / scale
+    start = start or {}
+    base = layout.coordinates(start)
+    fresh = [i for i, (name, p) in enumerate(layout.entries)
+             if p.name not in start.get(name, {})]
+    starts = [base]
+    if multistart:
+        for i in fresh:
+            options = layout.entries[i][1].start
+            if len(options) > 1:
+                starts = [np.where(np.arange(len(base)) == i, opt, s)
+                          for s in starts for opt in options]
+    pokes = np.arange(len(batch)) if pokes is None else np.asarray(pokes, dtype=np.int64)
+    if _coupled(batch, layout.effects):
+        counts = np.bincount(pokes, minlength=len(batch)).astype(np.float64)
+        keep = np.flatnonzero(counts[batch.seg] > 0)
+        weight = np.sqrt(counts[batch.seg][keep])[:, None]
+        data, force = batch, batch.force[keep]
+    else:
+        data = batch.subset(pokes)
+        keep, weight, force = None, None, data.force
+    n_samples = max(len(force), 1)
+
+    def residual(u):
+        pred, _ = forward(data, layout.values(u * scale))
+        if keep is None:
+            return (force - pred).ravel()
+        return ((force - pred[keep]) * weight).ravel()
+
+    best = None
+    last_error = None
+    for x0 in starts:
+        u0 = np.clip(x0 / scale, lower + 1e-9 * (upper - lower), upper - 1e-9 * (upper - lower))
+        try:
+            sol = least_squares(residual, u0, bounds=(lower, upper), x_scale=1.0,
+                                diff_step=1e-3, max_nfev=max_nfev, method='trf')
+        except (ValueError, FloatingPointError) as exc:
+            last_error = exc
+            continue
+        cost = 2.0 * float(sol.cost) / n_samples
+        if best is None or cost < best[1]:
+            best = (sol, cost)
+    if best is None:
+        raise NotConverged(f'effect fit {list(effects)} failed on every start: {last_error}')
+    sol, cost = best
+    x = sol.x * scale
+    return Fit(layout=layout, x=x, values=layout.values(x), cost=cost, nfev=int(sol.nfev))
+
+
+def heldout_sse(batch: PokeBatch, fits: Sequence[Tuple[np.ndarray, Fit]]) -> np.ndarray:
+    """(P,) per-poke SSE where each poke is scored by the fit of the fold that held it out.
+
+    Args:
+        batch: every poke.
+        fits: ``(heldout_indices, fit)`` per fold.
+
+    """
+    out = np.full(len(batch), np.nan)
+    for idx, fit in fits:
+        out[idx] = poke_sse(batch, fit.values, idx)
+    return out
+
+
+def residual_table(batch: PokeBatch, fits: Sequence[Tuple[np.ndarray, Fit]]
+                   ) -> Dict[str, np.ndarray]:
+    """Held-out residuals of every sample, for plots and structure analysis.
+
+    Returns:
+        Mapping of (N,) arrays in the batch's sample order: ``poke`` index, ``t`` (s since the
+        poke's first sample), ``t_abs`` (controller s), ``d`` (m), ``v`` (m/s), ``measured`` and
+        ``predicted`` normal force (N), ``normal`` (normal residual, N), ``lateral`` (norm of the
+        lateral residual, N), ``norm`` (norm of the residual vector, N), and ``rx, ry, rz`` (N).
+
+    """
+    pred = np.zeros_like(batch.force)
+    for idx, fit in fits:
+        p, take = predict(batch, fit.values, idx)
+        pred[take] = p
+    resid = batch.force - pred
+    n_seg = batch.per_sample(batch.normal)
+    normal = np.einsum('ij,ij->i', resid, n_seg)
+    lateral = resid - normal[:, None] * n_seg
+    first = batch.per_sample(batch.t[batch.starts[:-1]])
+    return {
+        'poke': batch.seg.copy(), 't': batch.t - first, 't_abs': batch.t.copy(),
+        'd': batch.d.copy(), 'v': velocity(batch),
+        'measured': np.einsum('ij,ij->i', batch.force, n_seg),
+        'predicted': np.einsum('ij,ij->i', pred, n_seg), 'normal': normal,
+        'lateral': np.linalg.norm(lateral, axis=1), 'norm': np.linalg.norm(resid, axis=1),
+        'rx': resid[:, 0], 'ry': resid[:, 1], 'rz': resid[:, 2],
+    }
+
+
+def fold_indices(n: int, folds: int, seed: int) -> List[np.ndarray]:
+    """Seeded split of ``n`` pokes into ``folds`` held-out groups (sizes differ by at most 1).
+
+    Raises:
+        InvalidInput: fewer than 2 folds or more folds than pokes.
+
+    """
+    if folds < 2 or folds > n:
+        raise InvalidInput(f'folds must be in 2..{n} (number of pokes), got {folds}')
+    perm = np.random.default_rng(seed).permutation(n)
+    return [np.sort(perm[k::folds]) for k in range(folds)]

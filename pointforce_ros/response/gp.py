@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from typing import Mapping, Optional, Sequence
 
 import numpy as np
-from scipy.linalg import cho_solve, solve_triangular
 
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 
@@ -131,9 +130,10 @@ class FeatureFrame:
 
 
 def _sqdist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(len(a), len(b)) squared distances."""
-    d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * a @ b.T
-    return np.maximum(d2, 0.0)
+    """(len(a), len(b)) squared distances; put the longer set second (numpy inner loops)."""
+    d2 = np.einsum('ij,ij->i', a, a)[:, None] - 2.0 * (a @ b.T)
+    d2 += np.einsum('ij,ij->i', b, b)[None, :]
+    return np.maximum(d2, 0.0, out=d2)
 
 
 def _inv_len2(length) -> np.ndarray:
@@ -269,10 +269,11 @@ class FeatureGp:
         r = self._corr(groups, phi, groups, phi) + state.nugget * np.eye(len(y))
         chol = np.linalg.cholesky(r)
         self._chol = chol
-        self._chol_inv = solve_triangular(chol, np.eye(len(y)), lower=True, check_finite=False)
-        self._rinv1 = _chol_solve(chol, np.ones(len(y)))
+        inv = np.linalg.inv(chol)                        # n is small (pokes): explicit is fine
+        self._chol_inv = inv
+        self._rinv1 = inv.T @ (inv @ np.ones(len(y)))
         self._one_rinv_one = float(self._rinv1.sum())
-        self._alpha = _chol_solve(chol, y - state.beta)
+        self._alpha = inv.T @ (inv @ (y - state.beta))
 
     def _corr(self, ga, pa, gb, pb) -> np.ndarray:
         st = self.state
@@ -292,13 +293,14 @@ class FeatureGp:
         return tuple(g for g, length in enumerate((st.lp, st.lc, st.ln)) if np.isfinite(length))
 
     def cross_sqdist(self, features: np.ndarray, groups: Sequence[int] = (0, 1, 2)) -> dict:
-        """``{group: (M, n) squared distances}`` of ``features`` to the training points.
+        """``{group: (n, M) squared distances}`` of the n training points to ``features``.
 
+        Laid out training-point-major so numpy's inner loops run over the M queries.
         Processes conditioned on the same features and frame can share it (see
         :meth:`predict`'s ``sq``); missing groups are filled in on demand.
         """
         scaled, _ = self._prepare(features, basis=False)
-        return {g: _sqdist(scaled[g], self._z[g]) for g in groups}
+        return {g: _sqdist(self._z[g], scaled[g]) for g in groups}
 
     def predict(self, features: np.ndarray, return_std: bool = False, *,
                 include_nugget: bool = True, sq: Optional[dict] = None):
@@ -322,24 +324,19 @@ class FeatureGp:
         missing = [g for g in self.needs() if g not in sq]
         if missing:
             sq.update(self.cross_sqdist(features, missing))
-        expo = np.zeros((len(features), len(self._alpha)))
+        kt = np.zeros((len(self._alpha), len(features)))                 # (n, M)
         for g in self.needs():
-            expo -= (0.5 * float(_inv_len2((st.lp, st.lc, st.ln)[g]))) * sq[g]
-        ks = np.exp(expo)
+            kt -= (0.5 * float(_inv_len2((st.lp, st.lc, st.ln)[g]))) * sq[g]
+        np.exp(kt, out=kt)
         if st.tau and phi.shape[1]:
-            ks += st.tau * (phi @ self._phi.T)
-        mean = st.beta + ks @ self._alpha
+            kt += st.tau * (self._phi @ phi.T)
+        mean = st.beta + self._alpha @ kt
         if not return_std:
             return mean
-        v = ks @ self._chol_inv.T                                            # (M, n)
-        u = 1.0 - ks @ self._rinv1
-        prior = 1.0 + (st.tau * (phi * phi).sum(axis=1) if phi.shape[1] else 0.0)
-        var = prior - np.einsum('ij,ij->i', v, v) + u * u / self._one_rinv_one
+        v = self._chol_inv @ kt                                              # (n, M)
+        u = 1.0 - self._rinv1 @ kt
+        prior = 1.0 + (st.tau * np.einsum('ij,ij->i', phi, phi) if phi.shape[1] else 0.0)
+        var = prior - np.einsum('ij,ij->j', v, v) + u * u / self._one_rinv_one
         if include_nugget:
             var = var + st.nugget
         return mean, np.sqrt(np.maximum(var, 0.0) * st.s2)
-
-
-def _chol_solve(chol: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve ``(L L^T) x = b`` for lower-triangular (n, n) ``L``."""
-    return cho_solve((chol, True), b, check_finite=False)

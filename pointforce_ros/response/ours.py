@@ -32,7 +32,8 @@ from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.pokes.curves import fit_power_onset, PokeCurve
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.response.common import (check_curves, check_depths, check_query,
-                                            curve_features, DEFAULT_MAX_SURFACE_DISTANCE)
+                                            curve_features, DEFAULT_MAX_SURFACE_DISTANCE,
+                                            single_threaded_blas)
 from pointforce_ros.response.gp import BASES, FeatureFrame, FeatureGp, GpGrid, GpState
 from pointforce_ros.types import Surface
 
@@ -121,8 +122,9 @@ class ContactGpModel:
         if not np.any(curve.f > 0):
             raise InvalidInput(f'poke {curve.poke_id}: no positive force, cannot fit a contact '
                                'law')
-        fit = fit_power_onset(curve.d, curve.f, with_bias=False,
-                              exponent_bounds=self.exponent_bounds, max_samples=600)
+        with single_threaded_blas():
+            fit = fit_power_onset(curve.d, curve.f, with_bias=False,
+                                  exponent_bounds=self.exponent_bounds, max_samples=600)
         force_ref = max(fit.a * self.ref_depth ** fit.p, 1e-9)
         return np.array([fit.d0, np.log(force_ref), fit.p]), fit.rms
 
@@ -178,6 +180,10 @@ class ContactGpModel:
         return self
 
     def _fit_processes(self, states: Optional[Sequence[GpState]] = None) -> None:
+        with single_threaded_blas():
+            self._fit_processes_inner(states)
+
+    def _fit_processes_inner(self, states: Optional[Sequence[GpState]]) -> None:
         gps = []
         for j in range(3):
             gp = FeatureGp(self._frame, self.prior_scales[j], basis=self.bases[j],
@@ -209,7 +215,8 @@ class ContactGpModel:
         self._require()
         features, _ = check_query(features, 0.0)
         sq = {}
-        out = [gp.predict(features, return_std=return_std, sq=sq) for gp in self._gps]
+        with single_threaded_blas():
+            out = [gp.predict(features, return_std=return_std, sq=sq) for gp in self._gps]
         if not return_std:
             mean = np.stack(out, axis=1)
             mean[:, 2] = np.clip(mean[:, 2], *self.exponent_bounds)
@@ -219,33 +226,34 @@ class ContactGpModel:
         mean[:, 2] = np.clip(mean[:, 2], *self.exponent_bounds)
         return mean, std
 
-    def _law(self, theta: np.ndarray, d: np.ndarray, dtype=np.float64):
-        """Force ``f``, ``s = d - d0`` and ``log(s / s_ref)`` of the contact law (broadcast).
+    def _law(self, d0, log_f, p, d, dtype=np.float64):
+        """Force ``f``, ``s = d - d0`` and ``log(s / s_ref)`` of the contact law.
 
-        ``theta`` is (M, 3); ``d`` is (M, 1) or (1, K). Where ``s <= 0`` the force is 0 (the
-        log is then meaningless but finite). ``dtype`` float32 halves the work of a bake.
+        All arguments broadcast against each other (queries: all (M,); bake: parameters
+        (1, N) against depths (K, 1), so numpy's inner loops run over the N points). Where
+        ``s <= 0`` the force is 0 (the log is then meaningless but finite). ``dtype`` float32
+        halves the work of a bake.
         """
-        d0 = theta[:, 0:1].astype(dtype)
-        log_f = theta[:, 1:2].astype(dtype)
-        p = theta[:, 2:3].astype(dtype)
-        s = np.asarray(d, dtype=dtype) - d0
-        tiny = dtype(1e-9)
-        log_rel = np.log(np.maximum(s, tiny) * dtype(1.0 / self.ref_depth))
-        f = np.exp(log_f + p * log_rel)
+        s = np.asarray(d, dtype=dtype) - np.asarray(d0, dtype=dtype)
+        log_rel = np.maximum(s, dtype(1e-9))
+        log_rel *= dtype(1.0 / self.ref_depth)
+        np.log(log_rel, out=log_rel)
+        f = np.asarray(p, dtype=dtype) * log_rel
+        f += np.asarray(log_f, dtype=dtype)
+        np.exp(f, out=f)
         f *= s > 0
         return f, s, log_rel
 
-    def _std(self, theta, sd, f, s, log_rel):
-        """Delta-method force std from parameter std ``sd`` (M, 3), same shape as ``f``."""
+    def _std(self, p, sd_d0, sd_log_f, sd_p, f, s, log_rel):
+        """Delta-method force std (same shape as ``f``) from the parameters' std."""
         dtype = f.dtype.type
-        p = theta[:, 2:3].astype(dtype)
-        sd = sd.astype(dtype)
-        rate = p / np.maximum(s, dtype(1e-9))
-        rate *= sd[:, 0:1]
-        var = rate * rate
-        term = log_rel * sd[:, 2:3]
-        var += term * term
-        var += sd[:, 1:2] ** 2
+        var = np.asarray(p, dtype=dtype) / np.maximum(s, dtype(1e-9))
+        var *= np.asarray(sd_d0, dtype=dtype)
+        var *= var
+        term = log_rel * np.asarray(sd_p, dtype=dtype)
+        term *= term
+        var += term
+        var += np.asarray(sd_log_f, dtype=dtype) ** 2
         np.sqrt(var, out=var)
         var *= f
         return var
@@ -261,8 +269,8 @@ class ContactGpModel:
         self._require()
         features, d = check_query(features, d)
         theta = self.predict_params(features)
-        f, _, _ = self._law(theta, d[:, None])
-        return f[:, 0]
+        f, _, _ = self._law(theta[:, 0], theta[:, 1], theta[:, 2], d)
+        return f
 
     def predict_std(self, features: np.ndarray, d) -> np.ndarray:
         """Predictive standard deviation (M,) of the force curve, newtons (delta method).
@@ -275,8 +283,8 @@ class ContactGpModel:
         self._require()
         features, d = check_query(features, d)
         theta, sd = self.predict_params(features, return_std=True)
-        f, s, log_rel = self._law(theta, d[:, None])
-        return self._std(theta, sd, f, s, log_rel)[:, 0]
+        f, s, log_rel = self._law(theta[:, 0], theta[:, 1], theta[:, 2], d)
+        return self._std(theta[:, 2], sd[:, 0], sd[:, 1], sd[:, 2], f, s, log_rel)
 
     def bake(self, surface: Surface, depths) -> BakedResponse:
         """Tabulate force, std and extrapolation slope on every point of ``surface``.
@@ -300,10 +308,13 @@ class ContactGpModel:
             raise InvalidInput(f'bake: expected a Surface, got {type(surface).__name__}')
         depths = check_depths(depths)
         theta, sd = self.predict_params(surface.features, return_std=True)
-        forces, s, log_rel = self._law(theta, depths[None, :], dtype=np.float32)
-        std = self._std(theta, sd, forces, s, log_rel)   # float32: BakedResponse widens them
+        th, sdt = theta.T[:, None, :], sd.T[:, None, :]                 # (3, 1, N)
+        f_t, s_t, log_t = self._law(th[0], th[1], th[2], depths[:, None], dtype=np.float32)
+        std_t = self._std(th[2], sdt[0], sdt[1], sdt[2], f_t, s_t, log_t)  # (K, N) float32
+        forces = np.ascontiguousarray(f_t.T, dtype=np.float64)
+        std = np.ascontiguousarray(std_t.T, dtype=np.float64)
         s_last = depths[-1] - theta[:, 0]
-        f_last = forces[:, -1].astype(np.float64)
+        f_last = forces[:, -1]
         slopes = np.where(s_last > 0, f_last * theta[:, 2] / np.where(s_last > 0, s_last, 1.0),
                           0.0)
         return BakedResponse(depths=depths, forces=forces, slopes=slopes, std=std,

@@ -514,7 +514,7 @@ class Controller:
         self.contact_dir: Optional[np.ndarray] = None
         self.contact_phase = 0
         self.contact_step_back = 0
-        self.events: List[str] = []
+        self.events = deque(maxlen=100)
         self._sense()
 
     # -- time and outputs -------------------------------------------------------------------
@@ -1368,7 +1368,7 @@ class Emulator:
                     'protective': ctl.protective, 'moving': ctl.is_moving(),
                     'motion': ctl.motion_owner, 'out_int_0': ctl.out_int[0],
                     'clients': sorted(c.kind for c in self.clients),
-                    'late_ticks': self.late_ticks, 'events': list(ctl.events[-20:]),
+                    'late_ticks': self.late_ticks, 'events': list(ctl.events)[-20:],
                 }
         if word == 'protective_stop':
             with self.lock:

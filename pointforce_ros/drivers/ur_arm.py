@@ -658,7 +658,7 @@ class UrArm:
     def push_until(self, standoff_pose6: Sequence[float], direction: Sequence[float], *,
                    force_limit: float, travel_limit: float, speed: float = 0.002,
                    accel: float = 0.1, approach_speed: float = 0.05, retract_speed: float = 0.01,
-                   stop_decel: float = 1.0, cancel: Optional[Callable[[], bool]] = None,
+                   stop_decel: float = 10.0, cancel: Optional[Callable[[], bool]] = None,
                    settle_samples: int = 5, max_force: float = 100.0,
                    max_travel: float = 0.1) -> PushResult:
         """Push from a stand-off pose along ``direction`` until a limit, then retract.

@@ -92,6 +92,7 @@ def test_move_speed_and_stop_commands(cell):
     moved = arm.tcp_pose()[1] - start[1]
     assert 0.002 < moved < 0.008
     arm.move_linear(start, 0.1, 0.5)
+    arm.wait_samples(3, 1.0)
     np.testing.assert_allclose(arm.tcp_pose(), start, atol=1e-9)
     arm.tare()
     np.testing.assert_allclose(arm.tcp_wrench(), np.zeros(6), atol=0.03)
@@ -176,6 +177,7 @@ def test_ft_stall_raises_within_100_ms(cell, what, kind):
     emu.control.unstall()
     if what == 'force':
         assert fault.retracted   # the controller still takes commands: stopped and retracted
+        arm.wait_samples(3, 1.0)
         np.testing.assert_allclose(arm.tcp_pose(), STANDOFF, atol=1e-6)
 
 

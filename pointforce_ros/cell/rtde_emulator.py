@@ -1063,6 +1063,7 @@ class _RtdeClient(_Client):
             return
         self.output = rp.Recipe(1, tuple(names), tuple(types))
         self.period = max(1, int(round(1.0 / (frequency * DT))))
+        LOG.debug('output recipe at %g Hz: %s', frequency, ','.join(names))
         self.send(rp.setup_reply(rp.MSG_SETUP_OUTPUTS, 1, types))
 
     def _setup_inputs(self, payload: bytes) -> None:
@@ -1074,6 +1075,7 @@ class _RtdeClient(_Client):
             return
         recipe_id = len(self.inputs) + 1
         self.inputs[recipe_id] = rp.Recipe(recipe_id, tuple(names), tuple(types))
+        LOG.debug('input recipe %d: %s', recipe_id, ','.join(names))
         self.send(rp.setup_reply(rp.MSG_SETUP_INPUTS, recipe_id, types))
 
 

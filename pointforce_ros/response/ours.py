@@ -24,7 +24,7 @@ expressions (see :mod:`.bench` for timings).
 """
 
 import time
-from typing import List, Mapping, Optional, Sequence
+from typing import List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -86,7 +86,6 @@ class ContactGpModel:
         self.bases = bases
         self.grid = grid or GpGrid()
         self.version = 0
-        self._curves: List[PokeCurve] = []
         self._ids: List[str] = []
         self._features = np.zeros((0, 9))
         self._theta = np.zeros((0, 3))
@@ -112,7 +111,7 @@ class ContactGpModel:
         """(n, 3) per-poke ``(d0 [m], log F [log N], p)`` fitted to each training curve."""
         return self._theta.copy()
 
-    def fit_curve(self, curve: PokeCurve) -> np.ndarray:
+    def fit_curve(self, curve: PokeCurve) -> Tuple[np.ndarray, float]:
         """Fit the contact law to one curve; return ``((d0, log F, p), rms)``; stores nothing.
 
         Raises:
@@ -126,7 +125,7 @@ class ContactGpModel:
             fit = fit_power_onset(curve.d, curve.f, with_bias=False,
                                   exponent_bounds=self.exponent_bounds, max_samples=600)
         force_ref = max(fit.a * self.ref_depth ** fit.p, 1e-9)
-        return np.array([fit.d0, np.log(force_ref), fit.p]), fit.rms
+        return np.array([fit.d0, np.log(force_ref), fit.p]), float(fit.rms)
 
     def fit(self, curves: Sequence[PokeCurve], surface: Surface) -> 'ContactGpModel':
         """Fit from scratch on ``curves`` poked on ``surface``; returns ``self``.
@@ -139,7 +138,6 @@ class ContactGpModel:
         curves = check_curves(curves, surface)
         feats = curve_features(curves, surface, self.max_surface_distance)
         fits = [self.fit_curve(c) for c in curves]
-        self._curves = list(curves)
         self._ids = [c.poke_id for c in curves]
         self._features = feats
         self._theta = np.stack([th for th, _ in fits])
@@ -167,7 +165,6 @@ class ContactGpModel:
             raise InvalidInput(f'partial_fit: poke {curve.poke_id} is already in the model')
         feat = curve_features([curve], surface, self.max_surface_distance)
         theta, rms = self.fit_curve(curve)
-        self._curves.append(curve)
         self._ids.append(curve.poke_id)
         self._features = np.vstack([self._features, feat])
         self._theta = np.vstack([self._theta, theta[None]])

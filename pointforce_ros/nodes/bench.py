@@ -74,10 +74,11 @@ def bench_ros(quick: bool = False) -> dict:
     server.answer_batch(ContactQuery(mesh=sphere, poses=tuple(poses), approach=[0, 0, -1],
                                      torque_centre=centre))
     core_batch = time.perf_counter() - start
-    with InProcessLauncher() as launcher:
+    with InProcessLauncher() as launcher, InProcessLauncher(threads=2) as planner:
+        # the client in its own context, as a planner process would be
         launcher.add(ContactWrenchNode(context=launcher.context, parameter_overrides=[
             Parameter('model_dir', value=str(work / 'models'))]))
-        client_node = launcher.add(Node('bench_client', context=launcher.context))
+        client_node = planner.add(Node('bench_client', context=planner.context))
         single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
         batch = client_node.create_client(ContactWrenchBatch,
                                           '/contact_wrench/contact_wrench_batch')
@@ -91,13 +92,13 @@ def bench_ros(quick: bool = False) -> dict:
                                         approach=Vector3(x=0.0, y=0.0, z=-1.0),
                                         torque_centre=to_point(centre))
             start = time.perf_counter()
-            launcher.wait_future(single.call_async(req), 30, 'contact_wrench')
+            planner.wait_future(single.call_async(req), 30, 'contact_wrench')
             rtt.append(time.perf_counter() - start)
         req = ContactWrenchBatch.Request(mesh=mesh_msg, poses=[pose_to_msg(p) for p in poses],
                                          approach=Vector3(x=0.0, y=0.0, z=-1.0),
                                          torque_centre=to_point(centre))
         start = time.perf_counter()
-        resp = launcher.wait_future(batch.call_async(req), 120, 'contact_wrench_batch')
+        resp = planner.wait_future(batch.call_async(req), 120, 'contact_wrench_batch')
         ros_batch = time.perf_counter() - start
         if not resp.success:
             raise RuntimeError(f'batch refused: {resp.message}')
@@ -114,11 +115,11 @@ def bench_ros(quick: bool = False) -> dict:
                               force_model_kwargs={'z0': 0.04, 'k': 1000.0},
                               initial_pose=[0.5, 0.0, 0.1, np.pi, 0.0, 0.0])
     try:
-        with InProcessLauncher() as launcher:
+        with InProcessLauncher() as launcher, InProcessLauncher(threads=2) as planner:
             poke_node = launcher.add(PokeServerNode(context=launcher.context, parameter_overrides=[
                 Parameter('robot_ip', value=emulator.host),
                 Parameter('store_dir', value=str(work / 'pokes'))]))
-            client_node = launcher.add(Node('bench_poker', context=launcher.context))
+            client_node = planner.add(Node('bench_poker', context=planner.context))
             client = ActionClient(client_node, Poke, '/poke_server/poke')
             if not client.wait_for_server(timeout_sec=20):
                 raise RuntimeError('poke action did not appear within 20 s')
@@ -130,8 +131,8 @@ def bench_ros(quick: bool = False) -> dict:
                 goal = poke_goal_to_msg(PokeGoal(point=[x, y, 0.04], normal=[0, 0, 1],
                                                  force_limit=3.0, depth_limit=0.008,
                                                  speed=0.005, standoff=0.005))
-                handle = launcher.wait_future(client.send_goal_async(goal), 20, 'goal')
-                launcher.wait_future(handle.get_result_async(), 60, 'poke')
+                handle = planner.wait_future(client.send_goal_async(goal), 20, 'goal')
+                planner.wait_future(handle.get_result_async(), 60, 'poke')
                 pokes += 1
             elapsed = time.monotonic() - start
             streamed = poke_node.samples_streamed - first

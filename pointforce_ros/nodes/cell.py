@@ -56,6 +56,7 @@ class CellSession:
         self.emulator = None
         self.spec = None
         self.launcher = None
+        self.client_launcher = None
         try:
             if robot_ip is None or camera_topic is None:
                 self.spec = _load_sim_object(object_name)
@@ -106,7 +107,11 @@ class CellSession:
                     Parameter('model_dir', value=str(paths['models'])),
                     Parameter('shape_constant', value=float(shape_constant))]))
             self.wrench_node = self.launcher.add(ContactWrenchNode(context=ctx))
-            self.client = self.launcher.add(Node('cell_driver', context=ctx))
+            # the driver's clients get their own context and executor, like a separate process:
+            # clients sharing a busy server's executor can lose futures (rclpy 7.1.6)
+            self.client_launcher = InProcessLauncher(threads=4)
+            self.client = self.client_launcher.add(Node('cell_driver',
+                                                        context=self.client_launcher.context))
             self._clients()
         except BaseException:
             self.close()
@@ -144,7 +149,7 @@ class CellSession:
 
     def call(self, client, request, timeout: float = 60.0, what: str = 'service'):
         """Call a service and wait for its response (RuntimeError naming it on time-out)."""
-        return self.launcher.wait_future(client.call_async(request), timeout, what)
+        return self.client_launcher.wait_future(client.call_async(request), timeout, what)
 
     def trigger(self, name: str):
         """Call a std_srvs/Trigger of the cell (``add_scan``, ``capture``, ``next_view`` ...)."""
@@ -174,11 +179,11 @@ class CellSession:
 
     def poke(self, goal, timeout: float = 120.0, feedback=None):
         """Send a Poke goal (message); returns the result message (raises if rejected)."""
-        handle = self.launcher.wait_future(
+        handle = self.client_launcher.wait_future(
             self.poke_client.send_goal_async(goal, feedback_callback=feedback), 20, 'goal')
         if not handle.accepted:
             raise PointforceError('poke goal rejected by the server (see its log)')
-        return self.launcher.wait_future(handle.get_result_async(), timeout, 'poke').result
+        return self.client_launcher.wait_future(handle.get_result_async(), timeout, 'poke').result
 
     def suggest(self, count: int = 1):
         """Ask the learner for the next poke locations; returns the response."""
@@ -195,6 +200,9 @@ class CellSession:
 
     def close(self):
         """Stop the nodes and the emulator."""
+        if self.client_launcher is not None:
+            self.client_launcher.close()
+            self.client_launcher = None
         if self.launcher is not None:
             self.launcher.close()
             self.launcher = None

@@ -143,7 +143,7 @@ class ObjectSpec:
         y = np.asarray(y, dtype=float)
         return np.stack(np.broadcast_arrays(x, y, self.top_height(x, y)), -1)
 
-    def build_mesh(self, h: float, refine_at=None, fine_radius: float = 0.008,
+    def build_mesh(self, h: float, refine_at=None, fine_radius=0.008,
                    growth: float = 1.3, h_max: Optional[float] = None,
                    h_z: Optional[float] = None) -> HexMesh:
         """Hexahedral mesh of the body.
@@ -151,7 +151,7 @@ class ObjectSpec:
         Args:
             h: element size (uniform, or near ``refine_at`` when given), metres.
             refine_at: (2,) x, y to refine around; ``None`` for a uniform mesh.
-            fine_radius: half-width of the fine zone, metres.
+            fine_radius: half-width of the fine zone, metres, or (x, y) half-widths.
             growth: element growth factor away from the fine zone.
             h_max: largest element size, metres (default 4 h).
             h_z: element size through the thickness at the top (default ``h``).
@@ -172,11 +172,11 @@ class ObjectSpec:
             u0, v0 = self._uv(refine_at[0], refine_at[1])
             if self.kind == 'dome':
                 u0, v0 = _disk_to_square(u0, v0)
-            s = graded_axis(-1.0, 1.0, 2 * h / lx, u0, 2 * fine_radius / lx, growth,
-                            2 * h_max / lx)
-            t = graded_axis(-1.0, 1.0, 2 * h / ly, v0, 2 * fine_radius / ly, growth,
-                            2 * h_max / ly)
-        zeta = graded_axis(0.0, 1.0, h_z / lz, 1.0, fine_radius / lz, growth, h_max / lz)
+            rx, ry = np.broadcast_to(np.asarray(fine_radius, dtype=float), (2,))
+            s = graded_axis(-1.0, 1.0, 2 * h / lx, u0, 2 * rx / lx, growth, 2 * h_max / lx)
+            t = graded_axis(-1.0, 1.0, 2 * h / ly, v0, 2 * ry / ly, growth, 2 * h_max / ly)
+        fz = float(np.min(fine_radius))
+        zeta = graded_axis(0.0, 1.0, h_z / lz, 1.0, fz / lz, growth, h_max / lz)
         mesh = structured_hex(s, t, zeta)
         u, v, w = mesh.nodes.T
         if self.kind == 'dome':

@@ -1,0 +1,112 @@
+"""FEM validation against closed forms and invariants (coarse meshes; fine runs are fixtures).
+
+Fixtures in test/data/fem/ come from ``python test/data/fem/make_fem_cache.py --validation``:
+``hertz_fine.npz`` (rigid sphere R = 10 mm, E = 100 kPa, nu = 0.3, quarter block 150 mm with a
+bonded base, 0.3 mm elements at the contact, depths 0.1 and 0.2 mm) and ``refine_fine.npz``
+(point probe, homogeneous 60 x 60 x 40 mm block, 1.5 mm elements, depths 2 and 5 mm).
+"""
+
+import os
+
+import numpy as np
+import pytest
+
+from pointforce_ros.cell.fem import validation
+from pointforce_ros.cell.fem.mesh import structured_hex
+from pointforce_ros.cell.fem.probes import point_probe, pose_for_push, sphere_probe
+from pointforce_ros.cell.fem.solver import FemModel
+from pointforce_ros.cell.objects import load_object
+from pointforce_ros.errors import NotConverged
+
+DATA = os.path.join(os.path.dirname(__file__), '..', 'data', 'fem')
+
+
+@pytest.fixture(scope='module')
+def coarse_poke():
+    """Point-probe poke of the refinement block at 3 mm elements (the coarse twin)."""
+    return validation.refine_case(0.003)
+
+
+def test_hertz_fine_fixture_within_3_percent():
+    data = np.load(os.path.join(DATA, 'hertz_fine.npz'))
+    for tag in ('linear', 'nonlinear'):
+        ratio = data[f'{tag}_ratio']
+        assert np.all(np.abs(ratio - 1.0) < 0.03), (tag, ratio)
+    # at these small depths the neo-Hookean and linear models agree
+    np.testing.assert_allclose(data['nonlinear_force'], data['linear_force'], rtol=0.01)
+
+
+def test_hertz_coarse_run_converges_towards_the_fine_fixture():
+    fine = np.load(os.path.join(DATA, 'hertz_fine.npz'))
+    coarse = validation.hertz_case(0.0006, depths=(0.0002,))
+    ratio = coarse['ratio'][0]
+    # discretisation makes the coarse mesh stiffer, never softer, and not by much
+    assert 0.98 < ratio < 1.15
+    assert ratio >= fine['linear_ratio'][-1] - 0.005
+
+
+def test_mesh_refinement_changes_point_poke_force_by_less_than_5_percent(coarse_poke):
+    fine = np.load(os.path.join(DATA, 'refine_fine.npz'))
+    np.testing.assert_allclose(coarse_poke['depths'], fine['depths'])
+    change = np.abs(coarse_poke['force'][:, 2] - fine['force'][:, 2]) / fine['force'][:, 2]
+    assert np.all(change < 0.05), change
+
+
+def test_symmetric_poke_has_no_torque_and_table_balances_the_probe(coarse_poke):
+    f = coarse_poke['force']
+    size = 0.06
+    assert np.all(np.abs(coarse_poke['torque']) < 1e-3 * np.abs(f[:, 2:3]) * size)
+    assert np.all(np.abs(f[:, :2]) < 1e-3 * np.abs(f[:, 2:3]))
+    np.testing.assert_allclose(coarse_poke['table_force'], f, atol=1e-6 * np.abs(f).max())
+
+
+def test_force_grows_monotonically_with_depth():
+    spec = load_object('plush')
+    mesh = spec.build_mesh(0.004, refine_at=(0.5, 0.0), growth=1.5)
+    model = FemModel(mesh, spec.gauss_young(mesh), spec.poisson)
+    q, n = spec.top_point(0.5, 0.0), spec.top_normal(0.5, 0.0)
+    depths = np.array([0.5, 1.0, 2.0, 3.0, 4.0]) * 1e-3
+    res = model.indent(point_probe(0.002, 25.0), pose_for_push(q, -n), -n, depths)
+    fn = res.force @ n
+    assert fn[0] > 0
+    assert np.all(np.diff(fn) > 0)
+    # and it is convex-ish: stiffness (slope) grows with depth, as for any indenter
+    assert np.all(np.diff(np.diff(fn) / np.diff(depths)) > 0)
+    assert np.all(res.max_penetration <= np.maximum(2e-6, 1e-3 * depths) + 1e-12)
+
+
+def test_stiff_inclusion_is_felt():
+    """Lamb: a poke over the bone is measurably stiffer than one over plain muscle."""
+    spec = load_object('lamb')
+    bone = spec.regions[-1].params['centre']
+    out = []
+    for x, y in ((bone[0], bone[1]), (0.47, -0.02)):
+        mesh = spec.build_mesh(0.004, refine_at=(x, y), growth=1.5)
+        model = FemModel(mesh, spec.gauss_young(mesh), spec.poisson)
+        q, n = spec.top_point(x, y), spec.top_normal(x, y)
+        res = model.indent(point_probe(0.002, 25.0), pose_for_push(q, -n), -n, [0.004])
+        out.append(float(res.force[-1] @ n))
+    assert out[0] > 1.2 * out[1], out
+
+
+def test_failure_raises_not_converged_naming_the_step():
+    mesh = structured_hex(np.linspace(0, 0.02, 5), np.linspace(0, 0.02, 5),
+                          np.linspace(0, 0.01, 3))
+    model = FemModel(mesh, 1e5, 0.45)
+    model.max_iter = 1
+    with pytest.raises(NotConverged, match='step 0'):
+        model.indent(sphere_probe(0.005), pose_for_push([0.01, 0.01, 0.01], [0, 0, -1]),
+                     [0, 0, -1], [0.003], max_bisections=1)
+
+
+def test_sliding_support_balances_and_is_softer_than_bonded():
+    mesh = structured_hex(np.linspace(0.48, 0.52, 9), np.linspace(-0.02, 0.02, 9),
+                          np.linspace(0, 0.01, 3))
+    forces = []
+    for support in ('fixed', 'sliding'):
+        model = FemModel(mesh, 1e5, 0.45, support=support, nonlinear=False)
+        res = model.indent(sphere_probe(0.01), pose_for_push([0.5, 0.0, 0.01], [0, 0, -1]),
+                           [0, 0, -1], [0.0005])
+        np.testing.assert_allclose(res.table_force, res.force, atol=1e-6)
+        forces.append(res.force[-1, 2])
+    assert forces[1] < forces[0]

@@ -23,6 +23,7 @@ numpy operations.
 import csv
 import io
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import List, Optional, Sequence, Tuple
 
@@ -242,6 +243,11 @@ class PokeBatch:
     def sums(self, values: np.ndarray) -> np.ndarray:
         """Sum per-sample ``values`` (N, ...) over each poke: (P, ...)."""
         return np.add.reduceat(values, self.starts[:-1], axis=0)
+
+    @cached_property
+    def normal_s(self) -> np.ndarray:
+        """(N, 3) normal of each sample's poke (cached)."""
+        return self.normal[self.seg]
 
     def per_sample(self, values: np.ndarray) -> np.ndarray:
         """Expand per-poke ``values`` (P, ...) to samples (N, ...)."""

@@ -316,7 +316,7 @@ def analyse_structure(batch: PokeBatch, resid: Dict[str, np.ndarray]) -> List[Fi
         f_lo = max(2.0 / duration, 0.05)
         f_hi = min(0.25 / dt, 20.0)
         if f_hi > f_lo:
-            freqs = np.geomspace(f_lo, f_hi, 600)
+            freqs = np.geomspace(f_lo, f_hi, 300)
             centred = r - r.mean()
             power = lombscargle(t_abs, centred, 2 * np.pi * freqs, normalize=True)
             k = int(np.argmax(power))

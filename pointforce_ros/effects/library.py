@@ -108,7 +108,11 @@ PLASTIC_RADIUS = 0.004
 """Default lateral radius within which earlier pokes count towards a plastic set, metres."""
 
 EXPONENT = ParamSpec('exponent', '1', 0.7, 4.0, (1.5,), 0.1,
-                     description='contact-law exponent p of f = A (s / s_ref)^p (base model)')
+                     description='contact-law exponent p of the base law')
+CURVATURE = ParamSpec('curvature', '1', -1.0, 1.0, (0.0,), 0.05,
+                      description='contact-law curvature b: f = A x^p exp(b x), x = s / s_ref')
+BASE_PARAMS = (EXPONENT, CURVATURE)
+"""Global parameters of the base model's contact law (always fitted)."""
 
 LIBRARY: Dict[str, EffectSpec] = {}
 """All candidate effects by name, in the order they are tried."""

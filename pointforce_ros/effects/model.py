@@ -33,7 +33,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pointforce_ros.effects.data import PokeBatch, velocity
-from pointforce_ros.effects.library import (EXPONENT, hysteresis_branch, hysteresis_factor,
+from pointforce_ros.effects.library import (BASE_PARAMS, hysteresis_branch, hysteresis_factor,
                                             friction_direction, LIBRARY, ParamSpec,
                                             plastic_depth, prony_filter, STICK_VELOCITY)
 from pointforce_ros.errors import InvalidInput, NotConverged
@@ -62,7 +62,7 @@ class Layout:
             if name not in LIBRARY:
                 raise InvalidInput(f'unknown effect {name!r}; known: {", ".join(LIBRARY)}')
         ordered = tuple(name for name in LIBRARY if name in set(effects))
-        entries = [('base', EXPONENT)]
+        entries = [('base', p) for p in BASE_PARAMS]
         for name in ordered:
             entries += [(name, p) for p in LIBRARY[name].params]
         return cls(ordered, tuple(entries))
@@ -74,7 +74,7 @@ class Layout:
     @property
     def n_effect_params(self) -> int:
         """Parameters added by the effects (the base exponent excluded)."""
-        return len(self.entries) - 1
+        return len(self.entries) - len(BASE_PARAMS)
 
     def values(self, x: np.ndarray) -> Dict[str, Dict[str, float]]:
         """Map optimised coordinates ``x`` to ``{effect: {param: value}}`` (with settings)."""
@@ -167,7 +167,7 @@ def _solve_amplitudes(batch: PokeBatch, phi: np.ndarray, carry: Optional[np.ndar
 
     has_carry = carry is not None and np.any(carry != 0.0)
     friction = motion is not None and mu != 0.0
-    inward = -batch.per_sample(batch.normal)
+    inward = -batch.normal_s
 
     def slip(unit_s):
         return friction_direction(inward, unit_s, motion[0], motion[1], stick)
@@ -206,7 +206,8 @@ def forward(batch: PokeBatch, values: Mapping[str, Mapping[str, float]]
 
     """
     p = float(values['base']['exponent'])
-    n_seg = batch.per_sample(batch.normal)
+    curvature = float(values['base'].get('curvature', 0.0))
+    n_seg = batch.normal_s
     sensor = np.zeros_like(batch.force)
     if 'ft_bias' in values:
         b = values['ft_bias']
@@ -247,7 +248,8 @@ def forward(batch: PokeBatch, values: Mapping[str, Mapping[str, float]]
     target_n = np.einsum('ij,ij->i', target, n_seg)
 
     def evaluate(s):
-        phi_e = (np.maximum(s, 0.0) / S_REF) ** p
+        x = np.maximum(s, 0.0) / S_REF
+        phi_e = x ** p * np.exp(curvature * x)
         phi = phi_e * branch if branch is not None else phi_e
         active = phi_e > 0
         carry = None
@@ -257,32 +259,56 @@ def forward(batch: PokeBatch, values: Mapping[str, Mapping[str, float]]
         return _solve_amplitudes(batch, phi, carry, active, target, mu, stick, motion)
 
     if 'series_compliance' in values:
-        # Frame compliance: the tip retreats compliance * F_n. F_n starts as the smoothed
-        # measured force and is then replaced by the model's own prediction (fixed point), so
-        # that measurement noise never enters the displacement (errors in variables).
+        # Frame compliance: the tip retreats compliance * F_n, where F_n solves
+        # F = a h phi(s - compliance F) per sample (Newton) for the per-poke normal amplitude
+        # a (h: hysteresis branch factor). The amplitude is the fixed point of "solve F with a,
+        # refit a by least squares", found by Aitken extrapolation of two refits. The measured
+        # force enters only through a (one number per poke): building the displacement from the
+        # measured force itself would leak the data's own time structure (noise, disturbances)
+        # into the prediction.
         compliance = float(values['series_compliance']['compliance'])
-        f_n = np.maximum(_smooth(batch, target_n), 0.0)
-        for _ in range(3):
-            pred, _ = evaluate(s_kin - compliance * f_n)
-            f_n = np.maximum(np.einsum('ij,ij->i', pred, n_seg), 0.0)
-        pred, c = evaluate(s_kin - compliance * f_n)
+
+        def refit(a):
+            a_s = batch.per_sample(a) * (branch if branch is not None else 1.0)
+            f_n = _compliant_force(s_kin, a_s, compliance, p, curvature)
+            pred, c = evaluate(s_kin - compliance * f_n)
+            return np.maximum(np.einsum('ij,ij->i', c, batch.normal), 0.0), pred, c
+
+        _, c = evaluate(s_kin)
+        a0 = np.maximum(np.einsum('ij,ij->i', c, batch.normal), 0.0)
+        a1, _, _ = refit(a0)
+        a2, pred, c = refit(a1)
+        denom = a2 - 2.0 * a1 + a0
+        safe = np.abs(denom) > 1e-12 * np.maximum(np.abs(a2), 1e-300)
+        a_star = np.where(safe, a0 - (a1 - a0) ** 2 / np.where(safe, denom, 1.0), a2)
+        a_star = np.where(np.isfinite(a_star) & (a_star >= 0), a_star, a2)
+        _, pred, c = refit(a_star)
     else:
         pred, c = evaluate(s_kin)
     return pred + sensor, c
 
 
-def _smooth(batch: PokeBatch, values: np.ndarray, half: int = 5) -> np.ndarray:
-    """Return the moving average of ``values`` (N,) over ``2 half + 1`` samples of one poke.
+def _compliant_force(s: np.ndarray, amplitude: np.ndarray, compliance: float, p: float,
+                     curvature: float, steps: int = 6) -> np.ndarray:
+    """Solve ``F = amplitude phi((s - compliance F) / s_ref)`` per sample (Newton, F >= 0).
 
-    Samples whose window would reach into a neighbouring poke keep their own value.
+    ``phi(x) = x^p exp(curvature x)``; ``F`` is bracketed by 0 and the compliance-free force
+    and each step is clipped into that bracket.
     """
-    kernel = np.ones(2 * half + 1)
-    count = np.convolve(np.ones_like(values), kernel, mode='same')
-    out = np.convolve(values, kernel, mode='same') / count
-    seg = batch.seg.astype(np.float64)
-    mixed = np.abs(np.convolve(seg, kernel, mode='same') - seg * count) > 1e-9
-    out[mixed] = values[mixed]
-    return out
+    def law(depth):
+        x = np.maximum(depth, 0.0) / S_REF
+        value = x ** p * np.exp(curvature * x)
+        slope = np.where(x > 0, value * (p / np.where(x > 0, x, 1.0) + curvature), 0.0) / S_REF
+        return value, slope
+
+    upper = amplitude * law(s)[0]
+    force = upper.copy()
+    for _ in range(steps):
+        value, slope = law(s - compliance * force)
+        g = force - amplitude * value
+        dg = 1.0 + amplitude * compliance * slope
+        force = np.clip(force - g / dg, 0.0, upper)
+    return force
 
 
 def _coupled(batch: PokeBatch, effects) -> bool:
@@ -398,7 +424,8 @@ def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
         u0 = np.clip(x0 / scale, lower + 1e-9 * (upper - lower), upper - 1e-9 * (upper - lower))
         try:
             sol = least_squares(residual, u0, bounds=(lower, upper), x_scale=1.0,
-                                diff_step=1e-3, max_nfev=max_nfev, method='trf')
+                                diff_step=1e-3, max_nfev=max_nfev, method='trf', ftol=1e-6,
+                                xtol=1e-6, gtol=1e-8)
         except (ValueError, FloatingPointError) as exc:
             last_error = exc
             continue
@@ -442,7 +469,7 @@ def residual_table(batch: PokeBatch, fits: Sequence[Tuple[np.ndarray, Fit]]
         p, take = predict(batch, fit.values, idx)
         pred[take] = p
     resid = batch.force - pred
-    n_seg = batch.per_sample(batch.normal)
+    n_seg = batch.normal_s
     normal = np.einsum('ij,ij->i', resid, n_seg)
     lateral = resid - normal[:, None] * n_seg
     first = batch.per_sample(batch.t[batch.starts[:-1]])

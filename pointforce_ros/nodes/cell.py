@@ -240,10 +240,8 @@ def _load_sim_object(name: str) -> _SimObject:
     lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
     centre = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]])
     roi = [lo[0] - 0.01, lo[1] - 0.01, 0.005, hi[0] + 0.01, hi[1] + 0.01, hi[2] + 0.03]
-    poke = getattr(spec, 'poke', {}) or {}
-    return _SimObject(mesh, rgb, centre, roi, spec=spec,
-                      force_cap=float(poke.get('force_cap', 8.0)),
-                      max_depth=float(poke.get('max_depth', 0.01)))
+    return _SimObject(mesh, rgb, centre, roi, spec=spec, force_cap=float(spec.force_cap),
+                      max_depth=float(spec.max_depth))
 
 
 def run_cell(out='out/cell', object_name='lamb', scenario='realistic', robot_ip=None,

@@ -1,0 +1,285 @@
+"""``pointforce cell generate``: measured-like data sets from the simulated cell.
+
+For one object and scenario it writes, under ``out``:
+
+* ``scans/`` a rosbag2 MCAP bag of the depth camera's PointCloud2 frames (realsense-ros layout,
+  ``camera_depth_optical_frame``) and the camera poses (``/camera/pose``, ``base``);
+* ``surface.npz`` the equilibrium surface built from those scans (crop, voxel, outliers,
+  outward normals);
+* ``pokes/`` a poke store: one rosbag2 MCAP bag per point-probe poke (the poke server's topics,
+  250 Hz), made offline by :func:`pointforce_ros.cell.session.simulate_campaign` against the FEM
+  live contact path with the scenario's effects;
+* ``probes.npz`` + ``probes.json`` line and cylinder probe trials at random orientations with
+  their ground-truth force and torque from the full nonlinear FEM solve;
+* ``manifest.json`` what was generated, with the seed.
+
+Same seed, same arrays (and the same MCAP bytes: message times come from the simulation clock).
+"""
+
+import json
+import time
+from pathlib import Path
+from typing import Callable, Dict, List, Sequence
+
+import numpy as np
+
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.pokes.store import PokeStore, TYPESTORE
+from pointforce_ros.transforms import matrix_to_quaternion
+
+PROBE_KINDS = ('point', 'line', 'cylinder')
+SCAN_TOPIC = '/camera/camera/depth/color/points'
+CAMERA_POSE_TOPIC = '/camera/pose'
+
+
+class Progress:
+    """A text progress bar on one line per update: ``[generate] pokes  7/20 ...  ETA 12 s``."""
+
+    def __init__(self, label: str, total: int, say: Callable[[str], None] = print):
+        """Start timing ``total`` steps of ``label``."""
+        self.label, self.total, self.say = label, max(int(total), 1), say
+        self.start = time.monotonic()
+        self.done = 0
+
+    def step(self, note: str = '') -> None:
+        """Count one step and print the bar."""
+        self.done += 1
+        elapsed = time.monotonic() - self.start
+        eta = elapsed / self.done * (self.total - self.done)
+        width = 24
+        fill = int(width * self.done / self.total)
+        self.say(f'[generate] {self.label:9s} [{"#" * fill}{"." * (width - fill)}] '
+                 f'{self.done}/{self.total} {elapsed:6.1f} s, ETA {eta:5.0f} s {note}')
+
+
+def fem_cell_object(spec, live, margin: float = 0.25):
+    """:class:`~pointforce_ros.cell.session.CellObject` of a FEM object and its live path.
+
+    Pokes are drawn over the footprint inset by ``margin`` (fraction of the half size).
+    """
+    from pointforce_ros.cell.session import CellObject
+
+    def surface_at(xy):
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        points = np.array([spec.top_point(x, y) for x, y in xy])
+        normals = np.array([spec.top_normal(x, y) for x, y in xy])
+        return points, normals
+
+    cx, cy = spec.centre
+    hx, hy = spec.size[0] / 2 * (1 - margin), spec.size[1] / 2 * (1 - margin)
+    return CellObject(clean=live.point_probe_wrench, surface_at=surface_at,
+                      region=((cx - hx, cx + hx), (cy - hy, cy + hy)), name=spec.name)
+
+
+def _stamp(t: float):
+    sec = int(np.floor(t))
+    return TYPESTORE.types['builtin_interfaces/msg/Time'](
+        sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
+
+
+def write_scans_bag(frames: Sequence, path) -> Path:
+    """Write camera frames (organised, optical frame) and their poses as a rosbag2 MCAP bag."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    t = TYPESTORE.types
+    path = Path(path)
+    if path.exists():
+        raise InvalidInput(f'{path} exists already')
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        cloud_conn = writer.add_connection(SCAN_TOPIC, 'sensor_msgs/msg/PointCloud2',
+                                           typestore=TYPESTORE)
+        pose_conn = writer.add_connection(CAMERA_POSE_TOPIC, 'geometry_msgs/msg/PoseStamped',
+                                          typestore=TYPESTORE)
+        for frame in frames:
+            stamp = _stamp(frame.stamp)
+            points = np.asarray(frame.points, dtype=np.float32)
+            height, width = points.shape[:2] if points.ndim == 3 else (1, len(points))
+            rgb = np.clip(np.round(np.asarray(frame.rgb) * 255), 0, 255).astype(np.uint32)
+            packed = ((rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]).astype('<u4')
+            rec = np.zeros(height * width, dtype=np.dtype(
+                {'names': ['x', 'y', 'z', 'rgb'], 'formats': ['<f4', '<f4', '<f4', '<u4'],
+                 'offsets': [0, 4, 8, 16], 'itemsize': 20}))
+            flat = points.reshape(-1, 3)
+            rec['x'], rec['y'], rec['z'] = flat[:, 0], flat[:, 1], flat[:, 2]
+            rec['rgb'] = packed.reshape(-1)
+            fields = [t['sensor_msgs/msg/PointField'](name=n, offset=o, datatype=7, count=1)
+                      for n, o in (('x', 0), ('y', 4), ('z', 8), ('rgb', 16))]
+            msg = t['sensor_msgs/msg/PointCloud2'](
+                header=t['std_msgs/msg/Header'](stamp=stamp, frame_id=frame.frame),
+                height=height, width=width, fields=fields, is_bigendian=False, point_step=20,
+                row_step=20 * width, data=np.frombuffer(rec.tobytes(), dtype=np.uint8),
+                is_dense=False)
+            t_ns = int(round(frame.stamp * 1e9))
+            writer.write(cloud_conn, t_ns,
+                         TYPESTORE.serialize_cdr(msg, 'sensor_msgs/msg/PointCloud2'))
+            q = matrix_to_quaternion(frame.camera_pose[:3, :3])
+            p = frame.camera_pose[:3, 3]
+            pose = t['geometry_msgs/msg/PoseStamped'](
+                header=t['std_msgs/msg/Header'](stamp=stamp, frame_id='base'),
+                pose=t['geometry_msgs/msg/Pose'](
+                    position=t['geometry_msgs/msg/Point'](x=p[0], y=p[1], z=p[2]),
+                    orientation=t['geometry_msgs/msg/Quaternion'](x=q[0], y=q[1], z=q[2],
+                                                                  w=q[3])))
+            writer.write(pose_conn, t_ns,
+                         TYPESTORE.serialize_cdr(pose, 'geometry_msgs/msg/PoseStamped'))
+    return path
+
+
+def scan_object(spec, scenario, views: int = 2, seed: int = 0, distance: float = 0.35):
+    """Render ``views`` camera frames of the object; returns (frames, Scan list)."""
+    from pointforce_ros.cell.camera import DepthCamera, ring_viewpoints
+    from pointforce_ros.surface.equilibrium import Scan
+    mesh, rgb = spec.surface_mesh()
+    target = np.array([spec.centre[0], spec.centre[1], spec.size[2]])
+    frames, scans = [], []
+    for i, pose in enumerate(ring_viewpoints(target, distance, count=views)):
+        kwargs = scenario.camera_kwargs(i)
+        kwargs['seed'] = int(kwargs['seed']) + int(seed)
+        frame = DepthCamera(**kwargs).render(mesh, pose, rgb=rgb, organised=True,
+                                             stamp=float(i))
+        frames.append(frame)
+        valid = np.all(np.isfinite(frame.points), axis=-1)
+        scans.append(Scan(points=frame.points[valid], colors=frame.rgb[valid],
+                          transform=frame.camera_pose))
+    return frames, scans
+
+
+def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
+                 progress: Callable[[str], None] = print, steps: int = 6,
+                 max_tilt_deg: float = 15.0) -> List[Dict]:
+    """Line / cylinder probe trials at random locations and orientations with FEM ground truth.
+
+    Each trial pushes the probe along a direction tilted up to ``max_tilt_deg`` from straight
+    down, with a random roll about it, from just touching the undeformed top to
+    ``spec.max_depth`` in ``steps`` steps (full nonlinear solve at ``spec.mesh_live``); steps
+    past 1.5 x the object's force cap are dropped.
+    """
+    from pointforce_ros.cell.fem.indentation import solve_indentation
+    from pointforce_ros.cell.fem.probes import cylinder_probe, paddle_probe, pose_for_push
+    rng = np.random.default_rng([int(seed), 7])
+    makers = {'line': paddle_probe, 'cylinder': cylinder_probe}
+    plan = [k for k in kinds if k in makers for _ in range(int(count))]
+    bar = Progress('probes', len(plan), progress)
+    trials = []
+    for kind in plan:
+        mesh = makers[kind]()
+        cx, cy = spec.centre
+        x = cx + rng.uniform(-0.2, 0.2) * spec.size[0]
+        y = cy + rng.uniform(-0.2, 0.2) * spec.size[1]
+        tilt = np.radians(rng.uniform(0.0, max_tilt_deg))
+        azimuth = rng.uniform(0.0, 2 * np.pi)
+        direction = np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth),
+                              -np.cos(tilt)])
+        roll = rng.uniform(0.0, np.pi)
+        top = np.asarray(spec.top_point(x, y))
+        pose = pose_for_push(top, direction, roll)
+        world = pose.apply(mesh.vertices)
+        over = spec.footprint_mask(world[:, 0], world[:, 1])
+        heights = np.asarray(spec.top_height(world[over, 0], world[over, 1]))
+        clearance = float(np.max((heights - world[over, 2]) / np.cos(tilt))) if np.any(over) \
+            else 0.0
+        start = pose_for_push(top - direction * (clearance + 0.0005), direction, roll)
+        depths = np.linspace(0.0, spec.max_depth + clearance + 0.0005, steps + 1)[1:]
+        began = time.monotonic()
+        result = solve_indentation(spec, mesh, start, direction, depths,
+                                   torque_centre=start.position, h=spec.mesh_live)
+        normal_force = -(result.force @ direction)
+        keep = normal_force <= 1.5 * spec.force_cap
+        keep[0] = True
+        trials.append({
+            'kind': kind, 'vertices': mesh.vertices, 'triangles': mesh.triangles,
+            'start_position': start.position, 'orientation': start.orientation,
+            'direction': direction, 'torque_centre': start.position,
+            'depths': result.depths[keep], 'force': result.force[keep],
+            'torque': result.torque[keep], 'seconds': time.monotonic() - began})
+        bar.step(f'{kind}: {normal_force[keep][-1]:.1f} N at {1e3 * depths[keep][-1]:.1f} mm')
+    return trials
+
+
+def save_probe_trials(trials: List[Dict], out: Path) -> None:
+    """Write trials as ``probes.npz`` (arrays, trial-indexed keys) and ``probes.json``."""
+    arrays, index = {}, []
+    for i, trial in enumerate(trials):
+        for key in ('vertices', 'triangles', 'start_position', 'orientation', 'direction',
+                    'torque_centre', 'depths', 'force', 'torque'):
+            arrays[f'{i:03d}_{key}'] = np.asarray(trial[key])
+        index.append({'trial': i, 'kind': trial['kind'], 'steps': len(trial['depths']),
+                      'seconds': round(float(trial['seconds']), 2)})
+    np.savez(out / 'probes.npz', **arrays)
+    (out / 'probes.json').write_text(json.dumps({'trials': index}, indent=1))
+
+
+def load_probe_trials(path) -> List[Dict]:
+    """Read ``probes.npz`` written by :func:`save_probe_trials` (a directory or the file)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / 'probes.npz'
+    index = json.loads(path.with_suffix('.json').read_text())['trials']
+    with np.load(path, allow_pickle=False) as z:
+        return [{'kind': e['kind'], **{key[4:]: z[key] for key in z.files
+                                       if key.startswith(f'{e["trial"]:03d}_')}}
+                for e in index]
+
+
+def generate(object_name: str, scenario_name: str, pokes: int, probes: Sequence[str],
+             seed: int, out, progress: Callable[[str], None] = print,
+             probe_count: int = 3) -> dict:
+    """Generate the data set; returns the manifest (also written to ``manifest.json``)."""
+    from pointforce_ros.cell.fem.live import LiveContact
+    from pointforce_ros.cell.objects import load_object
+    from pointforce_ros.cell.scenario import load_scenario
+    from pointforce_ros.cell.session import simulate_campaign
+    from pointforce_ros.model_io import save_surface
+    from pointforce_ros.surface.equilibrium import build_equilibrium_surface, SurfaceConfig
+
+    unknown = set(probes) - set(PROBE_KINDS)
+    if unknown:
+        raise InvalidInput(f'--probes: unknown kind(s) {sorted(unknown)}; use {PROBE_KINDS}')
+    if pokes < 0:
+        raise InvalidInput(f'--pokes must be >= 0, got {pokes}')
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise InvalidInput(f'{out} is not empty: choose a new --out directory')
+    out.mkdir(parents=True, exist_ok=True)
+    spec = load_object(object_name)
+    scenario = load_scenario(scenario_name)
+    started = time.monotonic()
+    frames, scans = scan_object(spec, scenario, seed=seed)
+    write_scans_bag(frames, out / 'scans')
+    lo = np.array([spec.centre[0] - spec.size[0] / 2 - 0.005,
+                   spec.centre[1] - spec.size[1] / 2 - 0.005, 0.004])
+    hi = np.array([spec.centre[0] + spec.size[0] / 2 + 0.005,
+                   spec.centre[1] + spec.size[1] / 2 + 0.005, spec.size[2] + 0.02])
+    surface, report = build_equilibrium_surface(scans, SurfaceConfig(roi_min=lo, roi_max=hi))
+    save_surface(surface, out / 'surface.npz')
+    progress(f'[generate] surface: {len(surface)} points from {len(scans)} scans')
+    records = []
+    if 'point' in probes and pokes:
+        progress(f'[generate] {spec.name}: loading the FEM live contact path (built on first '
+                 'use, minutes)')
+        live = LiveContact.load(spec.name, progress=progress)
+        bar = Progress('pokes', pokes, progress)
+        obj = fem_cell_object(spec, live)
+        records = simulate_campaign(obj, scenario, count=pokes, seed=seed,
+                                    force_limit=spec.force_cap, depth_limit=spec.max_depth)
+        store = PokeStore(out / 'pokes')
+        for record in records:
+            store.add(record)
+            bar.step(f'{record.poke_id}: peak {record.normal_force().max():.2f} N')
+    trials = probe_trials(spec, [k for k in probes if k != 'point'], probe_count, seed,
+                          progress) if set(probes) - {'point'} else []
+    if trials:
+        save_probe_trials(trials, out)
+    manifest = {'object': spec.name, 'scenario': scenario_name, 'seed': int(seed),
+                'pokes': len(records), 'probe_trials': len(trials),
+                'surface_points': len(surface), 'scans': len(frames),
+                'seconds': round(time.monotonic() - started, 1)}
+    (out / 'manifest.json').write_text(json.dumps(manifest, indent=1))
+    progress(f'[generate] done in {manifest["seconds"]} s -> {out}')
+    return manifest
+
+
+def run_generate(object_name: str, scenario: str, pokes: int, probes: Sequence[str], seed: int,
+                 out) -> int:
+    """CLI body of ``pointforce cell generate``."""
+    generate(object_name, scenario, pokes, probes, seed, out)
+    return 0

@@ -44,7 +44,9 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    return _load('pointforce_ros.nodes.demo:run_demo')(out=args.out, quick=args.quick)
+    return _load('pointforce_ros.nodes.demo:run_demo')(
+        out=args.out, quick=args.quick, object_name=args.object, scenario=args.scenario,
+        pokes=args.pokes)
 
 
 def _cmd_cell(args) -> int:
@@ -69,7 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser('demo', help='run the whole job on the simulated cell')
     demo.add_argument('--out', default='out/demo', help='output directory (bags, model, plots)')
-    demo.add_argument('--quick', action='store_true', help='fewer pokes and queries')
+    demo.add_argument('--quick', action='store_true', help='fewer pokes (4 instead of 8)')
+    demo.add_argument('--object', default='lamb', help='simulated object (config/objects)')
+    demo.add_argument('--scenario', default='realistic', help='sensor effects (config/scenarios)')
+    demo.add_argument('--pokes', type=int, default=0, help='number of pokes (0: 8, or 4 quick)')
     demo.set_defaults(func=_cmd_demo)
 
     cell = sub.add_parser('cell', help='run the node suite on the simulated (or a real) cell; '

@@ -1,23 +1,38 @@
-"""``pointforce demo``: start the contact service in-process and answer planner queries over DDS.
+"""``pointforce demo`` (``make demo``): the whole job on the simulated cell, through ROS.
 
-Foundation version: the model is a analytic heterogeneous patch (a Hertz-like point law whose
-stiffness doubles over an inclusion) so that the service has something to answer before the
-simulated cell exists; the answer is checked against the same solver called without ROS.
+1. Start the cell: the RTDE controller emulator (FEM object ``lamb`` with the ``realistic``
+   scenario's sensor effects), the simulated camera and the four product nodes.
+2. Capture the equilibrium surface from two camera views (``cloud_capture``).
+3. Poke: the first poke at the object's centre, then each next location from
+   ``/stiffness_learner/suggest_poke``; every poke goes through the Poke action, ``ur_rtde`` and
+   the emulator, lands as an MCAP bag, and the learner refits and the contact service hot-swaps.
+4. Query like a planner: a sphere, a line paddle and a cylinder at several poses through
+   ``/contact_wrench/contact_wrench``, printed against the FEM ground truth with the error.
+5. Plots (PNG): force-displacement curves with the model, the stiffness map against the truth,
+   the deformed surface under the sphere.
+
+Ground truth for the queries is the full nonlinear FEM solve, precomputed by
+``test/data/fem/make_demo_queries.py`` into ``test/data/fem/demo_queries_<object>.npz`` (minutes
+per query; the demo itself runs in a few minutes).
 """
 
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.model_io import ContactModel, save_model
+from pointforce_ros.model_io import ContactModel
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
 
+DATA = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'fem'
+
 
 def analytic_patch_model(spacing: float = 0.002, version: int = 1) -> ContactModel:
-    """Flat 80 x 60 mm patch at z = 0.04 m, f = k(x) d^1.5 with a stiff disc at the centre."""
+    """Flat 80 x 60 mm patch at z = 0.04 m, f = k(x) d^1.5 with a stiff disc at the centre.
+
+    A closed-form model for node tests and the ROS benchmark (no learning involved).
+    """
     xs = np.arange(0.46, 0.54 + 1e-9, spacing)
     ys = np.arange(-0.03, 0.03 + 1e-9, spacing)
     gx, gy = np.meshgrid(xs, ys, indexing='ij')
@@ -33,66 +48,151 @@ def analytic_patch_model(spacing: float = 0.002, version: int = 1) -> ContactMod
                           meta={'kind': 'analytic', 'law': 'k d^1.5'})
     return ContactModel(surface=Surface(points=points, normals=normals, colors=colors),
                         response=baked, shape_constant=0.004, version=version,
-                        meta={'source': 'pointforce demo analytic patch'})
+                        meta={'source': 'analytic patch'})
 
 
-def run_demo(out: str = 'out/demo', quick: bool = False) -> int:
+def demo_query_set(spec):
+    """The planner queries of the demo: (name, mesh, pose, approach, torque centre) tuples.
+
+    Probes follow the UR TCP convention of :mod:`pointforce_ros.cell.fem.probes`: the mesh's +z
+    axis is the push direction and its working end is at the origin.
+    """
+    from pointforce_ros.cell.fem.probes import (cylinder_probe, paddle_probe, pose_for_push,
+                                                sphere_probe)
+    cx, cy = spec.centre
+    down = np.array([0.0, 0.0, -1.0])
+    queries = []
+    shapes = [('sphere r20', sphere_probe(0.02), 0.0),
+              ('paddle 60 mm', paddle_probe(), 0.4),
+              ('cylinder r10', cylinder_probe(), 1.2)]
+    offsets = [(0.0, 0.0), (0.015, -0.01), (-0.015, 0.012)]
+    for name, mesh, roll in shapes:
+        for k, (dx, dy) in enumerate(offsets):
+            x, y = cx + dx, cy + dy
+            top = np.asarray(spec.top_point(x, y))
+            depth = 0.004 if name.startswith('sphere') else 0.003
+            pose = pose_for_push(top + down * depth, down, roll + 0.5 * k)
+            queries.append((f'{name} #{k + 1}', mesh, pose, down, pose.position))
+    return queries
+
+
+def _ground_truth(spec, queries):
+    path = DATA / f'demo_queries_{spec.name}.npz'
+    if not path.exists():
+        return None, path
+    with np.load(path, allow_pickle=False) as z:
+        gt = {'force': z['force'], 'torque': z['torque'], 'names': list(z['names'])}
+    if gt['names'] != [q[0] for q in queries]:
+        return None, path
+    return gt, path
+
+
+def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lamb',
+             scenario: str = 'realistic', pokes: int = 0) -> int:
     """Run the demo; returns a process exit code."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     from geometry_msgs.msg import Vector3
     from pointforce_interfaces.srv import ContactWrench
-    from rclpy.node import Node
 
     from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
-    from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
-    from pointforce_ros.nodes.launcher import InProcessLauncher
-    from pointforce_ros.serving import WrenchServer
-    from pointforce_ros.shapes import icosphere
-    from pointforce_ros.types import ContactQuery, Pose
-    from rclpy.parameter import Parameter
+    from msg_adapters.interfaces import poke_goal_to_msg
+    from pointforce_ros import plots
+    from pointforce_ros.nodes.cell import CellSession
+    from pointforce_ros.types import PokeGoal
 
-    out_dir = Path(out)
-    model_dir = out_dir / 'models'
-    model = analytic_patch_model()
-    path = save_model(model, model_dir)
-    print(f'[demo] model v{model.version} with {len(model.surface)} surface points -> {path}')
-    sphere = icosphere(0.02, 2)
-    pose = Pose(position=[0.5, 0.0, 0.04 + 0.02 - 0.003])  # sphere 3 mm into the surface
-    approach = np.array([0.0, 0.0, -1.0])
-    centre = pose.position
-    with InProcessLauncher() as launcher:
-        started = time.monotonic()
-        launcher.add(ContactWrenchNode(
-            context=launcher.context,
-            parameter_overrides=[Parameter('model_dir', value=str(model_dir))]))
-        client_node = launcher.add(Node('demo_planner', context=launcher.context))
-        client = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
-        if not client.wait_for_service(timeout_sec=20.0):
-            raise RuntimeError('service /contact_wrench/contact_wrench did not appear in 20 s')
-        request = ContactWrench.Request(mesh=mesh_to_msg(sphere), pose=pose_to_msg(pose),
-                                        approach=Vector3(x=0.0, y=0.0, z=-1.0),
-                                        torque_centre=to_point(centre),
-                                        return_displacements=True)
-        sent = time.monotonic()
-        response = launcher.wait_future(client.call_async(request), 20.0, 'contact_wrench')
-        rtt = time.monotonic() - sent
-        print(f'[demo] service up in {sent - started:.2f} s; answer in {1e3 * rtt:.1f} ms')
-    if not response.success:
-        print(f'[demo] service refused: {response.message}')
-        return 1
-    f, m = response.wrench.force, response.wrench.torque
-    print(f'[demo] sphere r=20 mm, 3 mm into the stiff centre, approach -z (model '
-          f'v{response.model_version}):')
-    print(f'[demo]   force  = ({f.x:+.3f}, {f.y:+.3f}, {f.z:+.3f}) N')
-    print(f'[demo]   torque = ({m.x:+.5f}, {m.y:+.5f}, {m.z:+.5f}) N m about the sphere centre')
-    print(f'[demo]   contact points = {response.contact_count}, max surface displacement = '
-          f'{1e3 * response.max_displacement:.2f} mm, displaced points returned = '
-          f'{len(response.displacements)}')
-    server = WrenchServer()
-    server.swap(model)
-    direct = server.answer(ContactQuery(mesh=sphere, poses=(pose,), approach=approach,
-                                        torque_centre=centre))[0]
-    diff = np.abs(direct.wrench.force - np.array([f.x, f.y, f.z])).max()
-    print(f'[demo] same query without ROS: Fz = {direct.wrench.force[2]:+.3f} N '
-          f'(|difference| {diff:.2e} N)')
-    return 0 if diff < 1e-9 else 1
+    started = time.monotonic()
+    out = Path(out)
+    pokes = pokes or (4 if quick else 8)
+    print(f'[demo] simulated cell: object {object_name}, scenario {scenario}, {pokes} pokes -> '
+          f'{out}')
+    with CellSession(out / 'cell', object_name=object_name, scenario=scenario) as cell:
+        spec = cell.spec.spec
+        surface = cell.capture_surface(views=2)
+        print(f'[demo] equilibrium surface: {len(surface)} points '
+              f'({time.monotonic() - started:.0f} s)')
+        centre = np.array([spec.centre[0], spec.centre[1], spec.size[2]])
+        index = int(np.argmin(np.linalg.norm(surface.points - centre, axis=1)))
+        for k in range(pokes):
+            if k > 0:
+                suggestion = cell.suggest(1)
+                if not suggestion.success:
+                    raise RuntimeError(f'suggest_poke failed: {suggestion.message}')
+                index = int(suggestion.surface_indices[0])
+                why = f'suggested (model std {suggestion.uncertainty[0]:.2f} N)'
+            else:
+                why = 'object centre'
+            goal = PokeGoal(point=surface.points[index], normal=surface.normals[index],
+                            surface_index=index, force_limit=float(spec.force_cap),
+                            depth_limit=float(spec.max_depth), speed=0.004, standoff=0.006)
+            result = cell.poke(poke_goal_to_msg(goal))
+            status = cell.wait_model(k + 1) if result.outcome != 'aborted' else None
+            line = (f'[demo] poke {k + 1}/{pokes} at surface point {index} ({why}): '
+                    f'{result.outcome}, peak {result.peak_force:.2f} N at '
+                    f'{1e3 * result.max_depth:.1f} mm, {result.samples} samples')
+            if status is not None:
+                line += (f'; model v{status.version}, train RMSE {status.training_rmse:.3f} N, '
+                         f'prequential RMSE {status.validation_rmse:.3f} N')
+            print(line)
+        queries = demo_query_set(spec)
+        gt, gt_path = _ground_truth(spec, queries)
+        print(f'[demo] planner queries through /contact_wrench/contact_wrench '
+              f'(ground truth: {"FEM full solve, " + gt_path.name if gt else "not available"})')
+        print(f'[demo] {"query":16s} {"pred Fz (N)":>11s} {"true Fz":>8s} {"|dF| (N)":>9s} '
+              f'{"|dT| (mN m)":>11s} {"contacts":>8s}')
+        errors, sphere_answer = [], None
+        for i, (name, mesh, pose, approach, tc) in enumerate(queries):
+            request = ContactWrench.Request(
+                mesh=mesh_to_msg(mesh), pose=pose_to_msg(pose),
+                approach=Vector3(x=float(approach[0]), y=float(approach[1]),
+                                 z=float(approach[2])),
+                torque_centre=to_point(tc), return_displacements=(i == 0))
+            answer = cell.call(cell.wrench_client, request, 60, 'contact_wrench')
+            if not answer.success:
+                raise RuntimeError(f'contact_wrench refused {name}: {answer.message}')
+            f = np.array([answer.wrench.force.x, answer.wrench.force.y, answer.wrench.force.z])
+            m = np.array([answer.wrench.torque.x, answer.wrench.torque.y,
+                          answer.wrench.torque.z])
+            if i == 0:
+                sphere_answer = answer
+            if gt is not None:
+                df = float(np.linalg.norm(f - gt['force'][i]))
+                dm = float(np.linalg.norm(m - gt['torque'][i]))
+                errors.append((name, f, gt['force'][i], df, dm))
+                print(f'[demo] {name:16s} {f[2]:11.2f} {gt["force"][i][2]:8.2f} {df:9.2f} '
+                      f'{1e3 * dm:11.1f} {answer.contact_count:8d}')
+            else:
+                print(f'[demo] {name:16s} {f[2]:11.2f} {"-":>8s} {"-":>9s} {"-":>11s} '
+                      f'{answer.contact_count:8d}')
+        if errors:
+            rms = np.sqrt(np.mean([e[3] ** 2 for e in errors]))
+            peak = max(np.linalg.norm(e[2]) for e in errors)
+            print(f'[demo] force RMSE over {len(errors)} queries: {rms:.2f} N '
+                  f'({100 * rms / peak:.0f} % of the largest true force, {peak:.1f} N)')
+        learner = cell.learner_node.learner
+        model = learner.model
+        figures = out / 'figures'
+        plots.plot_force_curves(learner.curves, model, surface, figures / 'force_curves.png',
+                                title=f'{object_name}: measured loading curves and the model')
+        depth = 0.003
+        baked = model.bake(surface, np.array([depth - 1e-4, depth]))
+        truth = None
+        try:
+            from pointforce_ros.cell.fem.live import LiveContact
+            live = LiveContact.load(spec.name, build=False)
+            truth = np.array([live.normal_force(p[0], p[1], depth) for p in surface.points])
+        except Exception as exc:  # the map without truth is still worth drawing
+            print(f'[demo] no ground-truth stiffness map: {exc}')
+        plots.plot_stiffness_map(surface, baked.forces[:, 1], figures / 'stiffness_map.png',
+                                 depth=depth, pokes=model.poke_points, truth=truth,
+                                 title=f'{object_name}: force at')
+        if sphere_answer is not None and len(sphere_answer.displacements):
+            u = np.zeros(len(surface))
+            u[np.asarray(sphere_answer.displaced_indices, dtype=int)] = \
+                sphere_answer.displacements
+            plots.plot_deformed_surface(surface, u, figures / 'deformed_surface.png',
+                                        title=f'{object_name} under {queries[0][0]}')
+        print(f'[demo] figures: {", ".join(sorted(p.name for p in figures.glob("*.png")))} in '
+              f'{figures}')
+        print(f'[demo] poke bags (rosbag2 MCAP): {cell.paths["store"]}; models: '
+              f'{cell.paths["models"]}')
+    print(f'[demo] done in {time.monotonic() - started:.0f} s')
+    return 0

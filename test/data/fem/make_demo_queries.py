@@ -1,0 +1,45 @@
+"""Precompute the FEM ground truth of the demo's planner queries (``pointforce demo``).
+
+For each query of :func:`pointforce_ros.nodes.demo.demo_query_set` (sphere, paddle, cylinder at
+three poses each) the full nonlinear FEM solve (:func:`pointforce_ros.cell.fem.indentation.
+probe_wrench_full`, element size ``mesh_live`` of the object) gives the wrench on the probe at
+that pose, reached by pushing along the probe's +z axis. Writes ``demo_queries_<object>.npz``
+(names (Q,), force (Q, 3) N, torque (Q, 3) N m about each query's torque centre, base frame).
+
+Usage: python test/data/fem/make_demo_queries.py [--object lamb]   (minutes per query)
+"""
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pointforce_ros.cell.fem.indentation import probe_wrench_full
+from pointforce_ros.cell.objects import load_object
+from pointforce_ros.nodes.demo import demo_query_set
+
+HERE = Path(__file__).resolve().parent
+
+
+def main():
+    """Compute and write the fixture."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--object', default='lamb')
+    args = parser.parse_args()
+    spec = load_object(args.object)
+    queries = demo_query_set(spec)
+    force, torque = [], []
+    start = time.monotonic()
+    for k, (name, mesh, pose, approach, centre) in enumerate(queries):
+        f, m = probe_wrench_full(spec, mesh, pose, centre, h=spec.mesh_live)
+        force.append(f)
+        torque.append(m)
+        print(f'{k + 1}/{len(queries)} {name}: F = {np.round(f, 3)} N, '
+              f'{time.monotonic() - start:.0f} s', flush=True)
+    np.savez(HERE / f'demo_queries_{spec.name}.npz', names=np.array([q[0] for q in queries]),
+             force=np.array(force), torque=np.array(torque))
+
+
+if __name__ == '__main__':
+    main()

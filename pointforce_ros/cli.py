@@ -60,6 +60,11 @@ def _cmd_cell(args) -> int:
         robot_ip=args.robot_ip, camera_topic=args.camera_topic, duration=args.duration)
 
 
+def _cmd_diagnose(args) -> int:
+    return _load('pointforce_ros.effects.diagnose:run_diagnose')(args.data, args.out,
+                                                                  seed=args.seed)
+
+
 def _cmd_replay(args) -> int:
     return _load('pointforce_ros.nodes.replay:run_replay')(args.bag, rate=args.rate)
 
@@ -94,6 +99,13 @@ def build_parser() -> argparse.ArgumentParser:
                       help='probe kinds to generate, comma-separated (generate)')
     cell.add_argument('--seed', type=int, default=0, help='seed (generate)')
     cell.set_defaults(func=_cmd_cell)
+
+    diagnose = sub.add_parser('diagnose', help='residuals -> the physical effect behind them, '
+                              'error before and after (held-out)')
+    diagnose.add_argument('data', help='poke store directory, one poke bag, or a CSV table')
+    diagnose.add_argument('--out', default='out/diagnose', help='report directory')
+    diagnose.add_argument('--seed', type=int, default=0, help='train/held-out split seed')
+    diagnose.set_defaults(func=_cmd_diagnose)
 
     replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
     replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')

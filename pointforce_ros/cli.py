@@ -1,4 +1,4 @@
-"""The ``pointforce`` command: demo, cell, generate, fit, query, diagnose, replay, bench.
+"""The ``pointforce`` command: demo, cell (run, generate), diagnose, replay, bench.
 
 Each sub-command imports what it needs lazily, so ``pointforce --help`` is instant and the core
 sub-commands run without a ROS graph.
@@ -61,8 +61,8 @@ def _cmd_cell(args) -> int:
 
 
 def _cmd_diagnose(args) -> int:
-    return _load('pointforce_ros.effects.diagnose:run_diagnose')(args.data, args.out,
-                                                                  seed=args.seed)
+    run = _load('pointforce_ros.effects.diagnose:run_diagnose')
+    return run(args.data, args.out, seed=args.seed)
 
 
 def _cmd_replay(args) -> int:

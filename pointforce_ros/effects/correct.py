@@ -87,7 +87,9 @@ def correct_records(records: Sequence[PokeRecord], effects: Effects) -> List[Pok
     Per record, in this order: F/T bias and drift subtracted (drift since the tare, see
     :func:`~pointforce_ros.effects.data.tare_reference`), force re-sampled at ``t + offset``
     (time offset), friction removed (force projected on the poke's contact direction),
-    relaxation deconvolved (inverse Prony filter), hysteresis branch divided out, TCP moved out
+    hysteresis branch divided out, relaxation deconvolved (inverse Prony filter; zero after the
+    relaxed force has vanished during unloading, where the elastic force is not observable, and
+    the material history of earlier pokes is not carried), TCP moved out
     by ``compliance * F_n`` along the normal (series compliance), and the poke point moved by
     ``+offset`` (surface offset) and ``-set(n)`` (plastic set after ``n`` earlier pokes within
     the radius, counted in time order over ``records``). Torques are left as measured.
@@ -136,15 +138,13 @@ def _correct_one(rec: PokeRecord, effects: Dict[str, Dict[str, float]], count: i
     if 'friction' in effects:
         m = _contact_direction(force)
         force = np.outer(force @ m, m)
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    if 'viscoelastic' in effects:
-        v = effects['viscoelastic']
-        force = prony_inverse(force, dt, [v['g']], [v['tau']])
     d = rec.displacement()
     s = d + effects.get('surface_offset', {}).get('offset', 0.0)
     if 'hysteresis' in effects:
         h = effects['hysteresis']
         force = force / hysteresis_factor(hysteresis_branch(s, h['transition']), h['eta'])[:, None]
+    if 'viscoelastic' in effects and len(t) > 1:
+        force = _deconvolve(force, t, n, effects['viscoelastic'])
     pose = np.array(rec.tcp_pose)
     if 'series_compliance' in effects:
         f_n = np.maximum(sensor_corrected @ n, 0.0)
@@ -161,6 +161,24 @@ def _correct_one(rec: PokeRecord, effects: Dict[str, Dict[str, float]], count: i
     return PokeRecord(poke_id=rec.poke_id, point=point, normal=n, t=rec.t, t_controller=t,
                       tcp_pose=pose, wrench=wrench, speed=rec.speed, probe=rec.probe,
                       outcome=rec.outcome, meta=meta)
+
+
+def _deconvolve(force: np.ndarray, t: np.ndarray, normal: np.ndarray, visco) -> np.ndarray:
+    """Elastic force (T, 3) of a relaxed force series: inverse Prony filter.
+
+    Exact while the contact carries force. Once the relaxed force has dropped to zero during
+    unloading (the material lags behind the retreating probe; no adhesion), the elastic force
+    is no longer observable: from the first such sample after the peak the result is zero.
+    """
+    dt = float(np.median(np.diff(t)))
+    elastic = prony_inverse(force, dt, [visco['g']], [visco['tau']])
+    f_n = force @ normal
+    peak = int(np.argmax(f_n))
+    scale = max(float(f_n[peak]), 0.0)
+    gone = np.flatnonzero(f_n[peak:] <= 0.01 * scale)
+    if scale > 0 and len(gone):
+        elastic[peak + int(gone[0]):] = 0.0
+    return elastic
 
 
 def correct_curve(curve: PokeCurve, effects: Effects, *, count_before: int = 0) -> PokeCurve:
@@ -282,7 +300,7 @@ def predict_measured(force_of_depth: Callable[[np.ndarray], np.ndarray], t, d,
 
     The forward model of one poke with a known elastic law: time offset (the force at ``t`` is
     the one of ``d(t - offset)``), surface offset and series compliance (solved on the elastic
-    force) on the depth, then hysteresis and relaxation on the force. F/T bias and drift are
+    force) on the depth, then relaxation and hysteresis on the force. F/T bias and drift are
     not added (they depend on the poke's direction and tare); friction and plastic set need the
     poke geometry and history and are not applied either.
 
@@ -306,13 +324,13 @@ def predict_measured(force_of_depth: Callable[[np.ndarray], np.ndarray], t, d,
         d = np.interp(np.clip(t - effects['time_offset']['offset'], t[0], t[-1]), t, d)
     s = d + effects.get('surface_offset', {}).get('offset', 0.0)
     force = apply_series_compliance(force_of_depth, s, effects)
-    if 'hysteresis' in effects:
-        h = effects['hysteresis']
-        z = hysteresis_branch(s, h['transition'], z0=1.0 if first_poke else -1.0)
-        force = force * hysteresis_factor(z, h['eta'])
     if 'viscoelastic' in effects:
         v = effects['viscoelastic']
         elastic = force
         force = prony_filter(force, float(np.median(np.diff(t))), [v['g']], [v['tau']])
         force = np.where(elastic > 0, np.maximum(force, 0.0), 0.0)
+    if 'hysteresis' in effects:
+        h = effects['hysteresis']
+        z = hysteresis_branch(s, h['transition'], z0=1.0 if first_poke else -1.0)
+        force = force * hysteresis_factor(z, h['eta'])
     return force

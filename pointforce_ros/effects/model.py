@@ -3,23 +3,25 @@
 Base model (what residuals are measured against). For poke ``i`` and sample ``t``::
 
     F_hat(t) = phi(s(t)) * c_i                      s(t) = d(t)      (onset tied to the surface)
-    phi(s)   = (max(s, 0) / s_ref) ** p             p global, s_ref = 3 mm
+    phi(s)   = x ** p * exp(b x)                    x = max(s, 0) / s_ref, s_ref = 3 mm
 
 ``d`` is the displacement along ``-n_i`` past the *observed* surface point (so contact must start
 at ``d = 0``), ``F`` the full measured force vector, ``c_i`` (3,) the force at ``s_ref`` along
 the poke's contact direction: a per-poke nuisance (the local stiffness of a heterogeneous object
 and the contact normal), solved in closed form for any poke, training or held-out, by linear
-least squares (variable projection). Everything else is global and fitted on training pokes only:
-the exponent ``p`` and the parameters of the active effects, which enter in the physical order
+least squares (variable projection). Everything else is global and fitted on training pokes
+only: the exponent ``p``, the curvature ``b`` and the parameters of the active effects, which
+enter in the physical order
 
 1. ``time_offset``: the pose is read ``offset`` earlier: ``d(t - offset)``.
 2. ``surface_offset``, ``plastic_set``, ``series_compliance``: ``s = d + offset - set(n_i) -
-   compliance * F_n`` (``F_n`` the measured normal force, corrected for the sensor terms: the
-   Oliver-Pharr frame-compliance correction).
-3. ``hysteresis`` (branch factor along the tip path) and ``viscoelastic`` (Prony filter of
-   ``phi`` over time, no adhesion) shape ``phi``.
-4. ``friction``: ``F_hat = phi (c_i - mu |c_i| slip_dir(v, c_i / |c_i|))``.
-5. ``ft_bias`` and ``ft_drift``: ``+ b + r (t - t_tare)``.
+   compliance * F_n`` (``F_n`` the model's own normal force, solved implicitly: the
+   Oliver-Pharr frame-compliance correction without feeding measurement noise back).
+3. ``viscoelastic`` (Prony filter of ``phi`` over time, no adhesion, history carried from poke
+   to poke) and then ``hysteresis`` (branch factor along the tip path) shape ``phi``.
+4. ``friction``: ``F_hat = M (m_i - mu slip_dir)``, ``M`` the force magnitude, ``m_i = c_i /
+   |c_i|`` the contact direction, the slip across it from the push motion.
+5. ``ft_bias`` and ``ft_drift``: ``+ bias + rate (t - t_tare)``.
 
 Because the per-poke amplitude and direction are profiled out, an effect only improves the fit
 when it explains the *shape* of the curves (onset, loading vs unloading, hold, time, repetition,
@@ -100,7 +102,8 @@ def _padded(batch: PokeBatch):
 
 
 def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.ndarray,
-           g: float, tau: float) -> Tuple[np.ndarray, np.ndarray]:
+           g: float, tau: float, scale: Optional[np.ndarray] = None
+           ) -> Tuple[np.ndarray, np.ndarray]:
     """Prony-relaxed shape of every poke and the history carried in from earlier pokes.
 
     Returns:
@@ -108,6 +111,8 @@ def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.n
         (unit amplitude, unclamped: ``g_inf phi + g h``); ``carry`` (N,) newtons is what the
         material remembers of the earlier pokes (``g H exp(-(t - t_0) / tau)``), non-zero
         only for a complete, time-ordered batch (in a subset each poke starts at rest).
+        Both are multiplied by ``scale`` (the hysteresis branch factor, applied after the
+        relaxation as in the cell); the carried amplitudes are fitted accordingly.
 
     """
     rows, cols = _padded(batch)
@@ -120,13 +125,14 @@ def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.n
         own[take] = prony_filter(grid.T, float(dt), [g], [tau]).T[rows[take], cols[take]]
     carry = np.zeros_like(phi)
     if not np.array_equal(batch.order, np.arange(len(batch))) or g <= 0:
-        return own, carry
+        return (own if scale is None else own * scale), carry
     first = batch.starts[:-1]
     last = batch.starts[1:] - 1
     decay = np.exp(-(batch.t - batch.per_sample(batch.t[first])) / tau)
-    act_own = np.where(active, own, 0.0)
+    factor = np.ones_like(phi) if scale is None else scale
+    act_own = np.where(active, own * factor, 0.0)
     s_oy = batch.sums(act_own * target_n)
-    s_od = batch.sums(act_own * decay)
+    s_od = batch.sums(act_own * decay * factor)
     s_oo = batch.sums(act_own * act_own)
     g_inf = 1.0 - g
     h_last = (own[last] - g_inf * phi[last]) / g
@@ -139,7 +145,9 @@ def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.n
         amp = max((s_oy[k] - g * h_in * s_od[k]) / s_oo[k], 0.0) if s_oo[k] > 0 else 0.0
         if k + 1 < len(batch):
             h_in = (amp * h_last[k] + h_in * decay_last[k]) * gap[k]
-    return own, g * batch.per_sample(carried) * decay
+    if scale is not None:
+        own = own * scale
+    return own, g * batch.per_sample(carried) * decay * factor
 
 
 def _solve_amplitudes(batch: PokeBatch, phi: np.ndarray, carry: Optional[np.ndarray],
@@ -250,12 +258,14 @@ def forward(batch: PokeBatch, values: Mapping[str, Mapping[str, float]]
     def evaluate(s):
         x = np.maximum(s, 0.0) / S_REF
         phi_e = x ** p * np.exp(curvature * x)
-        phi = phi_e * branch if branch is not None else phi_e
         active = phi_e > 0
         carry = None
         if visco is not None:
-            phi, carry = _relax(batch, phi, target_n, active, float(visco['g']),
-                                float(visco['tau']))
+            # relaxation acts on the elastic response, the hysteresis branch on the result
+            phi, carry = _relax(batch, phi_e, target_n, active, float(visco['g']),
+                                float(visco['tau']), scale=branch)
+        else:
+            phi = phi_e * branch if branch is not None else phi_e
         return _solve_amplitudes(batch, phi, carry, active, target, mu, stick, motion)
 
     if 'series_compliance' in values:

@@ -2,7 +2,9 @@
 
 Fixtures in test/data/fem/ come from ``python test/data/fem/make_fem_cache.py --validation``:
 ``hertz_fine.npz`` (rigid sphere R = 10 mm, E = 100 kPa, nu = 0.3, quarter block 150 mm with a
-bonded base, 0.3 mm elements at the contact, depths 0.1 and 0.2 mm) and ``refine_fine.npz``
+bonded base and symmetry planes, 0.35 mm elements at the contact, depths 0.3 and 0.5 mm, i.e.
+d / R = 0.03-0.05 and contact radius 1.7-2.2 mm; the bonded 150 mm thickness adds about +1 %
+to Hertz by Dimitriadis et al. 2002) and ``refine_fine.npz``
 (point probe, homogeneous 60 x 60 x 40 mm block, 1.5 mm elements, depths 2 and 5 mm).
 """
 
@@ -33,12 +35,12 @@ def test_hertz_fine_fixture_within_3_percent():
         ratio = data[f'{tag}_ratio']
         assert np.all(np.abs(ratio - 1.0) < 0.03), (tag, ratio)
     # at these small depths the neo-Hookean and linear models agree
-    np.testing.assert_allclose(data['nonlinear_force'], data['linear_force'], rtol=0.01)
+    np.testing.assert_allclose(data['nonlinear_force'], data['linear_force'], rtol=0.02)
 
 
 def test_hertz_coarse_run_converges_towards_the_fine_fixture():
     fine = np.load(os.path.join(DATA, 'hertz_fine.npz'))
-    coarse = validation.hertz_case(0.0006, depths=(0.0002,))
+    coarse = validation.hertz_case(0.0007, depths=(0.0005,))
     ratio = coarse['ratio'][0]
     # discretisation makes the coarse mesh stiffer, never softer, and not by much
     assert 0.98 < ratio < 1.15

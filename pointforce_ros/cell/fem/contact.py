@@ -16,9 +16,6 @@ from pointforce_ros.cell.fem.mesh import HexMesh
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import Mesh, Pose
 
-_G3 = np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)])
-_W3 = np.array([5.0, 8.0, 5.0]) / 9.0
-
 
 @dataclass(frozen=True)
 class FacePoints:
@@ -40,22 +37,24 @@ class FacePoints:
         return np.einsum('pa,pai->pi', self.weights, x[self.nodes])
 
 
-def face_points(mesh: HexMesh, faces: np.ndarray = None) -> FacePoints:
-    """3x3 Gauss points on each face (default: ``mesh.boundary_faces``)."""
+def face_points(mesh: HexMesh, faces: np.ndarray = None, order: int = 3) -> FacePoints:
+    """``order`` x ``order`` Gauss points on each face (default: ``mesh.boundary_faces``)."""
     faces = mesh.boundary_faces if faces is None else np.asarray(faces)
-    s, t = np.meshgrid(_G3, _G3, indexing='ij')
+    g, gw = np.polynomial.legendre.leggauss(order)
+    s, t = np.meshgrid(g, g, indexing='ij')
     s, t = s.ravel(), t.ravel()
-    w = np.outer(_W3, _W3).ravel()
+    w = np.outer(gw, gw).ravel()
+    npt = order * order
     corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float)
-    n = (1 + s[:, None] * corners[:, 0]) * (1 + t[:, None] * corners[:, 1]) / 4.0  # (9, 4)
+    n = (1 + s[:, None] * corners[:, 0]) * (1 + t[:, None] * corners[:, 1]) / 4.0  # (Q, 4)
     dns = corners[:, 0] * (1 + t[:, None] * corners[:, 1]) / 4.0
     dnt = corners[:, 1] * (1 + s[:, None] * corners[:, 0]) / 4.0
     xf = mesh.nodes[faces]  # (F, 4, 3)
     ds = np.einsum('qa,fai->fqi', dns, xf)
     dt = np.einsum('qa,fai->fqi', dnt, xf)
-    area = np.linalg.norm(np.cross(ds, dt), axis=-1) * w  # (F, 9)
+    area = np.linalg.norm(np.cross(ds, dt), axis=-1) * w  # (F, Q)
     nf = len(faces)
-    return FacePoints(nodes=np.repeat(faces, 9, axis=0),
+    return FacePoints(nodes=np.repeat(faces, npt, axis=0),
                       weights=np.tile(n, (nf, 1)), area=area.ravel())
 
 

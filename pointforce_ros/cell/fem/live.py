@@ -4,9 +4,11 @@ Linear elasticity is badly wrong at poke depths (DESIGN.md section 5), so the li
 the nonlinear response itself: per object, full neo-Hookean pokes along the local surface normal
 on a grid of surface locations give force vectors against depth. A query intersects the probe
 axis with the undeformed top surface, takes the normal depth of the tip below it, and
-interpolates the grid bilinearly in the surface's reference coordinates and linearly in a dense
-depth table. Between grid nodes the interpolation follows a kernel-averaged stiffness of the
-ground-truth field under the tip (``field_factor``), so inclusions between nodes still show.
+interpolates the grid bilinearly in the surface's reference coordinates and (after a monotone
+cubic resampling) linearly in depth; beyond the deepest poke it extrapolates with the last slope.
+Its error against full solves at held-out locations is stored in each cache and reported by
+:func:`pointforce_ros.cell.fem.bench.bench_cell`; it is set by the grid spacing (``live.grid``
+in the object YAML), largest next to narrow stiff inclusions.
 
 The cache (``test/data/fem/live_<object>.npz``) is built by ``test/data/fem/make_fem_cache.py``;
 it stores the source YAML's hash and is rebuilt when the object changes.
@@ -70,40 +72,6 @@ def uv_to_xy(spec: ObjectSpec, u, v):
     return spec.centre[0] + u * spec.size[0] / 2, spec.centre[1] + v * spec.size[1] / 2
 
 
-def field_factor(spec: ObjectSpec, points: np.ndarray, normals: np.ndarray,
-                 depth: float) -> np.ndarray:
-    """Kernel-averaged (geometric-mean) Young's modulus under a poke, Pa.
-
-    The kernel is a Gaussian ball centred ``0.5 depth + 2 mm`` below the surface point along
-    ``-normal``, of radius ``0.5 depth + 3 mm``, sampled on a fixed stencil and clipped to the
-    body. It is a smooth stand-in for how stiff the material the probe loads is; the live path
-    only uses it to shape the interpolation between grid pokes.
-
-    Args:
-        points: (M, 3) surface points, metres.
-        normals: (M, 3) outward unit normals.
-        depth: poke depth, metres.
-
-    Returns:
-        (M,) modulus in Pa.
-
-    """
-    rng = np.random.default_rng(1234)
-    stencil = rng.normal(size=(96, 3))
-    centre = points - normals * (0.5 * depth + 0.002)
-    radius = 0.5 * depth + 0.003
-    pts = centre[:, None, :] + radius * 0.6 * stencil[None]
-    pts = pts.reshape(-1, 3)
-    inside = pts[:, 2] <= spec.top_height(pts[:, 0], pts[:, 1])
-    inside &= (pts[:, 2] >= 0) & spec.footprint_mask(pts[:, 0], pts[:, 1])
-    loge = np.log(spec.stiffness_at(pts))
-    w = np.exp(-0.5 * np.sum(stencil ** 2, axis=1))
-    w = np.tile(w, len(points)) * inside
-    w = w.reshape(len(points), -1)
-    loge = loge.reshape(len(points), -1)
-    return np.exp(np.sum(w * loge, axis=1) / np.maximum(w.sum(axis=1), 1e-12))
-
-
 def nonlinear_point_poke(spec: ObjectSpec, x: float, y: float, depths=None,
                          h: Optional[float] = None, force_stop: Optional[float] = None):
     """Full nonlinear FEM poke with the point probe along the surface normal at (x, y).
@@ -159,7 +127,6 @@ class LiveTable:
     v: np.ndarray          # (ny,) reference coordinates of the grid rows
     depths: np.ndarray     # (K,) poke depths, m
     forces: np.ndarray     # (nx, ny, K, 3) force on the probe, N, base
-    factor: np.ndarray     # (nx, ny, K) field_factor at the grid nodes, Pa
 
 
 class LiveContact:
@@ -180,17 +147,8 @@ class LiveContact:
         nx, ny, k, _ = table.forces.shape
         curves = np.concatenate([np.zeros((nx, ny, 1, 3)), table.forces], axis=2)
         knots = np.concatenate([[0.0], table.depths])
-        fac = np.concatenate([table.factor[:, :, :1], table.factor], axis=2)
-        ratio = curves / fac[..., None]
-        self._ratio = PchipInterpolator(knots, ratio, axis=2)(fine)  # (nx, ny, F, 3)
-        slope = (ratio[:, :, -1] - ratio[:, :, -2]) / (knots[-1] - knots[-2])
-        self._slope = slope
-        self._fac_depths = knots
-        # field factor on a denser (u, v) lattice for the query-time correction
-        nu_, nv_ = 4 * (nx - 1) + 1, 4 * (ny - 1) + 1
-        self._fu = np.linspace(table.u[0], table.u[-1], nu_)
-        self._fv = np.linspace(table.v[0], table.v[-1], nv_)
-        self._ffac = self._factor_lattice(self._fu, self._fv, knots)
+        self._curves = PchipInterpolator(knots, curves, axis=2)(fine)  # (nx, ny, F, 3)
+        self._slope = (curves[:, :, -1] - curves[:, :, -2]) / (knots[-1] - knots[-2])
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
@@ -209,7 +167,7 @@ class LiveContact:
             data = np.load(path, allow_pickle=False)
             if str(data['hash']) == spec_hash(spec):
                 table = LiveTable(u=data['u'], v=data['v'], depths=data['depths'],
-                                  forces=data['forces'], factor=data['factor'])
+                                  forces=data['forces'])
                 meta = {k[5:]: data[k].item() for k in data.files if k.startswith('meta_')}
                 return cls(spec, table, meta)
             if not build:
@@ -225,17 +183,20 @@ class LiveContact:
 
     @classmethod
     def build(cls, spec: ObjectSpec, progress: Optional[Callable[[str], None]] = None,
-              margin: float = 0.18) -> 'LiveContact':
+              margin: Optional[float] = None) -> 'LiveContact':
         """Run the grid of nonlinear pokes for ``spec`` (minutes per object).
 
         Args:
-            margin: grid inset from the footprint edge in reference units (0..1).
+            margin: grid inset from the footprint edge in reference units (0..1); default
+                0.18 for boxes and 0.4 for domes (whose grid corners map onto the steep rim).
 
         Raises:
             NotConverged: a grid poke failed.
 
         """
         say = progress or (lambda msg: None)
+        if margin is None:
+            margin = 0.4 if spec.kind == 'dome' else 0.18
         nx, ny = spec.live_grid
         u = np.linspace(-1 + margin, 1 - margin, nx)
         v = np.linspace(-1 + margin, 1 - margin, ny)
@@ -251,8 +212,7 @@ class LiveContact:
                 k = i * ny + j + 1
                 say(f'{spec.name}: grid poke {k}/{nx * ny} at ({x:.4f}, {y:.4f}) m: '
                     f'{f[~np.isnan(f[:, 0])][-1] @ n:.2f} N; {time.time() - t0:.0f} s')
-        factor = _grid_factor(spec, u, v, depths)
-        table = LiveTable(u=u, v=v, depths=depths, forces=forces, factor=factor)
+        table = LiveTable(u=u, v=v, depths=depths, forces=forces)
         meta = dict(build_seconds=time.time() - t0, grid_pokes=nx * ny)
         return cls(spec, table, meta)
 
@@ -263,7 +223,7 @@ class LiveContact:
         meta = {f'meta_{k}': np.asarray(v) for k, v in self.meta.items()}
         np.savez_compressed(tmp, hash=np.asarray(spec_hash(self.spec)), u=self.table.u,
                             v=self.table.v, depths=self.table.depths,
-                            forces=self.table.forces, factor=self.table.factor, **meta)
+                            forces=self.table.forces, **meta)
         os.replace(tmp, path)
 
     # -- queries -----------------------------------------------------------------------------
@@ -355,39 +315,46 @@ class LiveContact:
         dd = min(depth, dmax)
         kf = min(int(dd / self._du), len(self._fine_depths) - 2)
         wd = (dd - self._fine_depths[kf]) / self._du
-        block = self._ratio[i:i + 2, j:j + 2, kf:kf + 2]  # (2, 2, 2, 3)
+        block = self._curves[i:i + 2, j:j + 2, kf:kf + 2]  # (2, 2, 2, 3)
         wuv = np.array([[(1 - wu) * (1 - wv), (1 - wu) * wv], [wu * (1 - wv), wu * wv]])
         r = np.einsum('ij,ijkc->kc', wuv, block)
-        ratio = r[0] * (1 - wd) + r[1] * wd
+        force = r[0] * (1 - wd) + r[1] * wd
         if depth > dmax:
             slope = np.einsum('ij,ijc->c', wuv, self._slope[i:i + 2, j:j + 2])
-            ratio = ratio + slope * (depth - dmax)
-        return ratio * self._factor_query(u, v, dd)
+            force = force + slope * (depth - dmax)
+        return force
 
-    def _factor_lattice(self, fu, fv, knots):
-        uu, vv = np.meshgrid(fu, fv, indexing='ij')
-        x, y = uv_to_xy(self.spec, uu.ravel(), vv.ravel())
-        pts = self.spec.top_point(x, y)
-        nrm = self.spec.top_normal(x, y)
-        out = np.empty((len(fu), len(fv), len(knots)))
-        for k, d in enumerate(knots):
-            out[:, :, k] = field_factor(self.spec, pts, nrm, max(d, knots[1])).reshape(
-                len(fu), len(fv))
-        return out
 
-    def _factor_query(self, u, v, depth):
-        fu, fv = self._fu, self._fv
-        i = min(max(int(np.searchsorted(fu, u) - 1), 0), len(fu) - 2)
-        j = min(max(int(np.searchsorted(fv, v) - 1), 0), len(fv) - 2)
-        wu = (u - fu[i]) / (fu[i + 1] - fu[i])
-        wv = (v - fv[j]) / (fv[j + 1] - fv[j])
-        k = min(max(int(np.searchsorted(self._fac_depths, depth) - 1), 0),
-                len(self._fac_depths) - 2)
-        wd = (depth - self._fac_depths[k]) / (self._fac_depths[k + 1] - self._fac_depths[k])
-        blk = self._ffac[i:i + 2, j:j + 2, k:k + 2]
-        wuv = np.array([[(1 - wu) * (1 - wv), (1 - wu) * wv], [wu * (1 - wv), wu * wv]])
-        b = np.einsum('ij,ijk->k', wuv, blk)
-        return b[0] * (1 - wd) + b[1] * wd
+class LiveForceModel:
+    """Clean (ideal-sensor) force model for the RTDE emulator: ``wrench(tcp_pose6, t)``.
+
+    The TCP is the probe tip and the probe pushes along the TCP +z axis. Returns the
+    base-oriented ``[fx, fy, fz, tx, ty, tz]`` of the object on the probe, torque about the
+    TCP (N, N m).
+    """
+
+    def __init__(self, live: LiveContact):
+        self.live = live
+
+    def wrench(self, tcp_pose6, t: float = 0.0) -> np.ndarray:
+        """Wrench (6,) for a UR pose ``[x, y, z, rx, ry, rz]`` (rotation vector), ``base``."""
+        pose = np.asarray(tcp_pose6, dtype=float)
+        rv = pose[3:]
+        angle = float(np.sqrt(rv @ rv))
+        if angle < 1e-12:
+            axis = np.array([0.0, 0.0, 1.0])
+        else:
+            k = rv / angle
+            z = np.array([0.0, 0.0, 1.0])
+            axis = (z * np.cos(angle) + np.cross(k, z) * np.sin(angle)
+                    + k * (k @ z) * (1 - np.cos(angle)))
+        f, tq = self.live.point_probe_wrench(pose[:3], axis)
+        return np.concatenate([f, tq])
+
+
+def force_model(object: str = 'plush', cache_dir: Optional[str] = None) -> LiveForceModel:
+    """Return the emulator plug-in (``pointforce_ros.cell.fem.live:force_model``)."""
+    return LiveForceModel(LiveContact.load(object, cache_dir=cache_dir, build=False))
 
 
 def _fill_tail(depths, f):
@@ -405,19 +372,11 @@ def _fill_tail(depths, f):
     return out
 
 
-def _grid_factor(spec, u, v, depths):
-    uu, vv = np.meshgrid(u, v, indexing='ij')
-    x, y = uv_to_xy(spec, uu.ravel(), vv.ravel())
-    pts = spec.top_point(x, y)
-    nrm = spec.top_normal(x, y)
-    return np.stack([field_factor(spec, pts, nrm, d).reshape(len(u), len(v))
-                     for d in depths], axis=-1)
-
-
 def cache_path(name: str, cache_dir: Optional[str] = None) -> str:
     """Return the path of the live cache of object ``name``."""
     return os.path.join(cache_dir or CACHE_DIR, f'live_{name}.npz')
 
 
-__all__ = ['LiveContact', 'LiveTable', 'nonlinear_point_poke', 'field_factor', 'cache_path',
-           'reference_uv', 'uv_to_xy', 'spec_hash', 'NotConverged']
+__all__ = ['LiveContact', 'LiveForceModel', 'force_model', 'LiveTable', 'nonlinear_point_poke',
+           'cache_path', 'reference_uv', 'uv_to_xy', 'spec_hash',
+           'NotConverged']

@@ -77,6 +77,7 @@ class FemModel:
         penetration_rel: ... or this fraction of the probe travel, whichever is larger.
         contact_faces: (F, 4) faces checked for contact (default: every boundary face but
             the bottom).
+        contact_order: Gauss points per face direction for the contact check (3 -> 3x3).
 
     Raises:
         InvalidInput: bad material values, unknown support, inverted elements.
@@ -87,7 +88,7 @@ class FemModel:
                  fixed: Optional[np.ndarray] = None, nonlinear: bool = True,
                  penalty_factor: float = 200.0, penetration_tol: float = 2e-6,
                  penetration_rel: float = 1e-3,
-                 contact_faces: Optional[np.ndarray] = None):
+                 contact_faces: Optional[np.ndarray] = None, contact_order: int = 3):
         self.mesh = mesh
         self.asm = Assembler(mesh, young, poisson)
         self.nonlinear = bool(nonlinear)
@@ -109,7 +110,7 @@ class FemModel:
         self.fixed = mask.ravel()
         self.free = np.flatnonzero(~self.fixed)
         faces = mesh.boundary_faces if contact_faces is None else np.asarray(contact_faces)
-        self.fp = face_points(mesh, faces)
+        self.fp = face_points(mesh, faces, contact_order)
         edges = np.linalg.norm(mesh.nodes[faces] - mesh.nodes[np.roll(faces, 1, 1)], axis=-1)
         self.h_min = float(edges.min())
         e_max = float(np.max(young))

@@ -13,8 +13,8 @@ from pointforce_ros.cell.fem.mesh import graded_axis, structured_hex
 from pointforce_ros.cell.fem.probes import point_probe, pose_for_push, sphere_probe
 from pointforce_ros.cell.fem.solver import FemModel
 
-HERTZ = dict(radius=0.01, young=1e5, poisson=0.3, size=0.15, fine=0.002, growth=1.5,
-             h_max=0.02)
+HERTZ = dict(radius=0.01, young=1e5, poisson=0.3, size=0.15, fine=0.003, growth=1.5,
+             h_max=0.025)
 """Hertz case: rigid sphere on a quarter block (symmetry planes x = 0, y = 0), bonded base."""
 
 REFINE = dict(size=(0.06, 0.06, 0.04), young=1e5, poisson=0.45, depths=(0.002, 0.005))
@@ -27,7 +27,15 @@ def hertz_force(depth, radius, young, poisson):
     return 4.0 / 3.0 * e_star * np.sqrt(radius) * np.asarray(depth) ** 1.5
 
 
-def hertz_case(h: float, depths=(0.0001, 0.0002), nonlinear: bool = False, **over):
+HERTZ_DEPTHS = (0.0003, 0.0005)
+"""Depths of the Hertz check, metres (d / R = 0.03 and 0.05; contact radius 1.7-2.2 mm)."""
+
+HERTZ_H_FINE = 0.00035
+"""Element size at the contact of the cached fine Hertz run, metres."""
+
+
+def hertz_case(h: float, depths=HERTZ_DEPTHS, nonlinear: bool = False,
+               contact_order: int = 3, **over):
     """Sphere indentation of a quarter block meshed with ``h`` (m) at the contact.
 
     Returns:
@@ -45,7 +53,7 @@ def hertz_case(h: float, depths=(0.0001, 0.0002), nonlinear: bool = False, **ove
     fixed[mesh.nodes[:, 1] < 1e-12, 1] = True
     t0 = time.time()
     model = FemModel(mesh, p['young'], p['poisson'], fixed=fixed, nonlinear=nonlinear,
-                     contact_faces=mesh.top_faces())
+                     contact_faces=mesh.top_faces(), contact_order=contact_order)
     probe = sphere_probe(p['radius'], rings=384, segments=96)  # facet sag < 0.1 um
     res = model.indent(probe, pose_for_push([0.0, 0.0, size], [0, 0, -1]), [0, 0, -1],
                        np.asarray(depths, dtype=float))
@@ -83,13 +91,13 @@ def make_fixtures(folder: str, progress=print):
     """Compute and write ``hertz_fine.npz`` and ``refine_fine.npz`` into ``folder``."""
     out = {}
     for nl in (False, True):
-        r = hertz_case(0.0003, nonlinear=nl)
+        r = hertz_case(HERTZ_H_FINE, nonlinear=nl)
         tag = 'nonlinear' if nl else 'linear'
         progress(f'hertz {tag}: ratio {np.round(r["ratio"], 4)} ({r["elements"]} elements, '
                  f'{r["seconds"]:.0f} s)')
         for k, v in r.items():
             out[f'{tag}_{k}'] = np.asarray(v)
-    np.savez_compressed(os.path.join(folder, 'hertz_fine.npz'), h=0.0003, **out)
+    np.savez_compressed(os.path.join(folder, 'hertz_fine.npz'), h=HERTZ_H_FINE, **out)
     r = refine_case(0.0015)
     progress(f'refine 1.5 mm: force {np.round(r["force"][:, 2], 4)} N ({r["elements"]} '
              f'elements, {r["seconds"]:.0f} s)')

@@ -91,7 +91,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     t0 = time.time()
     if not args.validation:
-        for name in args.object or list_objects():
+        names = args.object or sorted(list_objects(), key=lambda n: n == 'dome')
+        for name in names:
             build_object(name)
     if args.validation or (not args.object and not args.no_validation):
         t1 = time.time()

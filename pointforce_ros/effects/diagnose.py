@@ -15,7 +15,9 @@ Procedure (``diagnose``):
 
    * paired one-sided Wilcoxon signed-rank test on the per-poke held-out mean squared errors
      (current set vs current set + candidate): ``p < alpha``;
-   * held-out RMSE drops by at least ``min_improvement`` (relative);
+   * held-out RMSE drops by at least ``min_improvement`` (relative) and by at least
+     ``resolution`` times the median peak force (absolute: an effect that changes the force
+     prediction by less than that is not worth a term, however clean the data);
    * the penalised held-out score ``n ln(MSE) + k ln(n)`` (``n`` pokes, ``k`` fitted effect
      parameters: a BIC counted per poke, the unit of independent data) drops.
 
@@ -223,7 +225,7 @@ def _score(batch: PokeBatch, sse: np.ndarray, k: int) -> float:
     return n * np.log(max(np.sum(sse) / batch.n_samples, 1e-300)) + k * np.log(n)
 
 
-def _compare(batch, sse_old, sse_new, k_add, alpha, min_improvement):
+def _compare(batch, sse_old, sse_new, k_add, alpha, min_improvement, min_drop):
     mse_old, mse_new = _poke_mse(batch, sse_old), _poke_mse(batch, sse_new)
     diff = mse_old - mse_new
     if np.all(np.abs(diff) <= 1e-15 * np.maximum(mse_old, 1e-300)):
@@ -234,7 +236,8 @@ def _compare(batch, sse_old, sse_new, k_add, alpha, min_improvement):
     rmse_old, rmse_new = _pooled_rmse(batch, sse_old), _pooled_rmse(batch, sse_new)
     improvement = 1.0 - rmse_new / rmse_old if rmse_old > 0 else 0.0
     delta = _score(batch, sse_new, k_add) - _score(batch, sse_old, 0)
-    significant = (p_value < alpha) and (improvement >= min_improvement) and (delta < 0)
+    significant = (p_value < alpha) and (improvement >= min_improvement) and (delta < 0) \
+        and (rmse_old - rmse_new >= min_drop)
     return rmse_new, improvement, p_value, delta, int(np.count_nonzero(diff > 0)), significant
 
 
@@ -348,7 +351,8 @@ def _bootstrap(batch: PokeBatch, effects: Sequence[str], start: Dict, n_boot: in
 
 
 def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
-             min_improvement: float = 0.03, tolerance: float = 0.005, bootstrap: int = 20,
+             min_improvement: float = 0.03, resolution: float = 0.001,
+             tolerance: float = 0.005, bootstrap: int = 20,
              max_rate: float = 50.0, window: float = 0.002,
              candidates: Optional[Sequence[str]] = None, log=None) -> DiagnoseReport:
     """Find which library effects explain the residual of held-out pokes (module docstring).
@@ -360,6 +364,8 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         alpha: significance level of the one-sided Wilcoxon signed-rank test.
         folds: number of held-out groups (each poke is held out once).
         min_improvement: least relative drop of the held-out RMSE to accept an effect.
+        resolution: least absolute drop of the held-out RMSE, as a fraction of the median
+            peak force.
         tolerance: a systematic residual above ``tolerance`` times the median peak force (or
             above the noise, whichever is larger) is reported as unexplained.
         bootstrap: bootstrap resamples over pokes for the parameter uncertainty (0: none).
@@ -376,8 +382,9 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     say = log if log is not None else (lambda message: None)
     if not 0 < alpha < 1:
         raise InvalidInput(f'diagnose: alpha must be in (0, 1), got {alpha}')
-    if min_improvement < 0 or tolerance < 0 or bootstrap < 0:
-        raise InvalidInput('diagnose: min_improvement, tolerance and bootstrap must be >= 0')
+    if min(min_improvement, resolution, tolerance, bootstrap) < 0:
+        raise InvalidInput('diagnose: min_improvement, resolution, tolerance and bootstrap '
+                           'must be >= 0')
     names = list(LIBRARY) if candidates is None else list(candidates)
     unknown = [c for c in names if c not in LIBRARY]
     if unknown:
@@ -389,6 +396,7 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     say(f'diagnose: {len(batch)} point pokes, {batch.n_samples} samples'
         + (f', {probes} probe trial(s) not scored' if probes else ''))
     groups = fold_indices(len(batch), int(folds), seed)
+    min_drop = float(resolution) * float(np.median(batch.peak))
     current: List[str] = []
     fits = _cross_fit(batch, groups, current)
     sse = heldout_sse(batch, fits)
@@ -409,7 +417,7 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
                 continue
             cand_sse = heldout_sse(batch, cand_fits)
             rmse, imp, p_value, delta, improved, sig = _compare(
-                batch, sse, cand_sse, LIBRARY[name].n_params, alpha, min_improvement)
+                batch, sse, cand_sse, LIBRARY[name].n_params, alpha, min_improvement, min_drop)
             trial[name] = (cand_fits, cand_sse)
             results.append(CandidateResult(name, LIBRARY[name].n_params, rmse, imp, p_value,
                                            delta, improved, sig,
@@ -439,7 +447,7 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
                     continue
                 rest_sse = heldout_sse(batch, rest_fits)
                 *_, delta, _, sig = _compare(batch, rest_sse, sse, LIBRARY[name].n_params,
-                                             alpha, min_improvement)
+                                             alpha, min_improvement, min_drop)
                 if not sig and (weakest is None or delta > weakest[1]):
                     weakest = (name, delta, rest_fits, rest_sse)
             if weakest is None:
@@ -484,7 +492,8 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     return DiagnoseReport(
         source=source,
         settings={'seed': int(seed), 'alpha': float(alpha), 'folds': int(folds),
-                  'min_improvement': float(min_improvement), 'tolerance': float(tolerance),
+                  'min_improvement': float(min_improvement), 'resolution': float(resolution),
+                  'tolerance': float(tolerance),
                   'bootstrap': int(bootstrap), 'max_rate': float(max_rate),
                   'window': float(window)},
         ids=batch.ids, points=batch.point.copy(), notes=notes, rounds=rounds,

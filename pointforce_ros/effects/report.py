@@ -133,7 +133,8 @@ def _markdown(report) -> str:
              f'Pokes are split by poke into {s["folds"]} seeded groups (seed {s["seed"]}); '
              'each is held out once. A candidate effect is accepted when, on the held-out '
              f'pokes, a one-sided paired Wilcoxon signed-rank test on per-poke MSE gives '
-             f'p < {s["alpha"]}, the RMSE drops by at least {s["min_improvement"]:.0%}, and '
+             f'p < {s["alpha"]}, the RMSE drops by at least {s["min_improvement"]:.0%} and by '
+             f'at least {s["resolution"]:.1%} of the median peak force, and '
              'the penalised score `n ln(MSE) + k ln(n)` (n pokes, k parameters) drops; '
              'greedy forward selection with a backward check. Parameter uncertainty: '
              f'bootstrap over pokes ({s["bootstrap"]} resamples).', '',

@@ -63,6 +63,16 @@ def test_clean_data_accepts_nothing():
     assert not any(c.significant for c in report.rounds[0].candidates)
 
 
+def test_effect_below_the_resolution_is_not_added():
+    report = report_of('below_resolution')
+    assert report.accepted_names == []
+    candidate = {c.name: c for c in report.rounds[0].candidates}['series_compliance']
+    # clean data make it statistically significant, yet it changes the force by < 0.1 %
+    assert candidate.p_value < 0.01 and candidate.improvement > 0.03
+    assert not candidate.significant
+    assert report.rmse_before - candidate.rmse < 1e-3 * 4.0
+
+
 def test_two_effects_are_both_found():
     report = report_of('two_effects')
     truth = datasets.TRUTH['two_effects']

@@ -294,16 +294,31 @@ def tare_reference(record: PokeRecord) -> float:
     return float(record.t_controller[0])
 
 
+def _threshold(rec: PokeRecord, d: np.ndarray, window: float) -> float:
+    """Lowest displacement kept: ``-window``, or ``window`` before an earlier contact."""
+    f_n = rec.normal_force()
+    if len(f_n) < 2:
+        return -window
+    rise = f_n - np.median(f_n[:max(1, min(10, len(f_n)))])
+    peak = float(rise.max())
+    if peak <= 0:
+        return -window
+    touch = int(np.argmax(rise > 0.1 * peak))
+    return min(-window, float(d[touch]) - window)
+
+
 def make_batch(records: Sequence[PokeRecord], *, window: float = 0.002,
                max_rate: float = 100.0, radius: float = PLASTIC_RADIUS,
                min_samples: int = 20) -> Tuple[PokeBatch, List[str]]:
     """Prepare point pokes for the analysis; return the batch and notes on skipped records.
 
     Pokes are ordered by their first ROS time. Each keeps the contiguous samples from the first
-    to the last one with displacement ``d >= -window`` (the approach from far away carries no
-    information), block-averaged to at most ``max_rate`` Hz (time and force averaged alike, so no
-    lag is introduced). Probe trials (``probe != 'point'``) and pokes with fewer than
-    ``min_samples`` samples are skipped with a note.
+    to the last one with displacement ``d >= -window``, or ``window`` before the depth where the
+    force first exceeds 10 % of its peak when contact starts earlier (a large camera bias); the
+    approach from far away carries no information. Samples are block-averaged to at most
+    ``max_rate`` Hz (time and force averaged alike, so no lag is introduced). Probe trials
+    (``probe != 'point'``) and pokes with fewer than ``min_samples`` samples are skipped with
+    a note.
 
     Raises:
         DataError: fewer than 4 usable point pokes.
@@ -317,7 +332,7 @@ def make_batch(records: Sequence[PokeRecord], *, window: float = 0.002,
                          'effects')
             continue
         d = rec.displacement()
-        near = np.flatnonzero(d >= -window)
+        near = np.flatnonzero(d >= _threshold(rec, d, window))
         if len(near) < min_samples:
             notes.append(f'{rec.poke_id}: only {len(near)} samples near the surface, skipped')
             continue

@@ -10,7 +10,7 @@ import pytest
 
 from pointforce_ros.cell import effects as ce
 from pointforce_ros.cell.scenario import HalfSpaceContact, Scenario
-from pointforce_ros.cell.session import simulate_poke
+from pointforce_ros.cell.session import simulate_campaign, simulate_poke
 from pointforce_ros.effects import (apply_series_compliance, correct_curve, correct_records,
                                     correct_surface, diagnose, effects_from_dict,
                                     effects_to_dict, load_pokes, predict_measured,
@@ -121,6 +121,19 @@ def test_diagnose_reads_a_table_like_records(tmp_path):
     assert from_table.accepted_names == from_records.accepted_names == ['hysteresis']
     assert from_table.rmse_after == pytest.approx(from_records.rmse_after, rel=1e-6)
     assert from_table.effects()['hysteresis']['eta'] == pytest.approx(0.15, rel=0.05)
+
+
+def test_large_camera_bias_stays_inside_the_analysis_window():
+    # contact 4 mm before the observed surface, stand-off 10 mm: the window must follow it
+    scenario = Scenario('bias', effects=(ce.FtNoise(force_std=0.005),
+                                         ce.CameraDepthBias(bias=0.004)))
+    recs = simulate_campaign(HalfSpaceContact(ripple=0.3), scenario, count=8, seed=2,
+                             speed=0.004, standoff=0.01, force_limit=3.0, rate=100.0)
+    batch, _ = make_batch(recs, window=0.002)
+    first = batch.d[batch.starts[:-1]]
+    assert np.all(first < -0.005)   # at least 1 mm of free space before the contact
+    report = diagnose(recs, bootstrap=0, candidates=['surface_offset'])
+    assert report.effects()['surface_offset']['offset'] == pytest.approx(0.004, rel=0.02)
 
 
 def test_diagnose_rejects_bad_settings_and_too_little_data():

@@ -69,6 +69,22 @@ def test_wrench_geometry(live):
     assert np.all(off == 0)
 
 
+def test_emulator_force_model_uses_the_tcp_z_axis():
+    from pointforce_ros.cell.fem.live import force_model
+
+    model = force_model('plush')
+    live = model.live
+    q = live.spec.top_point(0.5, 0.0)
+    down = np.array([q[0], q[1], q[2] - 0.004, np.pi, 0.0, 0.0])  # TCP z axis = -z (base)
+    w = model.wrench(down, 0.0)
+    f, t = live.point_probe_wrench(down[:3], [0.0, 0.0, -1.0])
+    np.testing.assert_allclose(w, np.concatenate([f, t]), atol=1e-12)
+    assert w[2] > 0.1  # the object pushes the tool up
+    up = down.copy()
+    up[3] = 0.0  # TCP z axis = +z: pointing away from the object
+    assert np.all(model.wrench(up, 0.0) == 0)
+
+
 def test_bad_inputs_are_rejected():
     live = LiveContact.load(OBJECTS[0], build=False)
     with pytest.raises(InvalidInput):

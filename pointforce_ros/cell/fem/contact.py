@@ -165,7 +165,7 @@ class ContactState:
 
 
 def evaluate_contact(fp: FacePoints, x: np.ndarray, probe: RigidProbe, pose: Pose,
-                     eps: float, lam: np.ndarray, margin: float) -> ContactState:
+                     eps: np.ndarray, lam: np.ndarray, margin: float) -> ContactState:
     """Evaluate the augmented-Lagrangian contact at nodal positions ``x`` (N, 3).
 
     Args:
@@ -173,7 +173,7 @@ def evaluate_contact(fp: FacePoints, x: np.ndarray, probe: RigidProbe, pose: Pos
         x: (N, 3) current node positions, m.
         probe: the rigid probe.
         pose: probe pose in the base frame.
-        eps: penalty stiffness, Pa/m.
+        eps: (P,) penalty stiffness per contact point, Pa/m.
         lam: (P,) current Lagrange multipliers (pressures), Pa.
         margin: broad-phase inflation of the probe's bounding box, m.
 
@@ -189,7 +189,7 @@ def evaluate_contact(fp: FacePoints, x: np.ndarray, probe: RigidProbe, pose: Pos
         return empty
     phi, closest, normal = probe.query(local[cand])
     pen = -phi
-    p_trial = lam[cand] + eps * pen
+    p_trial = lam[cand] + eps[cand] * pen
     act = p_trial > 0
     if not np.any(act):
         return empty
@@ -197,7 +197,7 @@ def evaluate_contact(fp: FacePoints, x: np.ndarray, probe: RigidProbe, pose: Pos
     pressure = p_trial[act]
     n_world = normal[act] @ rot.T
     area = fp.area[idx]
-    energy = float(np.sum(area * (pressure ** 2 - lam[idx] ** 2) / (2 * eps)))
+    energy = float(np.sum(area * (pressure ** 2 - lam[idx] ** 2) / (2 * eps[idx])))
     return ContactState(index=idx, pressure=pressure, penetration=pen[act], normal=n_world,
                         point=closest[act] @ rot.T + pose.position,
                         force=(area * pressure)[:, None] * n_world, energy=energy)

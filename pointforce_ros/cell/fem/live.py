@@ -4,11 +4,12 @@ Linear elasticity is badly wrong at poke depths (DESIGN.md section 5), so the li
 the nonlinear response itself: per object, full neo-Hookean pokes along the local surface normal
 on a grid of surface locations give force vectors against depth. A query intersects the probe
 axis with the undeformed top surface, takes the normal depth of the tip below it, and
-interpolates the grid bilinearly in the surface's reference coordinates and (after a monotone
-cubic resampling) linearly in depth; beyond the deepest poke it extrapolates with the last slope.
-Its error against full solves at held-out locations is stored in each cache and reported by
-:func:`pointforce_ros.cell.fem.bench.bench_cell`; it is set by the grid spacing (``live.grid``
-in the object YAML), largest next to narrow stiff inclusions.
+interpolates the grid bilinearly in the surface's reference coordinates and linearly in a dense
+depth table. Between grid nodes the interpolation follows a kernel-averaged stiffness of the
+ground-truth field under the tip (``field_factor``), so inclusions between nodes still show
+(on held-out full solves it halves the plush's error next to its firm muzzle; the grid spacing
+``live.grid`` in the object YAML sets the rest). Each cache stores held-out full solves and
+:func:`pointforce_ros.cell.fem.bench.bench_cell` reports the error on them.
 
 The cache (``test/data/fem/live_<object>.npz``) is built by ``test/data/fem/make_fem_cache.py``;
 it stores the source YAML's hash and is rebuilt when the object changes.
@@ -72,6 +73,40 @@ def uv_to_xy(spec: ObjectSpec, u, v):
     return spec.centre[0] + u * spec.size[0] / 2, spec.centre[1] + v * spec.size[1] / 2
 
 
+def field_factor(spec: ObjectSpec, points: np.ndarray, normals: np.ndarray,
+                 depth: float) -> np.ndarray:
+    """Kernel-averaged (geometric-mean) Young's modulus under a poke, Pa.
+
+    The kernel is a Gaussian ball centred ``0.5 depth + 2 mm`` below the surface point along
+    ``-normal``, of radius ``0.5 depth + 3 mm``, sampled on a fixed stencil and clipped to the
+    body. It is a smooth stand-in for how stiff the material the probe loads is; the live path
+    only uses it to shape the interpolation between grid pokes.
+
+    Args:
+        points: (M, 3) surface points, metres.
+        normals: (M, 3) outward unit normals.
+        depth: poke depth, metres.
+
+    Returns:
+        (M,) modulus in Pa.
+
+    """
+    rng = np.random.default_rng(1234)
+    stencil = rng.normal(size=(96, 3))
+    centre = points - normals * (0.5 * depth + 0.002)
+    radius = 0.5 * depth + 0.003
+    pts = centre[:, None, :] + radius * 0.6 * stencil[None]
+    pts = pts.reshape(-1, 3)
+    inside = pts[:, 2] <= spec.top_height(pts[:, 0], pts[:, 1])
+    inside &= (pts[:, 2] >= 0) & spec.footprint_mask(pts[:, 0], pts[:, 1])
+    loge = np.log(spec.stiffness_at(pts))
+    w = np.exp(-0.5 * np.sum(stencil ** 2, axis=1))
+    w = np.tile(w, len(points)) * inside
+    w = w.reshape(len(points), -1)
+    loge = loge.reshape(len(points), -1)
+    return np.exp(np.sum(w * loge, axis=1) / np.maximum(w.sum(axis=1), 1e-12))
+
+
 def nonlinear_point_poke(spec: ObjectSpec, x: float, y: float, depths=None,
                          h: Optional[float] = None, force_stop: Optional[float] = None):
     """Full nonlinear FEM poke with the point probe along the surface normal at (x, y).
@@ -127,6 +162,7 @@ class LiveTable:
     v: np.ndarray          # (ny,) reference coordinates of the grid rows
     depths: np.ndarray     # (K,) poke depths, m
     forces: np.ndarray     # (nx, ny, K, 3) force on the probe, N, base
+    factor: np.ndarray     # (nx, ny, K) field_factor at the grid nodes, Pa
 
 
 class LiveContact:
@@ -147,8 +183,17 @@ class LiveContact:
         nx, ny, k, _ = table.forces.shape
         curves = np.concatenate([np.zeros((nx, ny, 1, 3)), table.forces], axis=2)
         knots = np.concatenate([[0.0], table.depths])
-        self._curves = PchipInterpolator(knots, curves, axis=2)(fine)  # (nx, ny, F, 3)
-        self._slope = (curves[:, :, -1] - curves[:, :, -2]) / (knots[-1] - knots[-2])
+        fac = np.concatenate([table.factor[:, :, :1], table.factor], axis=2)
+        ratio = curves / fac[..., None]
+        self._ratio = PchipInterpolator(knots, ratio, axis=2)(fine)  # (nx, ny, F, 3)
+        slope = (ratio[:, :, -1] - ratio[:, :, -2]) / (knots[-1] - knots[-2])
+        self._slope = slope
+        self._fac_depths = knots
+        # field factor on a denser (u, v) lattice for the query-time correction
+        nu_, nv_ = 4 * (nx - 1) + 1, 4 * (ny - 1) + 1
+        self._fu = np.linspace(table.u[0], table.u[-1], nu_)
+        self._fv = np.linspace(table.v[0], table.v[-1], nv_)
+        self._ffac = self._factor_lattice(self._fu, self._fv, knots)
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
@@ -167,7 +212,7 @@ class LiveContact:
             data = np.load(path, allow_pickle=False)
             if str(data['hash']) == spec_hash(spec):
                 table = LiveTable(u=data['u'], v=data['v'], depths=data['depths'],
-                                  forces=data['forces'])
+                                  forces=data['forces'], factor=data['factor'])
                 meta = {k[5:]: data[k].item() for k in data.files if k.startswith('meta_')}
                 return cls(spec, table, meta)
             if not build:
@@ -212,7 +257,8 @@ class LiveContact:
                 k = i * ny + j + 1
                 say(f'{spec.name}: grid poke {k}/{nx * ny} at ({x:.4f}, {y:.4f}) m: '
                     f'{f[~np.isnan(f[:, 0])][-1] @ n:.2f} N; {time.time() - t0:.0f} s')
-        table = LiveTable(u=u, v=v, depths=depths, forces=forces)
+        factor = _grid_factor(spec, u, v, depths)
+        table = LiveTable(u=u, v=v, depths=depths, forces=forces, factor=factor)
         meta = dict(build_seconds=time.time() - t0, grid_pokes=nx * ny)
         return cls(spec, table, meta)
 
@@ -223,7 +269,7 @@ class LiveContact:
         meta = {f'meta_{k}': np.asarray(v) for k, v in self.meta.items()}
         np.savez_compressed(tmp, hash=np.asarray(spec_hash(self.spec)), u=self.table.u,
                             v=self.table.v, depths=self.table.depths,
-                            forces=self.table.forces, **meta)
+                            forces=self.table.forces, factor=self.table.factor, **meta)
         os.replace(tmp, path)
 
     # -- queries -----------------------------------------------------------------------------
@@ -243,7 +289,12 @@ class LiveContact:
 
         Returns:
             ``(force (3,), torque (3,))``: reaction of the object on the probe, N and N m,
-            ``base``. Zero when the tip is above the surface or off the object.
+            ``base``. Zero when the tip is above the surface, off the object, or the axis
+            does not push into the surface (more than ~78 deg from the inward normal).
+
+        The force is interpolated from normal pokes: valid for axes near the surface normal
+        (the cell pokes along the normal); an oblique axis gets the normal-poke force at
+        the normal depth of the tip.
 
         Raises:
             InvalidInput: NaN or zero-length inputs.
@@ -264,7 +315,7 @@ class LiveContact:
             return zero, zero.copy()
         n = self.spec.top_normal(q[0], q[1])
         depth = float((q - p) @ n)
-        if depth <= 0:
+        if depth <= 0 or a @ n > -0.2:  # above the surface, or not pushing into it
             return zero, zero.copy()
         f = self._force_at(q[0], q[1], depth)
         c = p if torque_centre is None else np.asarray(torque_centre, dtype=float)
@@ -315,14 +366,39 @@ class LiveContact:
         dd = min(depth, dmax)
         kf = min(int(dd / self._du), len(self._fine_depths) - 2)
         wd = (dd - self._fine_depths[kf]) / self._du
-        block = self._curves[i:i + 2, j:j + 2, kf:kf + 2]  # (2, 2, 2, 3)
+        block = self._ratio[i:i + 2, j:j + 2, kf:kf + 2]  # (2, 2, 2, 3)
         wuv = np.array([[(1 - wu) * (1 - wv), (1 - wu) * wv], [wu * (1 - wv), wu * wv]])
         r = np.einsum('ij,ijkc->kc', wuv, block)
-        force = r[0] * (1 - wd) + r[1] * wd
+        ratio = r[0] * (1 - wd) + r[1] * wd
         if depth > dmax:
             slope = np.einsum('ij,ijc->c', wuv, self._slope[i:i + 2, j:j + 2])
-            force = force + slope * (depth - dmax)
-        return force
+            ratio = ratio + slope * (depth - dmax)
+        return ratio * self._factor_query(u, v, dd)
+
+    def _factor_lattice(self, fu, fv, knots):
+        uu, vv = np.meshgrid(fu, fv, indexing='ij')
+        x, y = uv_to_xy(self.spec, uu.ravel(), vv.ravel())
+        pts = self.spec.top_point(x, y)
+        nrm = self.spec.top_normal(x, y)
+        out = np.empty((len(fu), len(fv), len(knots)))
+        for k, d in enumerate(knots):
+            out[:, :, k] = field_factor(self.spec, pts, nrm, max(d, knots[1])).reshape(
+                len(fu), len(fv))
+        return out
+
+    def _factor_query(self, u, v, depth):
+        fu, fv = self._fu, self._fv
+        i = min(max(int(np.searchsorted(fu, u) - 1), 0), len(fu) - 2)
+        j = min(max(int(np.searchsorted(fv, v) - 1), 0), len(fv) - 2)
+        wu = (u - fu[i]) / (fu[i + 1] - fu[i])
+        wv = (v - fv[j]) / (fv[j + 1] - fv[j])
+        k = min(max(int(np.searchsorted(self._fac_depths, depth) - 1), 0),
+                len(self._fac_depths) - 2)
+        wd = (depth - self._fac_depths[k]) / (self._fac_depths[k + 1] - self._fac_depths[k])
+        blk = self._ffac[i:i + 2, j:j + 2, k:k + 2]
+        wuv = np.array([[(1 - wu) * (1 - wv), (1 - wu) * wv], [wu * (1 - wv), wu * wv]])
+        b = np.einsum('ij,ijk->k', wuv, blk)
+        return b[0] * (1 - wd) + b[1] * wd
 
 
 class LiveForceModel:
@@ -372,11 +448,20 @@ def _fill_tail(depths, f):
     return out
 
 
+def _grid_factor(spec, u, v, depths):
+    uu, vv = np.meshgrid(u, v, indexing='ij')
+    x, y = uv_to_xy(spec, uu.ravel(), vv.ravel())
+    pts = spec.top_point(x, y)
+    nrm = spec.top_normal(x, y)
+    return np.stack([field_factor(spec, pts, nrm, d).reshape(len(u), len(v))
+                     for d in depths], axis=-1)
+
+
 def cache_path(name: str, cache_dir: Optional[str] = None) -> str:
     """Return the path of the live cache of object ``name``."""
     return os.path.join(cache_dir or CACHE_DIR, f'live_{name}.npz')
 
 
 __all__ = ['LiveContact', 'LiveForceModel', 'force_model', 'LiveTable', 'nonlinear_point_poke',
-           'cache_path', 'reference_uv', 'uv_to_xy', 'spec_hash',
+           'field_factor', 'cache_path', 'reference_uv', 'uv_to_xy', 'spec_hash',
            'NotConverged']

@@ -72,7 +72,9 @@ class FemModel:
             bottom nodes fixed in z only, one node pinned in x and y and a second in y).
         fixed: optional (N, 3) boolean mask of extra fixed dofs (symmetry planes).
         nonlinear: neo-Hookean large deformation (True) or small-strain linear (False).
-        penalty_factor: contact penalty ``eps = penalty_factor * E_max / h_min`` (Pa/m).
+        penalty_factor: contact penalty per face point ``eps = penalty_factor * E / h``
+            (Pa/m) with ``E`` the largest modulus at the face's nodes and ``h`` the face's
+            shortest edge, so a soft skin over a hard core is not over-penalised.
         penetration_tol: augmented-Lagrangian stop: largest penetration, metres ...
         penetration_rel: ... or this fraction of the probe travel, whichever is larger.
         contact_faces: (F, 4) faces checked for contact (default: every boundary face but
@@ -113,8 +115,14 @@ class FemModel:
         self.fp = face_points(mesh, faces, contact_order)
         edges = np.linalg.norm(mesh.nodes[faces] - mesh.nodes[np.roll(faces, 1, 1)], axis=-1)
         self.h_min = float(edges.min())
-        e_max = float(np.max(young))
-        self.eps = penalty_factor * e_max / self.h_min
+        e_el = np.asarray(young, dtype=float)
+        e_el = e_el.mean(axis=1) if e_el.ndim == 2 else np.broadcast_to(
+            e_el, (len(mesh.elements),))
+        e_node = np.zeros(mesh.n_nodes)
+        np.maximum.at(e_node, mesh.elements.ravel(), np.repeat(e_el, 8))
+        e_face = e_node[faces].max(axis=1)
+        eps_face = penalty_factor * e_face / edges.min(axis=1)
+        self.eps = np.repeat(eps_face, len(self.fp.area) // len(faces))
         self.penetration_tol = float(penetration_tol)
         self.penetration_rel = float(penetration_rel)
         self.newton_tol = 1e-6
@@ -154,7 +162,7 @@ class FemModel:
             return fc, None
         # Gauss-Newton tangent eps * area * N_a N_b n n^T (active points only).
         active = cs.pressure > 0
-        coef = (self.eps * self.fp.area[cs.index])[active]
+        coef = (self.eps[cs.index] * self.fp.area[cs.index])[active]
         nn = np.einsum('pi,pk->pik', cs.normal[active], cs.normal[active])
         ww = np.einsum('pa,pb->pab', w[active], w[active])
         blocks = coef[:, None, None, None, None] * ww[:, :, None, :, None] * nn[:, None, :, None]

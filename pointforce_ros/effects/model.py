@@ -378,6 +378,29 @@ class Fit:
     nfev: int
 
 
+def _data_starts(batch: PokeBatch, effect: str, spec: ParamSpec) -> Tuple[float, ...]:
+    """Extra starting points read off the data (where the library's starts may see no slope).
+
+    ``surface_offset``: minus the median displacement at which the force first exceeds 5 % of
+    each poke's peak. Contact that starts far outside the observed surface leaves the base
+    model with no force at all, hence no gradient from an offset of zero.
+    """
+    if effect != 'surface_offset' or spec.name != 'offset':
+        return ()
+    f_n = np.einsum('ij,ij->i', batch.force, batch.normal_s)
+    first = batch.starts[:-1]
+    rise = f_n - f_n[first][batch.seg]
+    peak = np.maximum.reduceat(rise, first)
+    above = rise > 0.05 * batch.per_sample(np.maximum(peak, 1e-12))
+    index = np.where(above, np.arange(batch.n_samples), batch.n_samples)
+    touch = np.minimum.reduceat(index, first)
+    valid = touch < batch.starts[1:]
+    if not np.any(valid):
+        return ()
+    guess = -float(np.median(batch.d[touch[valid]]))
+    return (float(np.clip(guess, spec.lower, spec.upper)),) if abs(guess) > 1e-4 else ()
+
+
 def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
                start: Optional[Mapping[str, Mapping[str, float]]] = None,
                max_nfev: int = 60, multistart: bool = True) -> Fit:
@@ -404,14 +427,15 @@ def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
     base = layout.coordinates(start)
     fresh = [i for i, (name, p) in enumerate(layout.entries)
              if p.name not in start.get(name, {})]
+    pokes = np.arange(len(batch)) if pokes is None else np.asarray(pokes, dtype=np.int64)
     starts = [base]
     if multistart:
         for i in fresh:
-            options = layout.entries[i][1].start
+            name, spec = layout.entries[i]
+            options = tuple(spec.start) + _data_starts(batch.subset(pokes), name, spec)
             if len(options) > 1:
                 starts = [np.where(np.arange(len(base)) == i, opt, s)
                           for s in starts for opt in options]
-    pokes = np.arange(len(batch)) if pokes is None else np.asarray(pokes, dtype=np.int64)
     if _coupled(batch, layout.effects):
         counts = np.bincount(pokes, minlength=len(batch)).astype(np.float64)
         keep = np.flatnonzero(counts[batch.seg] > 0)

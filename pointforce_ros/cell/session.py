@@ -181,6 +181,40 @@ def halfspace_object(contact: Optional[HalfSpaceContact] = None,
                       name='halfspace')
 
 
+def fem_object(object_name: str = 'plush', *, margin: float = 0.012,
+               cache_dir: Optional[str] = None) -> CellObject:
+    """Wrap the FEM live contact of ``config/objects/<object_name>`` as a cell object.
+
+    The clean physics is ``LiveContact.point_probe_wrench`` (precomputed nonlinear pokes); the
+    surface is the object's undeformed top; the poke region is the footprint's bounding box
+    shrunk by ``margin`` metres (keeps pokes off the edges).
+
+    Raises:
+        DataError: the object's live cache is missing or stale (see ``LiveContact.load``).
+        InvalidInput: unknown object, or a margin that leaves no region.
+
+    """
+    from pointforce_ros.cell.fem.live import LiveContact
+
+    live = LiveContact.load(object_name, cache_dir=cache_dir, build=False)
+    spec = live.spec
+    half = np.array(spec.size[:2]) / 2 - float(margin)
+    if np.any(half <= 0):
+        raise InvalidInput(f'fem_object: margin {margin} m leaves no poke region on '
+                           f'{spec.name} (size {spec.size[:2]})')
+    centre = np.array(spec.centre, dtype=np.float64)
+
+    def surface_at(xy):
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        return (np.asarray(spec.top_point(xy[:, 0], xy[:, 1])),
+                np.asarray(spec.top_normal(xy[:, 0], xy[:, 1])))
+
+    region = ((centre[0] - half[0], centre[0] + half[0]),
+              (centre[1] - half[1], centre[1] + half[1]))
+    return CellObject(clean=live.point_probe_wrench, surface_at=surface_at, region=region,
+                      name=spec.name)
+
+
 def as_cell_object(obj) -> CellObject:
     """Return ``obj`` as a :class:`CellObject` (a :class:`HalfSpaceContact` is wrapped).
 

@@ -180,3 +180,23 @@ def test_campaign_rejects_bad_requests():
     with pytest.raises(InvalidInput):
         simulate_campaign(HalfSpaceContact(), scenario, count=2, repeats=0)
     assert isinstance(halfspace_object(), CellObject)
+
+
+def test_fem_object_wraps_the_live_contact_or_says_how_to_build_it():
+    from pointforce_ros.cell.objects import load_object
+    from pointforce_ros.cell.session import fem_object
+    from pointforce_ros.errors import DataError
+    try:
+        obj = fem_object('plush')
+    except DataError as exc:
+        assert 'make_fem_cache.py' in str(exc)
+        return
+    spec = load_object('plush')
+    (x0, x1), (y0, y1) = obj.region
+    xy = np.array([[x0, y0], [x1, y1], [(x0 + x1) / 2, (y0 + y1) / 2]])
+    points, normals = obj.surface_at(xy)
+    assert np.all(spec.footprint_mask(xy[:, 0], xy[:, 1]))
+    np.testing.assert_allclose(points[:, 2], spec.top_height(xy[:, 0], xy[:, 1]))
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0)
+    force, _ = obj.clean(points[2] - 0.002 * normals[2], -normals[2])
+    assert force @ normals[2] > 0

@@ -1,8 +1,8 @@
-"""Rigid triangle meshes of the probes and planner objects used across the package.
+"""Rigid triangle meshes of planner objects (sphere, box) in their own frame.
 
-All meshes are in their own frame, metres, outward counter-clockwise triangles. Probes point
-along -z of their frame (their contact end is at the origin), so a pose whose z axis is the
-surface normal presses them along the approach direction -n.
+Metres, outward counter-clockwise triangles. The robot's probes (point probe, line paddle,
+cylinder) are in :mod:`pointforce_ros.cell.fem.probes`, in the UR tool convention (+z = push
+direction, working end at the origin).
 """
 
 import numpy as np
@@ -64,54 +64,3 @@ def box(size=(0.02, 0.02, 0.02)) -> Mesh:
     t = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
                   [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]])
     return _convex_mesh(v, t)
-
-
-def cylinder(radius: float = 0.01, length: float = 0.08, segments: int = 24) -> Mesh:
-    """Cylinder lying along x (axis through (0, 0, radius)), touching z = 0 along a line."""
-    radius = _positive('radius', radius)
-    length = _positive('length', length)
-    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
-    ring = np.stack([np.zeros_like(a), radius * np.sin(a), radius - radius * np.cos(a)], 1)
-    left = ring + [-length / 2, 0, 0]
-    right = ring + [length / 2, 0, 0]
-    v = np.vstack([left, right, [[-length / 2, 0, radius], [length / 2, 0, radius]]])
-    n = segments
-    tris = []
-    for i in range(n):
-        j = (i + 1) % n
-        tris += [(i, n + i, n + j), (i, n + j, j), (2 * n, j, i), (2 * n + 1, n + i, n + j)]
-    return _convex_mesh(v, np.array(tris))
-
-
-def paddle(length: float = 0.06, width: float = 0.004, height: float = 0.03) -> Mesh:
-    """Line paddle: a thin box along x whose long bottom edge lies on z = 0."""
-    return box((length, width, height))
-
-
-def point_probe(tip_radius: float = 0.0015, cone_half_angle: float = 0.3,
-                length: float = 0.03, segments: int = 16) -> Mesh:
-    """Tapered point probe: a cone up +z from a rounded tip whose lowest point is the origin."""
-    tip_radius = _positive('tip_radius', tip_radius)
-    rings = []
-    for phi in np.linspace(0, np.pi / 2 - cone_half_angle, 4)[1:]:
-        r = tip_radius * np.sin(phi)
-        z = tip_radius * (1 - np.cos(phi))
-        rings.append((r, z))
-    r_top = rings[-1][0] + np.tan(cone_half_angle) * (length - rings[-1][1])
-    rings.append((r_top, length))
-    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
-    v = [[0.0, 0.0, 0.0]]
-    for r, z in rings:
-        v += [[r * np.cos(t), r * np.sin(t), z] for t in a]
-    v.append([0.0, 0.0, length])
-    n = segments
-    tris = [(0, 1 + (i + 1) % n, 1 + i) for i in range(n)]
-    for k in range(len(rings) - 1):
-        b0, b1 = 1 + k * n, 1 + (k + 1) * n
-        for i in range(n):
-            j = (i + 1) % n
-            tris += [(b0 + i, b0 + j, b1 + j), (b0 + i, b1 + j, b1 + i)]
-    top = len(v) - 1
-    b = 1 + (len(rings) - 1) * n
-    tris += [(top, b + i, b + (i + 1) % n) for i in range(n)]
-    return _convex_mesh(np.array(v), np.array(tris))

@@ -1,4 +1,4 @@
-"""Rigid triangle meshes of planner objects (sphere, box) in their own frame.
+"""Rigid triangle meshes of planner objects (sphere, box, cylinder) in their own frame.
 
 Metres, outward counter-clockwise triangles. The robot's probes (point probe, line paddle,
 cylinder) are in :mod:`pointforce_ros.cell.fem.probes`, in the UR tool convention (+z = push
@@ -64,3 +64,20 @@ def box(size=(0.02, 0.02, 0.02)) -> Mesh:
     t = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
                   [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]])
     return _convex_mesh(v, t)
+
+
+def cylinder(radius: float = 0.01, length: float = 0.08, segments: int = 24) -> Mesh:
+    """Cylinder lying along x (axis through (0, 0, radius)), touching z = 0 along a line."""
+    radius = _positive('radius', radius)
+    length = _positive('length', length)
+    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    ring = np.stack([np.zeros_like(a), radius * np.sin(a), radius - radius * np.cos(a)], 1)
+    left = ring + [-length / 2, 0, 0]
+    right = ring + [length / 2, 0, 0]
+    v = np.vstack([left, right, [[-length / 2, 0, radius], [length / 2, 0, radius]]])
+    n = segments
+    tris = []
+    for i in range(n):
+        j = (i + 1) % n
+        tris += [(i, n + i, n + j), (i, n + j, j), (2 * n, j, i), (2 * n + 1, n + i, n + j)]
+    return _convex_mesh(v, np.array(tris))

@@ -19,6 +19,7 @@ def _volume_and_closed(mesh):
 @pytest.mark.parametrize('mesh, exact, rel', [
     (shapes.icosphere(0.02, 3), 4 / 3 * np.pi * 0.02 ** 3, 0.02),
     (shapes.box((0.02, 0.03, 0.04)), 0.02 * 0.03 * 0.04, 1e-12),
+    (shapes.cylinder(0.01, 0.08, 48), np.pi * 0.01 ** 2 * 0.08, 0.01),
 ])
 def test_meshes_are_closed_outward_and_of_the_right_volume(mesh, exact, rel):
     volume, closed = _volume_and_closed(mesh)

@@ -95,3 +95,20 @@ def fibonacci_sphere_mesh(n: int = 150, radius: float = 0.02) -> Mesh:
     inward = np.einsum('ij,ij->i', normal, v[tri].mean(axis=1)) < 0
     tri[inward] = tri[inward][:, ::-1]
     return Mesh(vertices=v, triangles=tri)
+
+
+def patch_contact_model(spacing: float = 0.002, version: int = 1):
+    """A ready-to-serve contact model: a 60 x 60 mm patch at z = 0.04 m around (0.5, 0).
+
+    ``y = k(r) max(d, 0)^1.5`` with ``k`` doubling over a 12 mm disc at the centre (a stiff
+    inclusion), shape constant 4 mm. Closed form, no learning: for node tests and benchmarks.
+    """
+    from pointforce_ros.model_io import ContactModel
+    surface = grid_surface(half=0.03, step=spacing, z=0.04, offset=(0.5, 0.0))
+    r = np.hypot(surface.points[:, 0] - 0.5, surface.points[:, 1])
+    k = 4.0e3 * (1.0 + 1.0 / (1.0 + np.exp((r - 0.012) / 0.002)))  # N / m^1.5
+    baked = power_response(k, 1.5, depths=np.linspace(0.0, 0.02, 41))
+    baked = BakedResponse(depths=baked.depths, forces=baked.forces, slopes=baked.slopes,
+                          version=version, meta={'kind': 'analytic', 'law': 'k d^1.5'})
+    return ContactModel(surface=surface, response=baked, shape_constant=0.004, version=version,
+                        meta={'source': 'patch_contact_model'})

@@ -38,7 +38,7 @@ def bench_ros(quick: bool = False) -> dict:
     from pointforce_ros.cell.emulator_process import start_emulator
     from pointforce_ros.model_io import save_model
     from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
-    from pointforce_ros.nodes.demo import analytic_patch_model
+    from pointforce_ros.contact.synthetic import patch_contact_model
     from pointforce_ros.nodes.launcher import InProcessLauncher
     from pointforce_ros.nodes.poke_server import PokeServerNode
     from pointforce_ros.pokes.store import PokeStore
@@ -51,7 +51,7 @@ def bench_ros(quick: bool = False) -> dict:
     campaign_s = 10.0 if quick else 60.0
     out = {}
     work = Path(tempfile.mkdtemp(prefix='pointforce-bench-ros-'))
-    model = analytic_patch_model(spacing=0.002)
+    model = patch_contact_model(spacing=0.002)
     save_model(model, work / 'models')
     sphere = icosphere(0.02, 2)
     rng = np.random.default_rng(0)

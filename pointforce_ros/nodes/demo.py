@@ -21,34 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.model_io import ContactModel
-from pointforce_ros.response.baked import BakedResponse
-from pointforce_ros.types import Surface
-
 DATA = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'fem'
-
-
-def analytic_patch_model(spacing: float = 0.002, version: int = 1) -> ContactModel:
-    """Flat 80 x 60 mm patch at z = 0.04 m, f = k(x) d^1.5 with a stiff disc at the centre.
-
-    A closed-form model for node tests and the ROS benchmark (no learning involved).
-    """
-    xs = np.arange(0.46, 0.54 + 1e-9, spacing)
-    ys = np.arange(-0.03, 0.03 + 1e-9, spacing)
-    gx, gy = np.meshgrid(xs, ys, indexing='ij')
-    points = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, 0.04)], axis=1)
-    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
-    r = np.hypot(points[:, 0] - 0.5, points[:, 1])
-    k = 4.0e3 * (1.0 + 1.0 / (1.0 + np.exp((r - 0.012) / 0.002)))  # N / m^1.5
-    colors = np.stack([0.8 - 0.3 * (k > 6e3), 0.5 * np.ones_like(k), 0.4 * np.ones_like(k)], 1)
-    depths = np.linspace(0.0, 0.02, 41)
-    forces = k[:, None] * depths[None, :] ** 1.5
-    slopes = 1.5 * k * depths[-1] ** 0.5
-    baked = BakedResponse(depths=depths, forces=forces, slopes=slopes, version=version,
-                          meta={'kind': 'analytic', 'law': 'k d^1.5'})
-    return ContactModel(surface=Surface(points=points, normals=normals, colors=colors),
-                        response=baked, shape_constant=0.004, version=version,
-                        meta={'source': 'analytic patch'})
 
 
 def demo_query_set(spec):

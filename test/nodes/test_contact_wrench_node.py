@@ -13,7 +13,7 @@ from rclpy.parameter import Parameter
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from pointforce_ros.model_io import save_model
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode, LATCHED
-from pointforce_ros.nodes.demo import analytic_patch_model
+from pointforce_ros.contact.synthetic import patch_contact_model
 from pointforce_ros.serving import WrenchServer
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.types import ContactQuery, Pose
@@ -31,7 +31,7 @@ def _request(depth, x=0.5, y=0.0):
 
 @pytest.fixture
 def served(ros_graph, tmp_path):
-    model = analytic_patch_model(spacing=0.003)
+    model = patch_contact_model(spacing=0.003)
     save_model(model, tmp_path / 'models')
     node = ros_graph.add(ContactWrenchNode(
         context=ros_graph.context,
@@ -94,7 +94,7 @@ def test_batch_equals_single_queries(served):
 
 def test_model_topic_hot_swaps_without_dropping_requests(served):
     graph, node, client_node, single, _, model, tmp_path = served
-    stiffer = analytic_patch_model(spacing=0.003, version=2)
+    stiffer = patch_contact_model(spacing=0.003, version=2)
     forces = stiffer.response.forces * 2.0
     from pointforce_ros.model_io import ContactModel
     from pointforce_ros.response.baked import BakedResponse

@@ -245,19 +245,19 @@ def _compare(batch, sse_old, sse_new, k_add, alpha, min_improvement, min_drop):
 
 
 def noise_rms(batch: PokeBatch, resid: Dict[str, np.ndarray]) -> float:
-    """Sensor-noise RMS of the force vector (N) from sample-to-sample differences.
+    """Sensor-noise RMS of the force vector (N) from second differences of the residual.
 
-    White noise of variance ``s^2`` gives differences of variance ``2 s^2``; the smooth,
-    systematic part of a residual hardly enters differences. Robust (median absolute
-    deviation), within pokes only.
+    White noise of variance ``s^2`` gives second differences of variance ``6 s^2``; the smooth,
+    systematic part of a residual (even a disturbance of a few hertz) hardly enters them.
+    Robust (median absolute deviation), within pokes only.
     """
-    same = batch.seg[1:] == batch.seg[:-1]
+    same = (batch.seg[2:] == batch.seg[1:-1]) & (batch.seg[1:-1] == batch.seg[:-2])
     total = 0.0
     for key in ('rx', 'ry', 'rz'):
-        diff = np.diff(resid[key])[same]
-        if len(diff):
-            mad = np.median(np.abs(diff - np.median(diff)))
-            total += (1.4826 * mad) ** 2 / 2.0
+        second = np.diff(resid[key], n=2)[same]
+        if len(second):
+            mad = np.median(np.abs(second - np.median(second)))
+            total += (1.4826 * mad) ** 2 / 6.0
     return float(np.sqrt(total))
 
 

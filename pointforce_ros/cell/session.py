@@ -20,25 +20,10 @@ import numpy as np
 from pointforce_ros.cell.ft_sensor import FtSensor
 from pointforce_ros.cell.scenario import CleanFn, HalfSpaceContact, Scenario
 from pointforce_ros.errors import InvalidInput
+from pointforce_ros.transforms import rotvec_aligning_z
 from pointforce_ros.types import as_array, PokeRecord, unit_rows
 
 SurfaceFn = Callable[[np.ndarray], Tuple[np.ndarray, np.ndarray]]
-
-
-def rotvec_z_to(axis: np.ndarray) -> np.ndarray:
-    """Return the (3,) rotation vector of the rotation taking ``e_z`` onto unit ``axis`` (3,).
-
-    The shortest rotation; for ``axis = -e_z`` a half turn about ``e_x``.
-    """
-    axis = np.asarray(axis, dtype=np.float64)
-    axis = axis / np.linalg.norm(axis)
-    cross = np.cross([0.0, 0.0, 1.0], axis)
-    sin = float(np.linalg.norm(cross))
-    cos = float(axis[2])
-    angle = float(np.arctan2(sin, cos))
-    if sin < 1e-12:
-        return np.array([np.pi, 0.0, 0.0]) if cos < 0 else np.zeros(3)
-    return cross / sin * angle
 
 
 def simulate_poke(force_model, point, normal, *, poke_id: str, speed: float = 0.002,
@@ -97,7 +82,7 @@ def simulate_poke(force_model, point, normal, *, poke_id: str, speed: float = 0.
         raise InvalidInput(f'simulate_poke.t0: must be finite, got {t0}')
     dt = 1.0 / float(rate)
     step = float(speed) * dt
-    rotvec = rotvec_z_to(-normal)
+    rotvec = rotvec_aligning_z(-normal)
     poses: List[np.ndarray] = []
     wrenches: List[np.ndarray] = []
     times: List[float] = []

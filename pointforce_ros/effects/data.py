@@ -29,10 +29,10 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from pointforce_ros.cell.session import rotvec_z_to
 from pointforce_ros.effects.library import count_earlier, PLASTIC_RADIUS
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.pokes.store import PokeStore, read_poke_bag
+from pointforce_ros.transforms import rotvec_aligning_z
 from pointforce_ros.types import PokeRecord
 
 TABLE_COLUMNS = ('poke_id', 't', 'px', 'py', 'pz', 'nx', 'ny', 'nz', 'depth', 'force')
@@ -141,7 +141,7 @@ def read_poke_table(path) -> List[PokeRecord]:
         else:
             force = num['force'][sel][:, None] * n
         tcp = np.column_stack([point[0] - depth[:, None] * n,
-                               np.tile(rotvec_z_to(-n), (len(t), 1))])
+                               np.tile(rotvec_aligning_z(-n), (len(t), 1))])
         try:
             records.append(PokeRecord(
                 poke_id=str(poke_id), point=point[0], normal=n, t=t, t_controller=t,

@@ -8,10 +8,10 @@ import pytest
 
 from pointforce_ros.cell.effects import CameraDepthBias, FtBias, FtNoise, PlasticSet
 from pointforce_ros.cell.scenario import HalfSpaceContact, Scenario
-from pointforce_ros.cell.session import (CellObject, halfspace_object, rotvec_z_to,
-                                         simulate_campaign, simulate_poke)
+from pointforce_ros.cell.session import (CellObject, halfspace_object, simulate_campaign,
+                                         simulate_poke)
 from pointforce_ros.errors import InvalidInput
-from pointforce_ros.pokes.store import rotvec_to_matrix
+from pointforce_ros.transforms import rotvec_aligning_z, rotvec_to_matrix
 
 Z0 = 0.04
 K0 = 1.4e4
@@ -22,13 +22,13 @@ def _model(*effects, contact=None):
     return Scenario('t', effects=tuple(effects)).force_model(contact)
 
 
-def test_rotvec_z_to_maps_ez_onto_axis():
+def test_rotvec_aligning_z_maps_ez_onto_axis():
     rng = np.random.default_rng(0)
     axes = rng.normal(size=(20, 3))
     axes = np.vstack([axes / np.linalg.norm(axes, axis=1, keepdims=True),
                       [[0, 0, 1.0], [0, 0, -1.0]]])
     for axis in axes:
-        rot = rotvec_to_matrix(rotvec_z_to(axis))
+        rot = rotvec_to_matrix(rotvec_aligning_z(axis))
         np.testing.assert_allclose(rot[:, 2], axis, atol=1e-12)
 
 

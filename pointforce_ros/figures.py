@@ -1,0 +1,877 @@
+"""The seed method's figures on the simulated cell (issue 4, "Figures to report").
+
+Three figures, each on held-out data only, medians over random training subsets, seeded:
+
+1. **Point-probe learning curves.** Held-out force RMSE against the number of training pokes
+   (2, 3, 5, 10, 20) on each object for ours (:class:`~pointforce_ros.response.ours.
+   ContactGpModel`), plain ET and the Auto-ET stand-in (:class:`~pointforce_ros.response.
+   baseline.AutoEtBaseline`, small budget). Pool: 30 pokes of the ``realistic`` scenario on the
+   FEM live path. RMSE: :func:`pointforce_ros.response.evaluate.rmse`, ``contact`` region, i.e.
+   every loading sample of every held-out poke from 0.5 mm before its (estimated) contact
+   onset to its deepest point, against the measured (noisy, tared) normal force.
+2. **Line and cylinder probes.** FEM full-solve trials at random orientations; force and torque
+   RMSE (vector error, every step of every evaluated trial) of the baseline (the paper's
+   simulator :class:`~pointforce_ros.contact.paper.PaperContactSimulator` with the ET model and
+   the default ``c``), ours (:class:`~pointforce_ros.contact.simulator.ContactSimulator` with our
+   baked model and ``c`` identified from one training trial) and the paper's "pure learning
+   with the correct geometry" reference (Extra Trees on ``[p, rgb, n, d]`` of the probe's
+   contact centre -> wrench, trained on the other trials of the same kind, leave one trial out).
+3. **Shape constant.** ``c`` identified from the dent of a full nonlinear point poke
+   (:func:`~pointforce_ros.contact.identify.identify_shape_constant`) and from one probe trial
+   (:func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probe`), and the probe
+   force RMSE of ours against ``c``.
+
+Ground truth is cached in ``test/data/figures/`` by ``make_figures_data.py`` there (the FEM is
+minutes per trial); ``python -m pointforce_ros.figures --out DIR`` then runs in minutes.
+All public quantities are SI (metres, newtons, newton-metres), frame ``base``.
+"""
+
+import dataclasses
+import hashlib
+import json
+import os
+import time
+from pathlib import Path
+from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.pokes.curves import PokeCurve
+from pointforce_ros.types import Mesh, Pose, Surface
+
+OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
+"""The five objects of the simulated cell, in report order."""
+
+DATA_DIR = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', 'test', 'data',
+                                        'figures'))
+"""Folder of the cached ground truth."""
+
+SIZES = (2, 3, 5, 10, 20)
+"""Training-set sizes of figure 1."""
+
+DEFAULT_C = 0.004
+"""Shape constant the project ships (``stiffness_learner`` parameter), metres."""
+
+PROBE_TRAIN_POKES = 10
+"""Point pokes the probe-trial models are trained on (as the paper: 10 locations)."""
+
+FIXTURE_VERSION = 1
+
+
+# ------------------------------------------------------------------------------- fixtures
+def physics_hash(spec) -> str:
+    """Short hash of the fields of an ``ObjectSpec`` that change its ground truth.
+
+    Leaves out the live-cache grid, the validation mesh size, the description and the path:
+    a new live grid does not change what a full solve answers.
+    """
+    core = dataclasses.replace(spec, live_grid=(0, 0), mesh_validation=0.0, description='',
+                               source=None)
+    return hashlib.sha1((repr(core) + str(FIXTURE_VERSION)).encode()).hexdigest()[:16]
+
+
+def _scan_surface(spec, scenario, seed: int) -> Surface:
+    from pointforce_ros.cell.generate import scan_object
+    from pointforce_ros.surface.equilibrium import build_equilibrium_surface, SurfaceConfig
+
+    _, scans = scan_object(spec, scenario, seed=seed)
+    lo = np.array([spec.centre[0] - spec.size[0] / 2 - 0.005,
+                   spec.centre[1] - spec.size[1] / 2 - 0.005, 0.004])
+    hi = np.array([spec.centre[0] + spec.size[0] / 2 + 0.005,
+                   spec.centre[1] + spec.size[1] / 2 + 0.005, spec.size[2] + 0.02])
+    surface, _ = build_equilibrium_surface(scans, SurfaceConfig(roi_min=lo, roi_max=hi))
+    return surface
+
+
+def make_poke_fixture(name: str, out=DATA_DIR, count: int = 30, seed: int = 0,
+                      scenario: str = 'realistic', say: Callable[[str], None] = print) -> Path:
+    """Write ``pokes_<name>.npz``: the scanned surface and ``count`` poke curves (see module).
+
+    Raises:
+        DataError: the object's live cache is missing or stale.
+
+    """
+    from pointforce_ros.cell.fem.live import LiveContact
+    from pointforce_ros.cell.generate import fem_cell_object
+    from pointforce_ros.cell.scenario import load_scenario
+    from pointforce_ros.cell.session import simulate_campaign
+    from pointforce_ros.pokes.curves import extract_curve
+
+    started = time.monotonic()
+    live = LiveContact.load(name, build=False)
+    spec = live.spec
+    scen = load_scenario(scenario)
+    surface = _scan_surface(spec, scen, seed)
+    say(f'[figures-data] {name}: surface {len(surface)} points, '
+        f'{time.monotonic() - started:.0f} s')
+    records = simulate_campaign(fem_cell_object(spec, live), scen, count=int(count), seed=seed,
+                                force_limit=spec.force_cap, depth_limit=spec.max_depth)
+    curves = [extract_curve(r) for r in records]
+    say(f'[figures-data] {name}: {len(curves)} curves, {time.monotonic() - started:.0f} s')
+    arrays = curves_to_arrays(curves)
+    arrays.update(surface_points=surface.points.astype(np.float32),
+                  surface_normals=surface.normals.astype(np.float32),
+                  surface_colors=surface.colors.astype(np.float32),
+                  spec_hash=np.asarray(physics_hash(spec)), scenario=np.asarray(scenario),
+                  seed=np.asarray(int(seed)), seconds=np.asarray(time.monotonic() - started))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f'pokes_{name}.npz'
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def curves_to_arrays(curves: Sequence[PokeCurve]) -> Dict[str, np.ndarray]:
+    """Pack curves into flat arrays (float32 samples, offsets) for an ``.npz``."""
+    lengths = np.array([len(c) for c in curves], dtype=np.int64)
+    return {'curve_ids': np.array([c.poke_id for c in curves]),
+            'curve_offsets': np.concatenate([[0], np.cumsum(lengths)]),
+            'curve_points': np.stack([c.point for c in curves]),
+            'curve_normals': np.stack([c.normal for c in curves]),
+            'curve_onsets': np.array([c.onset_d for c in curves]),
+            'curve_d': np.concatenate([c.d for c in curves]).astype(np.float32),
+            'curve_f': np.concatenate([c.f for c in curves]).astype(np.float32),
+            'curve_t': np.concatenate([c.t for c in curves]).astype(np.float32)}
+
+
+def arrays_to_curves(data: Mapping[str, np.ndarray]) -> List[PokeCurve]:
+    """Inverse of :func:`curves_to_arrays` (samples back in float64).
+
+    Raises:
+        DataError: inconsistent offsets.
+
+    """
+    off = np.asarray(data['curve_offsets'])
+    n = len(data['curve_ids'])
+    if len(off) != n + 1 or off[-1] != len(data['curve_d']) or np.any(np.diff(off) < 2):
+        raise DataError('poke fixture: curve offsets do not match the samples')
+    out = []
+    for k in range(n):
+        s = slice(int(off[k]), int(off[k + 1]))
+        normal = np.asarray(data['curve_normals'][k], dtype=np.float64)
+        out.append(PokeCurve(poke_id=str(data['curve_ids'][k]),
+                             point=np.asarray(data['curve_points'][k], dtype=np.float64),
+                             normal=normal / np.linalg.norm(normal),
+                             d=np.asarray(data['curve_d'][s], dtype=np.float64),
+                             f=np.asarray(data['curve_f'][s], dtype=np.float64),
+                             onset_d=float(data['curve_onsets'][k]),
+                             t=np.asarray(data['curve_t'][s], dtype=np.float64)))
+    return out
+
+
+def point_dent(spec, depth: Optional[float] = None, h: Optional[float] = None) -> Dict:
+    """Full nonlinear point poke at the object's centre; the displaced top surface.
+
+    Returns:
+        dict with ``points`` (P, 3) undeformed top nodes, ``normals`` (P, 3) their outward
+        normals, ``displaced`` (P, 3) the nodes at ``depth``, ``poke_point`` (3,), ``depth``
+        (m), ``force`` (3,) N on the probe; ``base``.
+
+    Raises:
+        NotConverged: the FE solve failed.
+
+    """
+    from pointforce_ros.cell.fem.live import POINT_PROBE
+    from pointforce_ros.cell.fem.probes import point_probe, pose_for_push
+    from pointforce_ros.cell.fem.solver import FemModel
+
+    depth = float(depth or 0.5 * spec.max_depth)
+    h = h or spec.mesh_live
+    x, y = spec.centre
+    mesh = spec.build_mesh(h, refine_at=(x, y), fine_radius=0.012, growth=1.4)
+    model = FemModel(mesh, spec.gauss_young(mesh), spec.poisson, support=spec.support)
+    q = np.asarray(spec.top_point(x, y), dtype=float)
+    n = np.asarray(spec.top_normal(x, y), dtype=float)
+    res = model.indent(point_probe(**POINT_PROBE), pose_for_push(q, -n), -n,
+                       np.array([0.5 * depth, depth]), torque_centre=q)
+    nodes = mesh.nodes[res.surface_index]
+    return {'points': nodes, 'normals': np.asarray(spec.top_normal(nodes[:, 0], nodes[:, 1])),
+            'displaced': res.surface[-1], 'poke_point': q, 'depth': depth,
+            'force': res.force[-1]}
+
+
+def make_probe_fixture(name: str, out=DATA_DIR, lines: int = 3, cylinders: int = 2,
+                       seed: int = 0, say: Callable[[str], None] = print) -> Path:
+    """Write ``probes_<name>.npz``: line/cylinder trials and a point-poke dent (see module).
+
+    Raises:
+        NotConverged: a full solve failed.
+
+    """
+    from pointforce_ros.cell.generate import probe_trials
+    from pointforce_ros.cell.objects import load_object
+
+    started = time.monotonic()
+    spec = load_object(name)
+    dent = point_dent(spec)
+    say(f'[figures-data] {name}: dent at {dent["depth"] * 1e3:.1f} mm, '
+        f'{time.monotonic() - started:.0f} s')
+    trials = probe_trials(spec, ['line'], lines, seed, progress=say) if lines else []
+    if cylinders:
+        trials += probe_trials(spec, ['cylinder'], cylinders, seed + 1, progress=say)
+    arrays = {f'trial{i:02d}_{key}': np.asarray(trial[key])
+              for i, trial in enumerate(trials)
+              for key in ('vertices', 'triangles', 'start_position', 'orientation',
+                          'direction', 'torque_centre', 'depths', 'force', 'torque')}
+    arrays.update({f'dent_{k}': np.asarray(v) for k, v in dent.items()})
+    arrays.update(trial_kinds=np.array([t['kind'] for t in trials]),
+                  trial_seconds=np.array([t['seconds'] for t in trials]),
+                  spec_hash=np.asarray(physics_hash(spec)), seed=np.asarray(int(seed)),
+                  seconds=np.asarray(time.monotonic() - started))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f'probes_{name}.npz'
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def _check_hash(data, name: str, what: str, say) -> bool:
+    from pointforce_ros.cell.objects import load_object
+
+    ok = str(data['spec_hash']) == physics_hash(load_object(name))
+    if not ok:
+        say(f'[figures] WARNING {what} of {name} was made for other object physics (stale): '
+            f'rerun test/data/figures/make_figures_data.py --object {name}')
+    return ok
+
+
+def load_poke_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] = print
+                      ) -> Tuple[Surface, List[PokeCurve], bool]:
+    """Read ``pokes_<name>.npz``: ``(surface, curves, fresh)``.
+
+    ``fresh`` is False when the file was made for other object physics (a warning is printed).
+
+    Raises:
+        DataError: the file is missing (the message says how to make it) or inconsistent.
+
+    """
+    path = Path(data_dir) / f'pokes_{name}.npz'
+    if not path.is_file():
+        raise DataError(f'no poke fixture {path}: make it with python '
+                        f'test/data/figures/make_figures_data.py --object {name} --part pokes')
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    surface = Surface(points=data['surface_points'].astype(np.float64),
+                      normals=_unit(data['surface_normals']),
+                      colors=np.clip(data['surface_colors'].astype(np.float64), 0.0, 1.0))
+    return surface, arrays_to_curves(data), _check_hash(data, name, 'poke fixture', say)
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def load_probe_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] = print
+                       ) -> Tuple[List[Dict], Dict, bool]:
+    """Read ``probes_<name>.npz``: ``(trials, dent, fresh)``.
+
+    Each trial is a dict with ``kind``, ``mesh`` (:class:`Mesh`), ``start_position`` (3,),
+    ``orientation`` (4,), ``direction`` (3,), ``torque_centre`` (3,), ``depths`` (K,) m,
+    ``force`` (K, 3) N and ``torque`` (K, 3) N m (FEM ground truth, ``base``).
+
+    Raises:
+        DataError: the file is missing (the message says how to make it).
+
+    """
+    path = Path(data_dir) / f'probes_{name}.npz'
+    if not path.is_file():
+        raise DataError(f'no probe fixture {path}: make it with python '
+                        f'test/data/figures/make_figures_data.py --object {name} --part probes')
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    trials = []
+    for i, kind in enumerate(data['trial_kinds']):
+        t = {key: data[f'trial{i:02d}_{key}'] for key in (
+            'vertices', 'triangles', 'start_position', 'orientation', 'direction',
+            'torque_centre', 'depths', 'force', 'torque')}
+        t['kind'] = str(kind)
+        t['mesh'] = Mesh(t.pop('vertices'), t.pop('triangles'))
+        trials.append(t)
+    dent = {k[5:]: data[k] for k in data if k.startswith('dent_')}
+    return trials, dent, _check_hash(data, name, 'probe fixture', say)
+
+
+def trial_poses(trial: Mapping) -> List[Pose]:
+    """Probe poses of every step of a trial: the start pose moved ``depths[k]`` along the push."""
+    start = np.asarray(trial['start_position'], dtype=float)
+    direction = np.asarray(trial['direction'], dtype=float)
+    return [Pose(start + float(s) * direction, trial['orientation'])
+            for s in np.asarray(trial['depths'], dtype=float)]
+
+
+# ------------------------------------------------------------------ figure 1: learning curves
+def learning_goals(rows: Sequence[Mapping]) -> Dict:
+    """Judge figure 1's goals from :func:`~pointforce_ros.response.evaluate.learning_curve` rows.
+
+    The baseline at each size is the better (lower median) of ``et`` and ``auto_et``.
+    Goals: ours <= 0.5 x baseline at 5 and at 10 pokes; ours at 3 pokes <= baseline at 10.
+
+    Returns:
+        ``{'half_at_5': bool, 'half_at_10': bool, 'three_vs_ten': bool, 'ratio_5': float,
+        'ratio_10': float, 'ours_3': float, 'baseline_10': float}`` (``None`` where a size is
+        missing).
+
+    Raises:
+        InvalidInput: no ``ours`` rows or no baseline rows.
+
+    """
+    med = {(r['model'], int(r['size'])): float(r['median']) for r in rows}
+    if not any(m == 'ours' for m, _ in med):
+        raise InvalidInput('learning_goals: no rows of model "ours"')
+    bases = [m for m in ('et', 'auto_et') if any(k == m for k, _ in med)]
+    if not bases:
+        raise InvalidInput('learning_goals: no baseline rows (et or auto_et)')
+
+    def base(size):
+        vals = [med[(m, size)] for m in bases if (m, size) in med]
+        return min(vals) if vals else None
+
+    out = {}
+    for size in (5, 10):
+        ours, b = med.get(('ours', size)), base(size)
+        ratio = None if ours is None or b is None else ours / b
+        out[f'ratio_{size}'] = ratio
+        out[f'half_at_{size}'] = None if ratio is None else bool(ratio <= 0.5)
+    out['ours_3'] = med.get(('ours', 3))
+    out['baseline_10'] = base(10)
+    out['three_vs_ten'] = (None if out['ours_3'] is None or out['baseline_10'] is None
+                           else bool(out['ours_3'] <= out['baseline_10']))
+    return out
+
+
+def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
+                    repeats: int = 10, seed: int = 0, auto_budget: float = 1.0) -> List[Dict]:
+    """Figure 1 rows for one object: ours, ET and Auto-ET on the same random subsets."""
+    from pointforce_ros.response.baseline import AutoEtBaseline, EtBaseline
+    from pointforce_ros.response.evaluate import learning_curve
+    from pointforce_ros.response.ours import ContactGpModel
+
+    factories = {'ours': ContactGpModel, 'et': EtBaseline,
+                 'auto_et': lambda: AutoEtBaseline(budget_s=auto_budget)}
+    sizes = [s for s in sizes if s < len(curves)]
+    return learning_curve(curves, surface, factories, sizes=sizes, repeats=repeats, seed=seed)
+
+
+# ---------------------------------------------------------------- figure 2: probe trials
+def wrench_rmse(pred_force, pred_torque, true_force, true_torque) -> Tuple[float, float]:
+    """RMS of the force (N) and torque (N m) error vectors over all rows ((R, 3) each)."""
+    ef = np.asarray(pred_force, float) - np.asarray(true_force, float)
+    et = np.asarray(pred_torque, float) - np.asarray(true_torque, float)
+    return (float(np.sqrt(np.mean(np.sum(ef * ef, axis=1)))),
+            float(np.sqrt(np.mean(np.sum(et * et, axis=1)))))
+
+
+def contact_centre_rows(trial: Mapping, surface: Surface) -> np.ndarray:
+    """(K, 10) ``[p, rgb, n, d]`` of a trial's steps for the pure-learning reference.
+
+    ``x`` is the surface point nearest to the probe's push line through its start position (in
+    the plane normal to the push), ``d`` the probe travel past that point along the push, m.
+    """
+    a = np.asarray(trial['direction'], float)
+    start = np.asarray(trial['start_position'], float)
+    rel = surface.points - start
+    along = rel @ a
+    lateral = np.linalg.norm(rel - along[:, None] * a, axis=1)
+    k = int(np.argmin(lateral))
+    d = np.asarray(trial['depths'], float) - along[k]
+    x = np.repeat(surface.features[k][None], len(d), axis=0)
+    return np.column_stack([x, d])
+
+
+def pure_learning(trials: Sequence[Mapping], surface: Surface, seed: int = 0
+                  ) -> List[Optional[Tuple[np.ndarray, np.ndarray]]]:
+    """Leave-one-trial-out Extra Trees on probe data of the same kind (the paper's reference).
+
+    Returns:
+        One ``(force (K, 3), torque (K, 3))`` per trial, or ``None`` when no other trial of
+        its kind exists.
+
+    """
+    from sklearn.ensemble import ExtraTreesRegressor
+
+    rows = [contact_centre_rows(t, surface) for t in trials]
+    out = []
+    for i, t in enumerate(trials):
+        others = [j for j, u in enumerate(trials) if j != i and u['kind'] == t['kind']]
+        if not others:
+            out.append(None)
+            continue
+        x = np.vstack([rows[j] for j in others])
+        y = np.vstack([np.hstack([trials[j]['force'], trials[j]['torque']]) for j in others])
+        model = ExtraTreesRegressor(random_state=seed, n_jobs=1).fit(x, y)
+        pred = model.predict(rows[i])
+        out.append((pred[:, :3], pred[:, 3:]))
+    return out
+
+
+def _bake_depths(curves: Sequence[PokeCurve]) -> np.ndarray:
+    lo = min(0.0, min(c.onset_d for c in curves)) - 0.002
+    return np.linspace(lo, 0.03, 121)
+
+
+def _simulate_ours(sim, trials) -> List[Tuple[np.ndarray, np.ndarray]]:
+    out = []
+    for t in trials:
+        batch = sim.query_batch(t['mesh'], trial_poses(t), t['direction'], t['torque_centre'])
+        out.append((batch.wrenches[:, :3], batch.wrenches[:, 3:]))
+    return out
+
+
+def _simulate_paper(sim, fallback, trials) -> Tuple[List[Tuple[np.ndarray, np.ndarray]], int]:
+    """Paper simulator per pose; where its LCP scheme fails (singular ``G``), ``fallback``."""
+    from pointforce_ros.errors import NotConverged
+
+    out, failed = [], 0
+    for t in trials:
+        f, m = [], []
+        for pose in trial_poses(t):
+            try:
+                w = sim.query(t['mesh'], pose, t['direction'], t['torque_centre']).wrench
+            except NotConverged:
+                failed += 1
+                w = fallback.query(t['mesh'], pose, t['direction'], t['torque_centre']).wrench
+            f.append(w.force)
+            m.append(w.torque)
+        out.append((np.array(f), np.array(m)))
+    return out, failed
+
+
+def _score(preds, trials, pick) -> Tuple[float, float]:
+    pf = np.vstack([preds[i][0] for i in pick])
+    pt = np.vstack([preds[i][1] for i in pick])
+    tf = np.vstack([trials[i]['force'] for i in pick])
+    tt = np.vstack([trials[i]['torque'] for i in pick])
+    return wrench_rmse(pf, pt, tf, tt)
+
+
+def identify_c_dent(dent: Mapping, r_min: float = 0.003):
+    """Shape constant from the dent of a point poke (``ShapeFit``), or the error text."""
+    from pointforce_ros.contact.identify import dent_profile, identify_shape_constant
+    from pointforce_ros.errors import PointforceError
+
+    surf = Surface(points=dent['points'], normals=_unit(dent['normals']))
+    r, u = dent_profile(surf, dent['displaced'], dent['poke_point'])
+    try:
+        return identify_shape_constant(r, u, r_min=r_min, c_bounds=(1e-4, 0.5))
+    except PointforceError as exc:
+        return str(exc)
+
+
+def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequence[Mapping],
+                  dent: Optional[Mapping] = None, repeats: int = 10, seed: int = 0,
+                  n_train: int = PROBE_TRAIN_POKES, c_grid: Optional[Sequence[float]] = None,
+                  paper_draws: int = 3, say: Callable[[str], None] = print) -> Dict:
+    """Figures 2 and 3 for one object (see the module docstring).
+
+    Trial 0 (a line trial) is the *training* trial that identifies ``c``; every method is
+    scored on the other trials only. Point models are trained on ``n_train`` pokes drawn at
+    random from ``curves``, ``repeats`` times; the RMSEs are medians over those draws. The
+    paper's simulator (dense ``G`` inverted per round, seconds per query) runs on the first
+    ``paper_draws`` draws only; where its LCP scheme fails (singular ``G``: duplicate contact
+    points) that query is answered by our simulator with the same ET model (counted in
+    ``failed_paper_queries``; ``et_our_sim`` is that combination on every query).
+
+    Returns:
+        dict with ``c`` (identified values and the one used), ``rmse`` ({method: {force,
+        torque, force_line, force_cylinder}} medians), ``peak_force`` (N), ``c_curve``
+        ({c: [force RMSE per draw]}), ``failed_paper_queries``, ``eval_trials``.
+
+    Raises:
+        InvalidInput: fewer than 2 trials or fewer than ``n_train + 1`` curves.
+
+    """
+    from pointforce_ros.contact.identify import identify_shape_constant_from_probe
+    from pointforce_ros.contact.paper import PaperContactSimulator
+    from pointforce_ros.contact.simulator import ContactSimulator
+    from pointforce_ros.errors import PointforceError
+    from pointforce_ros.response.baseline import EtBaseline
+    from pointforce_ros.response.ours import ContactGpModel
+
+    trials = list(trials)
+    if len(trials) < 2:
+        raise InvalidInput('figure_probes: need >= 2 trials (one identifies c)')
+    if len(curves) < n_train:
+        raise InvalidInput(f'figure_probes: need >= {n_train} curves, got {len(curves)}')
+    c_grid = np.asarray(c_grid if c_grid is not None else
+                        np.geomspace(2.5e-4, 0.064, 9), dtype=float)
+    evaluate = list(range(1, len(trials)))
+    kinds = {k: [i for i in evaluate if trials[i]['kind'] == k] for k in ('line', 'cylinder')}
+    rng = np.random.default_rng([int(seed), 2])
+    depths = _bake_depths(curves)
+    c_dent = identify_c_dent(dent) if dent is not None else 'no dent data'
+    reference = pure_learning(trials, surface, seed)
+    ref_pick = [i for i in evaluate if reference[i] is not None]
+    per = {m: {'force': [], 'torque': [], 'force_line': [], 'force_cylinder': []}
+           for m in ('baseline', 'et_our_sim', 'ours', 'ours_default_c')}
+    paper_repeats = min(int(repeats), int(paper_draws))
+    c_probe, c_curve, failed = [], {float(c): [] for c in c_grid}, 0
+    for rep in range(int(repeats)):
+        pick = rng.choice(len(curves), size=n_train, replace=False)
+        train = [curves[i] for i in pick]
+        ours = ContactGpModel().fit(train, surface)
+        sim = ContactSimulator(surface, ours.bake(surface, depths), DEFAULT_C)
+        t0 = trials[0]
+        try:
+            fit = identify_shape_constant_from_probe(sim, t0['mesh'], trial_poses(t0),
+                                                     t0['direction'], t0['force'],
+                                                     c_bounds=(1e-4, 0.1))
+            c_used = fit.c
+        except PointforceError as exc:
+            say(f'[figures]   c from trial 0 not identified ({exc}); using {DEFAULT_C} m')
+            c_used = float('nan')
+        c_probe.append(c_used)
+        c_run = c_used if np.isfinite(c_used) else DEFAULT_C
+        et = EtBaseline().fit(train, surface)
+        et_sim = ContactSimulator(surface, et.bake(surface, depths), DEFAULT_C)
+        preds = {'ours': _simulate_ours(sim.with_shape_constant(c_run), trials),
+                 'ours_default_c': _simulate_ours(sim, trials),
+                 'et_our_sim': _simulate_ours(et_sim, trials)}
+        if rep < paper_repeats:
+            preds['baseline'], bad = _simulate_paper(
+                PaperContactSimulator(surface, et.predict, DEFAULT_C), et_sim, trials)
+            failed += bad
+        for name, pr in preds.items():
+            f, m = _score(pr, trials, evaluate)
+            per[name]['force'].append(f)
+            per[name]['torque'].append(m)
+            for kind, idx in kinds.items():
+                if idx:
+                    per[name][f'force_{kind}'].append(_score(pr, trials, idx)[0])
+        for c in c_grid:
+            c_curve[float(c)].append(_score(_simulate_ours(sim.with_shape_constant(c), trials),
+                                            trials, evaluate)[0])
+        say(f'[figures]   draw {rep + 1}/{repeats}: c = {c_run * 1e3:.2f} mm, force RMSE '
+            f'ours {per["ours"]["force"][-1]:.3f} N, our sim + ET '
+            f'{per["et_our_sim"]["force"][-1]:.3f} N'
+            + (f', paper sim + ET {per["baseline"]["force"][-1]:.3f} N' if 'baseline' in preds
+               else ''))
+    rmse = {name: {k: (float(np.median(v)) if v else None) for k, v in vals.items()}
+            for name, vals in per.items() if vals['force']}
+    if ref_pick:
+        f, m = _score(reference, trials, ref_pick)
+        rmse['pure_learning'] = {'force': f, 'torque': m, 'trials': len(ref_pick)}
+        for kind, idx in kinds.items():
+            sel = [i for i in idx if reference[i] is not None]
+            rmse['pure_learning'][f'force_{kind}'] = _score(reference, trials, sel)[0] \
+                if sel else None
+    peak = float(max(np.linalg.norm(trials[i]['force'], axis=1).max() for i in evaluate))
+    finite = [c for c in c_probe if np.isfinite(c)]
+    return {'c': {'dent': c_dent.c if not isinstance(c_dent, str) else None,
+                  'dent_note': c_dent if isinstance(c_dent, str) else
+                  f'rmse {c_dent.rmse * 1e3:.3f} mm over {c_dent.n_points} nodes',
+                  'probe_median': float(np.median(finite)) if finite else None,
+                  'probe_all': [float(c) for c in c_probe], 'default': DEFAULT_C},
+            'rmse': rmse, 'peak_force': peak, 'c_curve': c_curve,
+            'failed_paper_queries': int(failed),
+            'paper_queries': int(paper_repeats * sum(len(t['depths']) for t in trials)),
+            'eval_trials': len(evaluate),
+            'eval_kinds': {k: len(v) for k, v in kinds.items()}}
+
+
+def probe_goals(result: Mapping) -> Dict:
+    """Figure 2 goals: ours <= 0.7 x baseline force RMSE, and ours < 10 % of the peak force."""
+    ours = result['rmse']['ours']['force']
+    base = result['rmse']['baseline']['force']
+    ratio = ours / base if base else float('inf')
+    frac = ours / result['peak_force']
+    return {'ratio': ratio, 'ratio_met': bool(ratio <= 0.7), 'peak_fraction': frac,
+            'peak_met': bool(frac < 0.10)}
+
+
+# ---------------------------------------------------------------------------- plots, table
+def _pyplot():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_learning(per_object: Mapping[str, Sequence[Mapping]], path) -> None:
+    """Figure 1 PNG: one panel per object, median RMSE with the inter-quartile band."""
+    plt = _pyplot()
+    names = list(per_object)
+    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.4 * max(len(names), 1), 3.2),
+                             dpi=110, squeeze=False)
+    for ax, name in zip(axes[0], names):
+        rows = per_object[name]
+        for model in dict.fromkeys(r['model'] for r in rows):
+            sel = sorted((r for r in rows if r['model'] == model), key=lambda r: r['size'])
+            x = [r['size'] for r in sel]
+            ax.plot(x, [r['median'] for r in sel], marker='o', label=model)
+            ax.fill_between(x, [r['q25'] for r in sel], [r['q75'] for r in sel], alpha=0.2)
+        ax.set_xscale('log')
+        ax.set_xticks(list(SIZES))
+        ax.set_xticklabels([str(s) for s in SIZES])
+        ax.set_title(name)
+        ax.set_xlabel('training pokes')
+        ax.grid(True, alpha=0.3)
+    axes[0][0].set_ylabel('held-out RMSE [N]')
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+METHOD_LABELS = {'baseline': 'baseline (paper sim + ET, c = 4 mm)',
+                 'et_our_sim': 'our sim + ET, c = 4 mm',
+                 'ours_default_c': 'ours, c = 4 mm',
+                 'ours': 'ours (identified c)', 'pure_learning': 'pure learning (LOO trials)'}
+
+
+def plot_probes(per_object: Mapping[str, Mapping], path) -> None:
+    """Figure 2 PNG: force and torque RMSE per object and method (grouped bars)."""
+    plt = _pyplot()
+    names = list(per_object)
+    methods = [m for m in METHOD_LABELS if any(m in per_object[n]['rmse'] for n in names)]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), dpi=110)
+    width = 0.8 / max(len(methods), 1)
+    panels = ((axes[0], 'force', 'N', 1.0), (axes[1], 'torque', 'mN m', 1e3))
+    for ax, key, unit, scale in panels:
+        for j, m in enumerate(methods):
+            vals = [scale * (per_object[n]['rmse'].get(m, {}).get(key) or np.nan)
+                    for n in names]
+            ax.bar(np.arange(len(names)) + (j - (len(methods) - 1) / 2) * width, vals, width,
+                   label=METHOD_LABELS[m])
+        ax.set_xticks(np.arange(len(names)))
+        ax.set_xticklabels(names)
+        ax.set_ylabel(f'{key} RMSE [{unit}]')
+        ax.grid(True, axis='y', alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle('line + cylinder probes, held-out trials (median over training draws)')
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_shape_constant(per_object: Mapping[str, Mapping], path) -> None:
+    """Figure 3 PNG: ours' probe force RMSE against ``c``, identified values marked."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.6, 3.8), dpi=110)
+    for name, res in per_object.items():
+        cs = sorted(res['c_curve'])
+        med = [float(np.median(res['c_curve'][c])) for c in cs]
+        line, = ax.plot(np.array(cs) * 1e3, med, marker='.', label=name)
+        cp = res['c']['probe_median']
+        if cp:
+            ax.axvline(cp * 1e3, color=line.get_color(), ls='--', lw=0.8)
+        if res['c']['dent']:
+            ax.axvline(res['c']['dent'] * 1e3, color=line.get_color(), ls=':', lw=0.8)
+    ax.axvline(DEFAULT_C * 1e3, color='k', lw=0.6, alpha=0.5)
+    ax.set_xscale('log')
+    ax.set_xlabel('shape constant c [mm]  (-- from probe trial 0, : from dent, grey: 4 mm)')
+    ax.set_ylabel('ours: probe force RMSE [N]')
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _fmt(v, digits=3) -> str:
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return '-'
+    if isinstance(v, bool):
+        return 'met' if v else 'NOT met'
+    return f'{v:.{digits}f}'
+
+
+def markdown_report(result: Mapping) -> str:
+    """Markdown tables of figures 1-3 and the goals (the body of ``figures.md``)."""
+    lines = ['# Seed-method figures on the simulated cell', '',
+             f"Objects: {', '.join(result['objects']) or 'none'}; repeats "
+             f"{result['repeats']}; seed {result['seed']}; run time "
+             f"{result['seconds']:.0f} s.", '']
+    if result.get('skipped'):
+        lines += ['Skipped: ' + '; '.join(f'{k}: {v}' for k, v in result['skipped'].items()),
+                  '']
+    lines += ['## 1. Point probe: held-out force RMSE [N] vs training pokes', '',
+              'RMSE over every loading sample of every held-out poke from 0.5 mm before its '
+              'estimated contact onset to its deepest point, against the measured (tared, '
+              'noisy) normal force; median over random training subsets of the 30-poke pool '
+              '(realistic scenario, FEM live path).', '',
+              '| object | model | ' + ' | '.join(str(s) for s in SIZES) + ' |',
+              '| --- | --- | ' + ' | '.join('---' for _ in SIZES) + ' |']
+    for name, rows in result['learning'].items():
+        for model in dict.fromkeys(r['model'] for r in rows):
+            med = {r['size']: r['median'] for r in rows if r['model'] == model}
+            lines.append(f'| {name} | {model} | ' + ' | '.join(_fmt(med.get(s))
+                                                               for s in SIZES) + ' |')
+    lines += ['', '| object | ours/base @5 | goal <= 0.5 | ours/base @10 | goal <= 0.5 | '
+              'ours@3 vs base@10 [N] | goal |', '| --- | --- | --- | --- | --- | --- | --- |']
+    for name, g in result['learning_goals'].items():
+        lines.append(f"| {name} | {_fmt(g['ratio_5'], 2)} | {_fmt(g['half_at_5'])} | "
+                     f"{_fmt(g['ratio_10'], 2)} | {_fmt(g['half_at_10'])} | "
+                     f"{_fmt(g['ours_3'])} vs {_fmt(g['baseline_10'])} | "
+                     f"{_fmt(g['three_vs_ten'])} |")
+    lines += ['', '(baseline = the better of ET and Auto-ET at that size)', '',
+              '## 2. Line and cylinder probes: wrench RMSE on held-out trials', '',
+              'RMS of the force / torque error vector over every step of every evaluated trial '
+              '(trial 0 identifies c and is not scored); point models trained on '
+              f'{PROBE_TRAIN_POKES} pokes, median over the training draws.', '',
+              '| object | method | force [N] | torque [mN m] | line force [N] | '
+              'cylinder force [N] |', '| --- | --- | --- | --- | --- | --- |']
+    for name, res in result['probes'].items():
+        for m in METHOD_LABELS:
+            r = res['rmse'].get(m)
+            if r is None:
+                continue
+            torque = None if r.get('torque') is None else 1e3 * r['torque']
+            lines.append(f"| {name} | {METHOD_LABELS[m]} | {_fmt(r['force'])} | "
+                         f"{_fmt(torque, 2)} | {_fmt(r.get('force_line'))} | "
+                         f"{_fmt(r.get('force_cylinder'))} |")
+    lines += ['', '| object | eval trials (line/cyl) | peak force [N] | ours/baseline | '
+              'goal <= 0.7 | ours/peak | goal < 10 % | failed paper queries |',
+              '| --- | --- | --- | --- | --- | --- | --- | --- |']
+    for name, res in result['probes'].items():
+        g = result['probe_goals'][name]
+        lines.append(f"| {name} | {res['eval_kinds']['line']}/{res['eval_kinds']['cylinder']}"
+                     f" | {res['peak_force']:.2f} | {g['ratio']:.2f} | {_fmt(g['ratio_met'])} | "
+                     f"{100 * g['peak_fraction']:.1f} % | {_fmt(g['peak_met'])} | "
+                     f"{res['failed_paper_queries']}/{res['paper_queries']} |")
+    lines += ['', '## 3. Shape constant c', '',
+              '| object | c from dent [mm] | c from probe trial 0 [mm] (median) | '
+              'ours force RMSE at 4 mm / identified c [N] | best c on the grid [mm] |',
+              '| --- | --- | --- | --- | --- |']
+    for name, res in result['probes'].items():
+        c = res['c']
+        cs = sorted(res['c_curve'])
+        med = [float(np.median(res['c_curve'][k])) for k in cs]
+        best = cs[int(np.argmin(med))]
+        dent = _fmt(None if c['dent'] is None else 1e3 * c['dent'], 2)
+        probe = _fmt(None if c['probe_median'] is None else 1e3 * c['probe_median'], 2)
+        lines.append(f"| {name} | {dent} | {probe} | "
+                     f"{_fmt(res['rmse']['ours_default_c']['force'])} / "
+                     f"{_fmt(res['rmse']['ours']['force'])} | {1e3 * best:.2f} |")
+    return '\n'.join(lines) + '\n'
+
+
+# ---------------------------------------------------------------------------------- driver
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
+                repeats: Optional[int] = None, seed: int = 0, auto_budget: float = 1.0,
+                data_dir=DATA_DIR, say: Callable[[str], None] = print) -> Dict:
+    """Compute figures 1-3 from the cached fixtures; write PNGs, ``figures.md``, JSON.
+
+    Args:
+        out_dir: output folder (created).
+        objects: object names; ``quick`` keeps the first two.
+        quick: 2 objects, 3 training subsets, Auto-ET budget 0.3 s.
+        repeats: training subsets per size (default 10, quick 3).
+        seed: seed of the subset draws.
+        auto_budget: Auto-ET search budget per fit, seconds.
+        data_dir: folder of ``pokes_<object>.npz`` and ``probes_<object>.npz``.
+
+    Returns:
+        dict with ``learning`` ({object: rows}), ``learning_goals``, ``probes`` ({object:
+        figure_probes result}), ``probe_goals``, ``skipped`` ({object: reason}), ``files``,
+        ``seconds``; the same is written to ``figures.json``.
+
+    Raises:
+        InvalidInput: an unknown object name or ``repeats < 1``.
+
+    """
+    from pointforce_ros.cell.objects import list_objects
+
+    started = time.monotonic()
+    objects = list(objects)[:2] if quick else list(objects)
+    unknown = [o for o in objects if o not in list_objects()]
+    if unknown:
+        raise InvalidInput(f'run_figures: unknown object(s) {unknown}; known: {list_objects()}')
+    repeats = int(repeats or (3 if quick else 10))
+    if repeats < 1:
+        raise InvalidInput('run_figures: repeats must be >= 1')
+    if quick:
+        auto_budget = min(auto_budget, 0.3)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = {'objects': [], 'repeats': repeats, 'seed': int(seed), 'auto_budget': auto_budget,
+              'learning': {}, 'learning_goals': {}, 'probes': {}, 'probe_goals': {},
+              'skipped': {}, 'stale': [], 'files': []}
+    for k, name in enumerate(objects):
+        say(f'[figures] {k + 1}/{len(objects)} {name}: loading fixtures')
+        try:
+            surface, curves, fresh = load_poke_fixture(name, data_dir, say)
+        except DataError as exc:
+            result['skipped'][name] = str(exc)
+            say(f'[figures]   skipped: {exc}')
+            continue
+        if not fresh:
+            result['stale'].append(f'pokes_{name}')
+        result['objects'].append(name)
+        t0 = time.monotonic()
+        rows = figure_learning(curves, surface, repeats=repeats, seed=seed,
+                               auto_budget=auto_budget)
+        result['learning'][name] = [{k2: r[k2] for k2 in ('model', 'size', 'median', 'q25',
+                                                          'q75', 'fit_s')} for r in rows]
+        result['learning_goals'][name] = learning_goals(rows)
+        line = ', '.join(f"{r['model']}@{r['size']} {r['median']:.3f}" for r in rows
+                         if r['size'] in (3, 5, 10))
+        say(f'[figures]   learning curves ({time.monotonic() - t0:.0f} s): {line} N')
+        try:
+            trials, dent, fresh = load_probe_fixture(name, data_dir, say)
+        except DataError as exc:
+            result['skipped'][f'{name} probes'] = str(exc)
+            say(f'[figures]   probe figures skipped: {exc}')
+            continue
+        if not fresh:
+            result['stale'].append(f'probes_{name}')
+        t0 = time.monotonic()
+        res = figure_probes(curves, surface, trials, dent, repeats=repeats, seed=seed, say=say)
+        result['probes'][name] = res
+        result['probe_goals'][name] = probe_goals(res)
+        say(f"[figures]   probes ({time.monotonic() - t0:.0f} s): force RMSE ours "
+            f"{res['rmse']['ours']['force']:.3f} N, baseline "
+            f"{res['rmse']['baseline']['force']:.3f} N, peak {res['peak_force']:.2f} N")
+    result['seconds'] = time.monotonic() - started
+    if result['learning']:
+        plot_learning(result['learning'], out / 'fig1_learning_curves.png')
+        result['files'].append('fig1_learning_curves.png')
+    if result['probes']:
+        plot_probes(result['probes'], out / 'fig2_probe_rmse.png')
+        plot_shape_constant(result['probes'], out / 'fig3_shape_constant.png')
+        result['files'] += ['fig2_probe_rmse.png', 'fig3_shape_constant.png']
+    (out / 'figures.md').write_text(markdown_report(result))
+    result['files'].append('figures.md')
+    (out / 'figures.json').write_text(json.dumps(_jsonable(result), indent=1))
+    result['files'].append('figures.json')
+    say(f"[figures] done in {result['seconds']:.0f} s -> {out} ({', '.join(result['files'])})")
+    return result
+
+
+def main(argv=None) -> int:
+    """``python -m pointforce_ros.figures --out DIR [--quick] [--objects a b]``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description='seed-method figures on the simulated cell')
+    parser.add_argument('--out', default='out/figures', help='output directory')
+    parser.add_argument('--objects', nargs='+', default=list(OBJECTS))
+    parser.add_argument('--quick', action='store_true', help='2 objects, 3 subsets')
+    parser.add_argument('--repeats', type=int, default=None)
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--auto-budget', type=float, default=1.0, help='Auto-ET budget, s')
+    parser.add_argument('--data', default=DATA_DIR, help='folder of the cached fixtures')
+    args = parser.parse_args(argv)
+    try:
+        run_figures(args.out, args.objects, quick=args.quick, repeats=args.repeats,
+                    seed=args.seed, auto_budget=args.auto_budget, data_dir=args.data)
+    except InvalidInput as exc:
+        print(f'[figures] error: {exc}')
+        return 2
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

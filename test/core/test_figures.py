@@ -1,0 +1,170 @@
+"""Logic of the seed-method figures (pointforce_ros.figures) on tiny synthetic data."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pointforce_ros import figures
+from pointforce_ros.cell.fem.probes import paddle_probe, pose_for_push
+from pointforce_ros.cell.objects import load_object
+from pointforce_ros.contact.synthetic import grid_surface
+from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.pokes.curves import PokeCurve
+
+
+def _rows(ours, et, auto):
+    rows = []
+    for model, vals in (('ours', ours), ('et', et), ('auto_et', auto)):
+        for size, v in zip(figures.SIZES, vals):
+            rows.append({'model': model, 'size': size, 'median': v, 'q25': v, 'q75': v})
+    return rows
+
+
+def test_learning_goals_uses_the_better_baseline_and_judges_each_goal():
+    rows = _rows(ours=[2.0, 0.5, 0.3, 0.2, 0.1], et=[3.0, 2.0, 1.0, 0.5, 0.4],
+                 auto=[3.0, 2.0, 0.5, 0.3, 0.3])
+    g = figures.learning_goals(rows)
+    assert g['ratio_5'] == pytest.approx(0.3 / 0.5)     # auto_et is the better baseline at 5
+    assert g['half_at_5'] is False
+    assert g['ratio_10'] == pytest.approx(0.2 / 0.3)
+    assert g['half_at_10'] is False
+    assert g['three_vs_ten'] is False                     # 0.5 > 0.3
+    rows = _rows(ours=[2.0, 0.25, 0.2, 0.1, 0.1], et=[3.0, 2.0, 1.0, 0.5, 0.4],
+                 auto=[3.0, 2.0, 1.0, 0.3, 0.3])
+    g = figures.learning_goals(rows)
+    assert g['half_at_5'] and g['half_at_10'] and g['three_vs_ten']
+
+
+def test_learning_goals_refuses_rows_without_models():
+    with pytest.raises(InvalidInput, match='ours'):
+        figures.learning_goals([{'model': 'et', 'size': 5, 'median': 1.0}])
+    with pytest.raises(InvalidInput, match='baseline'):
+        figures.learning_goals([{'model': 'ours', 'size': 5, 'median': 1.0}])
+
+
+def test_wrench_rmse_is_the_rms_error_vector_length():
+    rng = np.random.default_rng(3)
+    tf, tt = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    # every force error has length 2, every torque error length 0.5
+    u = rng.normal(size=(7, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    f, m = figures.wrench_rmse(tf + 2 * u, tt - 0.5 * u, tf, tt)
+    assert f == pytest.approx(2.0)
+    assert m == pytest.approx(0.5)
+
+
+def test_curves_round_trip_through_arrays():
+    rng = np.random.default_rng(0)
+    curves = []
+    for k, n in enumerate((5, 9)):
+        normal = rng.normal(size=3)
+        curves.append(PokeCurve(poke_id=f'poke-{k}', point=rng.normal(size=3),
+                                normal=normal / np.linalg.norm(normal),
+                                d=np.sort(rng.uniform(-0.003, 0.008, n)),
+                                f=rng.uniform(0, 3, n), onset_d=-0.001 * k,
+                                t=np.arange(n) / 250.0))
+    back = figures.arrays_to_curves(figures.curves_to_arrays(curves))
+    assert [c.poke_id for c in back] == ['poke-0', 'poke-1']
+    for a, b in zip(curves, back):
+        np.testing.assert_allclose(b.d, a.d, rtol=1e-6, atol=1e-9)   # float32 storage
+        np.testing.assert_allclose(b.f, a.f, rtol=1e-6)
+        np.testing.assert_allclose(b.point, a.point)
+        assert b.onset_d == a.onset_d
+    broken = figures.curves_to_arrays(curves)
+    broken['curve_offsets'] = broken['curve_offsets'] + 1
+    with pytest.raises(DataError):
+        figures.arrays_to_curves(broken)
+
+
+def test_physics_hash_ignores_the_live_grid_but_not_the_material():
+    spec = load_object('plush')
+    h = figures.physics_hash(spec)
+    assert figures.physics_hash(dataclasses.replace(spec, live_grid=(9, 9))) == h
+    assert figures.physics_hash(dataclasses.replace(spec, young=spec.young * 1.1)) != h
+
+
+def _trial(start, direction, depths, kind='line'):
+    pose = pose_for_push(start, direction, 0.3)
+    k = len(depths)
+    return {'kind': kind, 'mesh': paddle_probe(), 'start_position': pose.position,
+            'orientation': pose.orientation, 'direction': np.asarray(direction, float),
+            'torque_centre': pose.position, 'depths': np.asarray(depths, float),
+            'force': np.zeros((k, 3)), 'torque': np.zeros((k, 3))}
+
+
+def test_trial_poses_move_the_start_pose_along_the_push():
+    a = np.array([0.1, 0.0, -1.0]) / np.linalg.norm([0.1, 0.0, -1.0])
+    t = _trial([0.5, 0.0, 0.05], a, [0.001, 0.004])
+    poses = figures.trial_poses(t)
+    np.testing.assert_allclose(poses[1].position - poses[0].position, 0.003 * a, atol=1e-12)
+    np.testing.assert_allclose(poses[0].rotation()[:, 2], a, atol=1e-9)
+
+
+def test_contact_centre_rows_take_the_point_under_the_push_line():
+    surface = grid_surface(half=0.02, step=0.002, z=0.04)
+    t = _trial([0.006, -0.004, 0.045], [0.0, 0.0, -1.0], [0.002, 0.007])
+    rows = figures.contact_centre_rows(t, surface)
+    np.testing.assert_allclose(rows[:, :3], [[0.006, -0.004, 0.04]] * 2, atol=1e-12)
+    # the start is 5 mm above the surface: travel 2 mm / 7 mm is nominal depth -3 mm / +2 mm
+    np.testing.assert_allclose(rows[:, 9], [-0.003, 0.002], atol=1e-12)
+
+
+def test_pure_learning_is_leave_one_trial_out_within_a_kind():
+    surface = grid_surface(half=0.02, step=0.002, z=0.04)
+    trials = [_trial([x, 0.0, 0.042], [0.0, 0.0, -1.0], [0.002, 0.004, 0.006], kind)
+              for x, kind in ((-0.01, 'line'), (0.0, 'line'), (0.01, 'cylinder'))]
+    for i, t in enumerate(trials):
+        t['force'] = np.tile([0.0, 0.0, 1.0 + i], (3, 1))
+    out = figures.pure_learning(trials, surface)
+    assert out[2] is None                              # the only cylinder trial
+    # each line trial is predicted from the other one only: its own truth never leaks
+    np.testing.assert_allclose(out[0][0][:, 2], 2.0)
+    np.testing.assert_allclose(out[1][0][:, 2], 1.0)
+
+
+def test_identify_c_from_a_synthetic_dent():
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(-0.03, 0.03, (400, 2))
+    points = np.column_stack([xy, np.full(len(xy), 0.04)])
+    normals = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+    r = np.linalg.norm(xy, axis=1)
+    c_true, u0 = 0.005, 0.004
+    displaced = points.copy()
+    displaced[:, 2] -= u0 * c_true / (c_true + r)
+    dent = {'points': points, 'normals': normals, 'displaced': displaced,
+            'poke_point': np.array([0.0, 0.0, 0.04])}
+    fit = figures.identify_c_dent(dent, r_min=0.002)
+    assert fit.c == pytest.approx(c_true, rel=1e-3)
+
+
+def test_markdown_report_states_goals_and_skips():
+    rows = _rows(ours=[2.0, 0.25, 0.2, 0.1, 0.1], et=[3.0, 2.0, 1.0, 0.5, 0.4],
+                 auto=[3.0, 2.0, 1.0, 0.3, 0.3])
+    result = {'objects': ['plush'], 'repeats': 3, 'seed': 0, 'seconds': 1.0,
+              'skipped': {'vest': 'no poke fixture'},
+              'learning': {'plush': rows}, 'learning_goals': {'plush':
+                                                              figures.learning_goals(rows)},
+              'probes': {}, 'probe_goals': {}}
+    text = figures.markdown_report(result)
+    assert '| plush | ours | 2.000 | 0.250 | 0.200 | 0.100 | 0.100 |' in text
+    assert 'vest: no poke fixture' in text
+    assert 'NOT met' not in text
+
+
+def test_run_figures_skips_objects_without_fixtures(tmp_path):
+    out = figures.run_figures(tmp_path / 'out', objects=['plush'], data_dir=tmp_path,
+                              say=lambda m: None)
+    assert 'plush' in out['skipped'] and out['objects'] == []
+    assert (tmp_path / 'out' / 'figures.md').is_file()
+    with pytest.raises(InvalidInput, match='unknown'):
+        figures.run_figures(tmp_path / 'out', objects=['no_such_object'], data_dir=tmp_path)
+
+
+def test_probe_goals_ratio_and_peak_fraction():
+    res = {'rmse': {'ours': {'force': 0.6}, 'baseline': {'force': 1.0}}, 'peak_force': 5.0}
+    g = figures.probe_goals(res)
+    assert g['ratio'] == pytest.approx(0.6) and g['ratio_met'] is True
+    assert g['peak_fraction'] == pytest.approx(0.12) and g['peak_met'] is False
+    res['rmse']['ours']['force'] = 0.75
+    assert figures.probe_goals(res)['ratio_met'] is False

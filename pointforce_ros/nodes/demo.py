@@ -25,7 +25,7 @@ DATA = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'fem'
 
 
 def demo_query_set(spec):
-    """The planner queries of the demo: (name, mesh, pose, approach, torque centre) tuples.
+    """Return the demo's planner queries as (name, mesh, pose, approach, torque centre) tuples.
 
     Probes follow the UR TCP convention of :mod:`pointforce_ros.cell.fem.probes`: the mesh's +z
     axis is the push direction and its working end is at the origin.

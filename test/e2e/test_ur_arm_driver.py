@@ -62,7 +62,10 @@ def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
     print(f'stream: {len(got)} samples in 3 s, {rate:.1f} Hz, max gap '
           f'{np.diff(t).max() * 1e3:.1f} ms, max wall gap {np.diff(wall).max() * 1e3:.1f} ms')
     assert abs(rate - 250.0) / 250.0 < 0.05, f'{rate:.1f} Hz'
-    assert len(got) >= 0.95 * 750
+    # no sample lost against the controller clock (a starved emulator slows its own clock
+    # rather than bursting, so wall time is only a loose bound)
+    assert len(got) >= 0.95 * 250 * (t[-1] - t[0])
+    assert len(got) >= 0.8 * 750
     assert np.all(np.diff(t) > 0), 'duplicated or reordered controller timestamps'
     assert np.diff(t).max() <= 0.012 + 1e-9, f'gap of {np.diff(t).max() * 1e3:.1f} ms'
     assert np.diff(wall).max() < 0.03

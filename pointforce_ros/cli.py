@@ -1,4 +1,4 @@
-"""The ``pointforce`` command: demo, cell (run, generate), diagnose, replay, bench.
+"""The ``pointforce`` command: demo, cell (run, generate), diagnose, figures, replay, bench.
 
 Each sub-command imports what it needs lazily, so ``pointforce --help`` is instant and the core
 sub-commands run without a ROS graph.
@@ -65,6 +65,10 @@ def _cmd_diagnose(args) -> int:
     return run(args.data, args.out, seed=args.seed)
 
 
+def _cmd_figures(args) -> int:
+    return _load('pointforce_ros.figures:main')(args.rest)
+
+
 def _cmd_replay(args) -> int:
     return _load('pointforce_ros.nodes.replay:run_replay')(args.bag, rate=args.rate)
 
@@ -106,6 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
     diagnose.add_argument('--out', default='out/diagnose', help='report directory')
     diagnose.add_argument('--seed', type=int, default=0, help='train/held-out split seed')
     diagnose.set_defaults(func=_cmd_diagnose)
+
+    figures = sub.add_parser('figures', help='the seed-method figures on the simulated cell '
+                             '(learning curves, probe wrench RMSE, shape constant)')
+    figures.add_argument('rest', nargs=argparse.REMAINDER,
+                         help='options of python -m pointforce_ros.figures (--out, --quick, ...)')
+    figures.set_defaults(func=_cmd_figures)
 
     replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
     replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')

@@ -49,6 +49,8 @@ from pointforce_ros.effects.model import (Fit, fit_global, fold_indices, heldout
                                           residual_table)
 from pointforce_ros.errors import InvalidInput, NotConverged, PointforceError
 
+UNDERPOWERED = 'too few pokes to test'
+
 
 @dataclass(frozen=True)
 class CandidateResult:
@@ -190,6 +192,12 @@ class DiagnoseReport:
             lines.append(f'accepted {a.name}: {params}')
         if not self.accepted:
             lines.append('no effect accepted')
+            if any(n.startswith(UNDERPOWERED) for n in self.notes) and self.rounds \
+                    and self.rounds[0].candidates:
+                best = min(self.rounds[0].candidates, key=lambda c: c.rmse)
+                lines.append(f'{UNDERPOWERED}: the strongest candidate was {best.name} '
+                             f'(held-out RMSE {self.rmse_before:.4g} -> {best.rmse:.4g} N), '
+                             'not accepted: poke more before drawing a conclusion')
         if self.unexplained:
             top = self.structure_after[0] if self.structure_after else None
             lines.append('unexplained residual: systematic part '
@@ -395,6 +403,13 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     batch, notes = make_batch(records, window=window, max_rate=max_rate)
     say(f'diagnose: {len(batch)} point pokes, {batch.n_samples} samples'
         + (f', {probes} probe trial(s) not scored' if probes else ''))
+    smallest_p = 0.5 ** len(batch)  # one-sided Wilcoxon, every poke better
+    if smallest_p >= alpha:
+        needed = int(np.ceil(np.log(alpha) / np.log(0.5))) + 1
+        notes.append(f'{UNDERPOWERED}: {len(batch)} pokes cannot give p < {alpha:g} in the '
+                     f'Wilcoxon test (best possible p = {smallest_p:.3g}); at least {needed} '
+                     'pokes are needed before any effect can be accepted')
+        say(notes[-1])
     groups = fold_indices(len(batch), int(folds), seed)
     min_drop = float(resolution) * float(np.median(batch.peak))
     current: List[str] = []

@@ -82,13 +82,16 @@ class OnlineLearner:
         corrections: optional callable ``records -> records`` applied before curve extraction
             (the accepted effects of ``pointforce diagnose``).
         effects: the accepted effects' description, stored in each saved model.
+        min_peak_force: N; a poke whose force never exceeded this made no real contact (the
+            point was off the object or the surface is wrong) and is not learned from.
 
     """
 
     def __init__(self, store_dir, model_dir, surface: Surface, *, shape_constant: float,
                  depths: np.ndarray = DEFAULT_DEPTHS,
                  model_factory: Callable[[], object] = ContactGpModel,
-                 corrections: Optional[Callable] = None, effects: Optional[dict] = None):
+                 corrections: Optional[Callable] = None, effects: Optional[dict] = None,
+                 min_peak_force: float = 0.3):
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
@@ -100,6 +103,7 @@ class OnlineLearner:
         self.model_factory = model_factory
         self.corrections = corrections
         self.effects = dict(effects or {})
+        self.min_peak_force = float(min_peak_force)
         self.model = None
         self.curves: List[PokeCurve] = []
         self.skipped: Dict[str, str] = {}
@@ -118,6 +122,13 @@ class OnlineLearner:
                 record = self.store.get(poke_id)
                 if record.outcome.startswith('aborted'):
                     self.skipped[poke_id] = f'not learned from: {record.outcome}'
+                    continue
+                peak = float(np.max(record.normal_force())) if len(record) else 0.0
+                if peak < self.min_peak_force:
+                    self.skipped[poke_id] = (f'no contact: peak force {peak:.3f} N < '
+                                             f'{self.min_peak_force:g} N ({record.outcome}); '
+                                             'the point is off the object or the surface is '
+                                             'wrong')
                     continue
                 if self.corrections is not None:
                     record = self.corrections([record])[0]
@@ -172,8 +183,12 @@ class OnlineLearner:
         """Path of the newest saved model, or ``None`` before the first fit."""
         return None if self.status is None else model_path(self.model_dir, self.status.version)
 
-    def suggest(self, count: int = 1, exclude_radius: float = 0.01):
+    def suggest(self, count: int = 1, exclude_radius: float = 0.01,
+                max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0)):
         """Next poke locations where the model is least certain.
+
+        Only points whose normal is within ``max_tilt_deg`` of ``up`` are candidates (the
+        probe pushes along ``-n``; steep side walls are left alone).
 
         Returns:
             (indices (count,), std (count,) in N) into ``surface``.
@@ -188,6 +203,11 @@ class OnlineLearner:
         if not 1 <= int(count) <= 50:
             raise InvalidInput(f'count: must be 1..50, got {count}')
         from pointforce_ros.response.suggest import suggest_pokes
+        up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+        candidates = np.flatnonzero(self.surface.normals @ up >= np.cos(np.radians(max_tilt_deg)))
+        if len(candidates) == 0:
+            raise InvalidInput(f'no surface point has a normal within {max_tilt_deg} degrees of '
+                               f'{up.tolist()}')
         with self._lock:
             return suggest_pokes(self.model, self.surface, int(count),
-                                 exclude_radius=exclude_radius)
+                                 exclude_radius=exclude_radius, candidates=candidates)

@@ -57,6 +57,12 @@ class StiffnessLearnerNode(Node):
         self.exclude_radius = declare(self, 'suggest_exclude_radius', 0.01,
                                       'Suggestions keep this far from each other and from '
                                       'pokes, m', bounds=(0.0, 0.2))
+        self.max_tilt = declare(self, 'suggest_max_tilt_deg', 35.0,
+                                'Suggestions only where the normal is within this angle of '
+                                'base +z, degrees', bounds=(0.0, 90.0))
+        self.min_peak_force = declare(self, 'min_peak_force', 0.3,
+                                      'A poke that never exceeded this force made no contact '
+                                      'and is not learned from, N', bounds=(0.0, 50.0))
         record = declare(self, 'record_topics', False,
                          'Rebuild pokes from the /poke_server/tcp_pose, wrench and poke_record '
                          'topics into store_dir (a learner away from the poke server, or a bag '
@@ -91,7 +97,8 @@ class StiffnessLearnerNode(Node):
     def _set_surface(self, surface):
         with self._lock:
             self.learner = OnlineLearner(self.store_dir, self.model_dir, surface,
-                                         shape_constant=self.shape_constant)
+                                         shape_constant=self.shape_constant,
+                                         min_peak_force=self.min_peak_force)
         self.get_logger().info(f'surface of {len(surface)} points; learning from '
                                f'{self.store_dir}')
         self.refit()
@@ -161,7 +168,8 @@ class StiffnessLearnerNode(Node):
         if learner is None:
             return fail(response, 'no equilibrium surface yet')
         try:
-            indices, std = learner.suggest(request.count, exclude_radius=self.exclude_radius)
+            indices, std = learner.suggest(request.count, exclude_radius=self.exclude_radius,
+                                           max_tilt_deg=self.max_tilt)
         except PointforceError as exc:
             return fail(response, str(exc))
         s = learner.surface

@@ -84,3 +84,25 @@ def test_unusable_poke_is_skipped_with_a_reason(tmp_path):
     status = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
                            shape_constant=0.004).update()
     assert status.num_pokes == 2 and records[1].poke_id in status.skipped
+
+
+def test_no_contact_poke_is_skipped_and_suggestions_stay_on_pokeable_points(tmp_path):
+    store = PokeStore(tmp_path / 'pokes')
+    records = _campaign(3, seed=6, id_prefix='poke-0')
+    for record in records:
+        store.add(record)
+    # a poke 30 mm beside the object: the probe meets nothing
+    miss = simulate_campaign(OBJECT, load_scenario('clean'), points=[[0.5, 0.0, 0.07]],
+                             normals=[[0.0, 0.0, 1.0]], force_limit=4.0, depth_limit=0.01,
+                             speed=0.004, id_prefix='poke-9')[0]
+    store.add(miss)
+    surface = _surface()
+    normals = surface.normals.copy()
+    normals[::2] = [1.0, 0.0, 0.0]  # half the points are a vertical side wall
+    walled = Surface(points=surface.points, normals=normals)
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', walled,
+                            shape_constant=0.004)
+    status = learner.update()
+    assert status.num_pokes == 3 and 'no contact' in status.skipped[miss.poke_id]
+    indices, std = learner.suggest(5)
+    assert len(indices) == 5 and np.all(walled.normals[indices, 2] > 0.8)

@@ -252,7 +252,7 @@ class LiveContact:
             for j in range(ny):
                 x, y = uv_to_xy(spec, u[i], v[j])
                 _, f, n, _ = nonlinear_point_poke(spec, float(x), float(y), depths,
-                                                  force_stop=3.0 * spec.force_cap)
+                                                  force_stop=1.5 * spec.force_cap)
                 forces[i, j] = _fill_tail(depths, f)
                 k = i * ny + j + 1
                 say(f'{spec.name}: grid poke {k}/{nx * ny} at ({x:.4f}, {y:.4f}) m: '

@@ -88,15 +88,16 @@ def refine_case(h: float, nonlinear: bool = True):
 
 
 def make_fixtures(folder: str, progress=print):
-    """Compute and write ``hertz_fine.npz`` and ``refine_fine.npz`` into ``folder``."""
-    out = {}
-    for nl in (False, True):
-        r = hertz_case(HERTZ_H_FINE, nonlinear=nl)
-        tag = 'nonlinear' if nl else 'linear'
-        progress(f'hertz {tag}: ratio {np.round(r["ratio"], 4)} ({r["elements"]} elements, '
-                 f'{r["seconds"]:.0f} s)')
-        for k, v in r.items():
-            out[f'{tag}_{k}'] = np.asarray(v)
+    """Compute and write ``hertz_fine.npz`` and ``refine_fine.npz`` into ``folder``.
+
+    The fine Hertz run is small-strain (linear) elasticity, which is what Hertz assumes; the
+    neo-Hookean model's agreement with it at these depths is checked on the coarse mesh in
+    the tests.
+    """
+    r = hertz_case(HERTZ_H_FINE, nonlinear=False)
+    progress(f'hertz linear: ratio {np.round(r["ratio"], 4)} ({r["elements"]} elements, '
+             f'{r["seconds"]:.0f} s)')
+    out = {f'linear_{k}': np.asarray(v) for k, v in r.items()}
     np.savez_compressed(os.path.join(folder, 'hertz_fine.npz'), h=HERTZ_H_FINE, **out)
     r = refine_case(0.0015)
     progress(f'refine 1.5 mm: force {np.round(r["force"][:, 2], 4)} N ({r["elements"]} '

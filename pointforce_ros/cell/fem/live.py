@@ -211,8 +211,10 @@ class LiveContact:
         if os.path.isfile(path):
             data = np.load(path, allow_pickle=False)
             if str(data['hash']) == spec_hash(spec):
+                # the field factor is derived from the YAML, so it is recomputed, not trusted
+                factor = _grid_factor(spec, data['u'], data['v'], data['depths'])
                 table = LiveTable(u=data['u'], v=data['v'], depths=data['depths'],
-                                  forces=data['forces'], factor=data['factor'])
+                                  forces=data['forces'], factor=factor)
                 meta = {k[5:]: data[k].item() for k in data.files if k.startswith('meta_')}
                 return cls(spec, table, meta)
             if not build:

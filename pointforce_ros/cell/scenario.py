@@ -405,6 +405,8 @@ def make_force_model(scenario: str = 'clean', object_name: Optional[str] = 'plus
     Raises:
         InvalidInput: unknown scenario or bad half-space parameters.
         ModelNotReady: the FEM live path is not available.
+        DataError: the object's live cache is missing or stale (the message says how to build
+            it).
 
     """
     spec = load_scenario(scenario)
@@ -426,5 +428,7 @@ def make_force_model(scenario: str = 'clean', object_name: Optional[str] = 'plus
     if live_cls is None:
         raise ModelNotReady('FEM live contact path (LiveContact) is not available; pass '
                             'halfspace={...} for an analytic object')
-    live = live_cls.load(object_name)
+    # never build a missing or stale cache here (minutes of FEM inside the emulator's start):
+    # fail with the command that builds it
+    live = live_cls.load(object_name, build=False)
     return spec.force_model(live.point_probe_wrench)

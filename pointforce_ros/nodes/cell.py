@@ -71,7 +71,7 @@ class CellSession:
                 log(f'[cell] starting the RTDE controller emulator ({object_name}, {scenario})')
                 self.emulator = start_emulator(
                     self.out / 'logs', force_model='pointforce_ros.cell.scenario:make_force_model',
-                    force_model_kwargs=kwargs,
+                    force_model_kwargs=kwargs, ready_timeout=60.0,
                     initial_pose=[centre[0], centre[1], centre[2] + 0.08, np.pi, 0.0, 0.0])
                 robot_ip = self.emulator.host
                 log(f'[cell] emulator ready on {robot_ip}')

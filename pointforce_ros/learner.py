@@ -179,16 +179,22 @@ class OnlineLearner:
             skipped=dict(self.skipped))
         return self.status
 
+    def processed(self, poke_id: str) -> bool:
+        """Whether ``poke_id`` has been learned from or skipped (see ``skipped`` for why)."""
+        with self._lock:
+            return poke_id in self.skipped or any(c.poke_id == poke_id for c in self.curves)
+
     def current_model_path(self) -> Optional[Path]:
         """Path of the newest saved model, or ``None`` before the first fit."""
         return None if self.status is None else model_path(self.model_dir, self.status.version)
 
     def suggest(self, count: int = 1, exclude_radius: float = 0.01,
-                max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0)):
+                max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0), edge_margin: float = 0.008):
         """Next poke locations where the model is least certain.
 
-        Only points whose normal is within ``max_tilt_deg`` of ``up`` are candidates (the
-        probe pushes along ``-n``; steep side walls are left alone).
+        Only points whose normal is within ``max_tilt_deg`` of ``up`` and that lie at least
+        ``edge_margin`` (m, measured across ``up``) from any steeper point are candidates: the
+        probe pushes along ``-n``, and at an edge the camera's point may not be on the object.
 
         Returns:
             (indices (count,), std (count,) in N) into ``surface``.
@@ -204,10 +210,16 @@ class OnlineLearner:
             raise InvalidInput(f'count: must be 1..50, got {count}')
         from pointforce_ros.response.suggest import suggest_pokes
         up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
-        candidates = np.flatnonzero(self.surface.normals @ up >= np.cos(np.radians(max_tilt_deg)))
+        flat = self.surface.normals @ up >= np.cos(np.radians(max_tilt_deg))
+        candidates = np.flatnonzero(flat)
+        if edge_margin > 0 and np.any(~flat) and len(candidates):
+            from scipy.spatial import cKDTree
+            across = self.surface.points - np.outer(self.surface.points @ up, up)
+            dist, _ = cKDTree(across[~flat]).query(across[candidates])
+            candidates = candidates[dist >= edge_margin]
         if len(candidates) == 0:
             raise InvalidInput(f'no surface point has a normal within {max_tilt_deg} degrees of '
-                               f'{up.tolist()}')
+                               f'{up.tolist()} and {edge_margin} m from steeper points')
         with self._lock:
             return suggest_pokes(self.model, self.surface, int(count),
                                  exclude_radius=exclude_radius, candidates=candidates)

@@ -190,6 +190,19 @@ class CellSession:
         from pointforce_interfaces.srv import SuggestPoke
         return self.call(self.suggest_client, SuggestPoke.Request(count=count), 60, 'suggest')
 
+    def wait_learned(self, poke_id: str, timeout: float = 60.0):
+        """Wait until the learner has used or skipped ``poke_id``; return (status, skip reason).
+
+        ``status`` is the newest ModelStatus once the contact service runs on it, or ``None``
+        when the poke was skipped (``reason`` then says why).
+        """
+        learner = self.launcher.wait_for(lambda: self.learner_node.learner, timeout, 'learner')
+        self.launcher.wait_for(lambda: learner.processed(poke_id), timeout,
+                               f'the learner to process {poke_id}')
+        if poke_id in learner.skipped:
+            return None, learner.skipped[poke_id]
+        return self.wait_model(len(learner.curves), timeout), ''
+
     def wait_model(self, version: int, timeout: float = 60.0):
         """Wait until the learner has published model ``version`` (or newer); return it."""
         self.launcher.wait_for(lambda: self.models and self.models[-1].version >= version,

@@ -97,13 +97,16 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
                             surface_index=index, force_limit=float(spec.force_cap),
                             depth_limit=float(spec.max_depth), speed=0.004, standoff=0.006)
             result = cell.poke(poke_goal_to_msg(goal))
-            status = cell.wait_model(k + 1) if result.outcome != 'aborted' else None
             line = (f'[demo] poke {k + 1}/{pokes} at surface point {index} ({why}): '
                     f'{result.outcome}, peak {result.peak_force:.2f} N at '
                     f'{1e3 * result.max_depth:.1f} mm, {result.samples} samples')
+            status, reason = (cell.wait_learned(result.poke_id) if result.poke_id
+                              else (None, result.message))
             if status is not None:
                 line += (f'; model v{status.version}, train RMSE {status.training_rmse:.3f} N, '
                          f'prequential RMSE {status.validation_rmse:.3f} N')
+            else:
+                line += f'; not learned from: {reason}'
             print(line)
         queries = demo_query_set(spec)
         gt, gt_path = _ground_truth(spec, queries)

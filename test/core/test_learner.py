@@ -98,11 +98,14 @@ def test_no_contact_poke_is_skipped_and_suggestions_stay_on_pokeable_points(tmp_
     store.add(miss)
     surface = _surface()
     normals = surface.normals.copy()
-    normals[::2] = [1.0, 0.0, 0.0]  # half the points are a vertical side wall
+    wall = surface.points[:, 0] > 0.52
+    normals[wall] = [1.0, 0.0, 0.0]  # a vertical side wall beyond x = 0.52 m
     walled = Surface(points=surface.points, normals=normals)
     learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', walled,
                             shape_constant=0.004)
     status = learner.update()
     assert status.num_pokes == 3 and 'no contact' in status.skipped[miss.poke_id]
-    indices, std = learner.suggest(5)
+    indices, std = learner.suggest(5, edge_margin=0.008)
     assert len(indices) == 5 and np.all(walled.normals[indices, 2] > 0.8)
+    edge = walled.points[wall, 0].min()
+    assert np.all(walled.points[indices, 0] <= edge - 0.008 + 1e-9)

@@ -104,6 +104,7 @@ class OnlineLearner:
         self.corrections = corrections
         self.effects = dict(effects or {})
         self.min_peak_force = float(min_peak_force)
+        self._failed_points: List[np.ndarray] = []
         self.model = None
         self.curves: List[PokeCurve] = []
         self.skipped: Dict[str, str] = {}
@@ -125,6 +126,7 @@ class OnlineLearner:
                     continue
                 peak = float(np.max(record.normal_force())) if len(record) else 0.0
                 if peak < self.min_peak_force:
+                    self._failed_points.append(record.point.copy())
                     self.skipped[poke_id] = (f'no contact: peak force {peak:.3f} N < '
                                              f'{self.min_peak_force:g} N ({record.outcome}); '
                                              'the point is off the object or the surface is '
@@ -192,9 +194,11 @@ class OnlineLearner:
                 max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0), edge_margin: float = 0.008):
         """Next poke locations where the model is least certain.
 
-        Only points whose normal is within ``max_tilt_deg`` of ``up`` and that lie at least
-        ``edge_margin`` (m, measured across ``up``) from any steeper point are candidates: the
-        probe pushes along ``-n``, and at an edge the camera's point may not be on the object.
+        Only points whose normal is within ``max_tilt_deg`` of ``up``, that lie at least
+        ``edge_margin`` (m, measured across ``up``) from any steeper point and half of it from the
+        rim of the cloud (points whose neighbours within ``edge_margin`` lie on one side), and are
+        not near a poke that found no contact, are candidates: the probe pushes along ``-n``,
+        and at an edge the camera's point may not be on the object.
 
         Returns:
             (indices (count,), std (count,) in N) into ``surface``.
@@ -212,14 +216,39 @@ class OnlineLearner:
         up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
         flat = self.surface.normals @ up >= np.cos(np.radians(max_tilt_deg))
         candidates = np.flatnonzero(flat)
+        from scipy.spatial import cKDTree
+        across = self.surface.points - np.outer(self.surface.points @ up, up)
         if edge_margin > 0 and np.any(~flat) and len(candidates):
-            from scipy.spatial import cKDTree
-            across = self.surface.points - np.outer(self.surface.points @ up, up)
             dist, _ = cKDTree(across[~flat]).query(across[candidates])
             candidates = candidates[dist >= edge_margin]
+        if edge_margin > 0 and len(candidates):
+            rim = np.flatnonzero(_on_rim(across, np.arange(len(across)), edge_margin))
+            if len(rim):
+                dist, _ = cKDTree(across[rim]).query(across[candidates])
+                candidates = candidates[dist >= edge_margin / 2]
+        failed = [p for p in self._failed_points]
+        if failed and len(candidates):
+            dist, _ = cKDTree(np.array(failed)).query(self.surface.points[candidates])
+            candidates = candidates[dist >= max(exclude_radius, edge_margin)]
         if len(candidates) == 0:
             raise InvalidInput(f'no surface point has a normal within {max_tilt_deg} degrees of '
                                f'{up.tolist()} and {edge_margin} m from steeper points')
         with self._lock:
             return suggest_pokes(self.model, self.surface, int(count),
                                  exclude_radius=exclude_radius, candidates=candidates)
+
+
+def _on_rim(points: np.ndarray, indices: np.ndarray, radius: float) -> np.ndarray:
+    """Whether each of ``points[indices]`` is on the rim of the cloud (one-sided neighbours).
+
+    A point is on the rim when the mean offset of its neighbours within ``radius`` is longer
+    than a fifth of ``radius``: an interior point's neighbours surround it (mean offset near
+    0), an edge point's lie in a half disc (centroid 0.42 r, about 0.3 r on a coarse grid).
+    """
+    from scipy.spatial import cKDTree
+    tree = cKDTree(points)
+    rim = np.zeros(len(indices), dtype=bool)
+    for k, neighbours in enumerate(tree.query_ball_point(points[indices], radius)):
+        offsets = points[neighbours] - points[indices[k]]
+        rim[k] = np.linalg.norm(offsets.mean(axis=0)) > radius / 5
+    return rim

@@ -109,3 +109,28 @@ def test_no_contact_poke_is_skipped_and_suggestions_stay_on_pokeable_points(tmp_
     assert len(indices) == 5 and np.all(walled.normals[indices, 2] > 0.8)
     edge = walled.points[wall, 0].min()
     assert np.all(walled.points[indices, 0] <= edge - 0.008 + 1e-9)
+
+
+def test_rim_points_and_failed_locations_are_not_suggested(tmp_path):
+    store = PokeStore(tmp_path / 'pokes')
+    for record in _campaign(3, seed=7, id_prefix='poke-0'):
+        store.add(record)
+    surface = _surface()
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
+                            shape_constant=0.004)
+    learner.update()
+    indices, _ = learner.suggest(20, exclude_radius=0.004, edge_margin=0.008)
+    chosen = surface.points[indices]
+    # the surface is a 70 x 70 mm grid around (0.5, 0): nothing within 4 mm of its border
+    assert np.all(np.abs(chosen[:, 0] - 0.5) <= 0.035 - 0.004)
+    assert np.all(np.abs(chosen[:, 1]) <= 0.035 - 0.004)
+    # a poke that meets nothing there: no more suggestions next to it
+    first = chosen[0]
+    miss = simulate_campaign(OBJECT, load_scenario('clean'), points=[first + [0, 0, 0.03]],
+                             normals=[[0.0, 0.0, 1.0]], force_limit=4.0, depth_limit=0.01,
+                             speed=0.004, id_prefix='poke-9')[0]
+    store.add(miss)
+    learner.update()
+    again, _ = learner.suggest(20, exclude_radius=0.004, edge_margin=0.008)
+    gap = np.linalg.norm(surface.points[again] - miss.point, axis=1)
+    assert np.all(gap >= 0.008 - 1e-9)

@@ -35,7 +35,7 @@ HERTZ_H_FINE = 0.00035
 
 
 def hertz_case(h: float, depths=HERTZ_DEPTHS, nonlinear: bool = False,
-               contact_order: int = 3, **over):
+               contact_order: int = 3, rings: int = 384, **over):
     """Sphere indentation of a quarter block meshed with ``h`` (m) at the contact.
 
     Returns:
@@ -54,7 +54,7 @@ def hertz_case(h: float, depths=HERTZ_DEPTHS, nonlinear: bool = False,
     t0 = time.time()
     model = FemModel(mesh, p['young'], p['poisson'], fixed=fixed, nonlinear=nonlinear,
                      contact_faces=mesh.top_faces(), contact_order=contact_order)
-    probe = sphere_probe(p['radius'], rings=384, segments=96)  # facet sag < 0.1 um
+    probe = sphere_probe(p['radius'], rings=rings, segments=96)  # 384 rings: sag < 0.1 um
     res = model.indent(probe, pose_for_push([0.0, 0.0, size], [0, 0, -1]), [0, 0, -1],
                        np.asarray(depths, dtype=float))
     force = 4.0 * res.force[:, 2]

@@ -12,10 +12,14 @@ Scenario of each file:
   (nonlinear neo-Hookean pokes along the surface normal on ``live.grid`` locations, probe
   :data:`pointforce_ros.cell.fem.live.POINT_PROBE`, element size ``mesh.live`` near the probe)
   plus held-out full solves at seeded random locations and the live path's error on them.
-- ``hertz_fine.npz``: rigid sphere R = 10 mm on a homogeneous quarter block (150 mm, bonded
-  base, symmetry planes), E = 100 kPa, linear and neo-Hookean, 0.3 mm elements at the contact.
+- ``hertz_fine.npz``: rigid sphere R = 10 mm on a homogeneous quarter block (bonded base,
+  symmetry planes), E = 100 kPa, nu = 0.3, small-strain, depths 0.3 and 0.5 mm
+  (:data:`pointforce_ros.cell.fem.validation.HERTZ`, ``HERTZ_H_FINE`` elements at the contact).
 - ``refine_fine.npz``: point probe on a homogeneous 60 x 60 x 40 mm block (E = 100 kPa,
-  nu = 0.45) to 5 mm at 1.5 mm elements; the test runs the same at 3 mm.
+  nu = 0.45) to 2 and 5 mm at 1.5 mm elements; the test runs the same at 3 mm.
+
+Measured on the shared 2-core machine (heavily loaded, times are wall clock): lamb (4 x 5 grid)
+2199 s, plush (5 x 4) 414 s, thin_layer 1295 s, vest 1144 s, dome 1640 s, validation 1097 s.
 
 Runs with ``nice`` friendliness in mind: one process, progress on stdout, timings at the end.
 """

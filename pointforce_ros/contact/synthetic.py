@@ -98,7 +98,7 @@ def fibonacci_sphere_mesh(n: int = 150, radius: float = 0.02) -> Mesh:
 
 
 def patch_contact_model(spacing: float = 0.002, version: int = 1):
-    """A ready-to-serve contact model: a 60 x 60 mm patch at z = 0.04 m around (0.5, 0).
+    """Return a ready-to-serve contact model: a 60 x 60 mm patch at z = 0.04 m around (0.5, 0).
 
     ``y = k(r) max(d, 0)^1.5`` with ``k`` doubling over a 12 mm disc at the centre (a stiff
     inclusion), shape constant 4 mm. Closed form, no learning: for node tests and benchmarks.

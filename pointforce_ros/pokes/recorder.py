@@ -47,7 +47,7 @@ class StreamRecorder:
         """Buffer a ``wrench`` sample (``tool0_controller``): stamp s, N, N m."""
         self._put(self._wrenches, t, (*force, *torque))
 
-    def finish(self, header: dict, timeout: float = 5.0) -> PokeRecord:
+    def finish(self, header: dict, timeout: float = 20.0) -> PokeRecord:
         """Cut the poke described by ``header`` out of the buffers and return its record.
 
         Waits up to ``timeout`` seconds for the poke's last sample to arrive on both streams

@@ -41,11 +41,11 @@ def test_replayed_bags_give_the_offline_model(ros_graph, tmp_path):
     player = ros_graph.add(Node('player', context=ros_graph.context))
     statuses = []
     player.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
-    count = replay(player, BAGS, rate=4.0, progress=lambda line: None)
+    count = replay(player, BAGS, rate=2.0, progress=lambda line: None)
     expected = sum(len(offline_store_record) for offline_store_record in
                    (read_poke_bag(p) for p in bag_paths(BAGS)))
     assert count == 2 * expected + 4  # pose + wrench per sample, one poke_record per poke
-    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 30, 'model v4')
+    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 90, 'model v4')
     live = load_model(statuses[-1].model_path).response
     np.testing.assert_allclose(live.forces, load_model(offline.model_path).response.forces,
                                rtol=1e-7, atol=1e-7)

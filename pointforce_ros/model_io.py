@@ -12,7 +12,7 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Optional, Tuple
+from typing import Callable, Mapping, Optional, Tuple
 
 import numpy as np
 
@@ -57,6 +57,28 @@ class ContactModel:
                                f'{self.shape_constant}')
 
 
+def atomic_write(path, write: Callable, binary: bool = True) -> Path:
+    """Write ``path`` atomically: ``write(fh)`` fills a temporary sibling, then it is renamed.
+
+    A reader sees the old file or the new one, never a part; on an error the temporary file is
+    removed and the error propagates.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix='.tmp-', suffix=path.suffix)
+    try:
+        with os.fdopen(fd, 'wb' if binary else 'w') as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
 def model_path(directory, version: int) -> Path:
     """Path of model ``version`` in ``directory``."""
     return Path(directory) / f'model-v{int(version):06d}.npz'
@@ -80,19 +102,8 @@ def save_model(model: ContactModel, directory) -> Path:
     }
     if model.response.std is not None:
         arrays['std'] = model.response.std
-    target = model_path(directory, model.version)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix='.tmp-', suffix='.npz')
-    try:
-        with os.fdopen(fd, 'wb') as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return target
+    return atomic_write(model_path(directory, model.version),
+                        lambda fh: np.savez(fh, **arrays))
 
 
 def load_model(path) -> ContactModel:
@@ -140,21 +151,9 @@ def latest_model_path(directory) -> Optional[Path]:
 
 def save_surface(surface: Surface, path) -> Path:
     """Write an equilibrium surface atomically to ``path`` (``.npz``); returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix='.tmp-', suffix='.npz')
-    try:
-        with os.fdopen(fd, 'wb') as fh:
-            np.savez(fh, points=surface.points, normals=surface.normals, colors=surface.colors,
-                     frame=np.frombuffer(surface.frame.encode(), dtype=np.uint8))
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda fh: np.savez(
+        fh, points=surface.points, normals=surface.normals, colors=surface.colors,
+        frame=np.frombuffer(surface.frame.encode(), dtype=np.uint8)))
 
 
 def load_surface(path) -> Surface:

@@ -7,12 +7,11 @@ the new model, never half of one. The contact service loads the *baked* table in
 """
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Mapping
 
 from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.model_io import atomic_write
 from pointforce_ros.response.baseline import AutoEtBaseline, EtBaseline
 from pointforce_ros.response.ours import ContactGpModel
 
@@ -42,21 +41,8 @@ def save_response_model(model, path) -> Path:
     """
     if not hasattr(model, 'to_dict'):
         raise InvalidInput(f'cannot save {type(model).__name__}: no to_dict()')
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = json.dumps({'format': FILE_FORMAT, 'model': model.to_dict()})
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix='.tmp-', suffix='.json')
-    try:
-        with os.fdopen(fd, 'w') as fh:
-            fh.write(payload)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda fh: fh.write(payload), binary=False)
 
 
 def load_response_model(path):

@@ -10,14 +10,17 @@ import time
 from pathlib import Path
 from typing import List
 
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 
 from pointforce_ros.errors import DataError
 from pointforce_ros.pokes.store import TYPESTORE
 
-REPLAY_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+# transient local: a reader that matches a little after the first messages (DDS discovery is
+# not symmetric) still gets them from the writer's history
+REPLAY_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def bag_paths(path) -> List[Path]:
@@ -75,6 +78,8 @@ def replay(node, path, rate: float = 1.0, wait_subscribers: float = 3.0, progres
     while time.monotonic() < deadline and not all(
             pub.get_subscription_count() > 0 for pub, _ in publishers.values()):
         time.sleep(0.05)
+    if wait_subscribers > 0:
+        time.sleep(min(1.0, wait_subscribers))  # the readers' side of the match
     count = 0
     for bag in bags:
         try:

@@ -33,7 +33,8 @@ from pointforce_ros.pokes.store import PokeStore
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-RECORDER = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+RECORDER = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class StiffnessLearnerNode(Node):

@@ -9,6 +9,12 @@ model under the same version.
 
 Before a poke joins the training set, the current model predicts it: that *prequential* error is
 a genuine held-out figure, reported as ``validation_rmse``.
+
+With accepted effects (``effects=``, what ``pointforce diagnose`` writes to ``effects.json``)
+every poke is corrected before its curve is cut (:func:`~pointforce_ros.effects.correct_record`;
+the plastic set counts the earlier pokes at the spot over the whole store), the model is baked
+on the corrected surface (surface offset, and the set where the object was poked), and the
+effects are saved with the model so that the contact service adds their forward terms.
 """
 
 import threading
@@ -19,6 +25,8 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
+from pointforce_ros.effects.correct import correct_record, correct_surface, effects_from_dict
+from pointforce_ros.effects.library import count_earlier, PLASTIC_RADIUS
 from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
 from pointforce_ros.model_io import ContactModel, model_path, save_model
 from pointforce_ros.pokes.curves import extract_curve, PokeCurve
@@ -80,10 +88,15 @@ class OnlineLearner:
         depths: (K,) bake grid, metres.
         model_factory: makes an empty force-response model (ours by default).
         corrections: optional callable ``records -> records`` applied before curve extraction
-            (the accepted effects of ``pointforce diagnose``).
-        effects: the accepted effects' description, stored in each saved model.
+            instead of the built-in correction by ``effects``.
+        effects: accepted effects ``{name: {param: value}}`` (``pointforce diagnose``'s
+            ``effects.json``): removed from every poke, applied to the baked surface and
+            stored in each saved model.
         min_peak_force: N; a poke whose force never exceeded this made no real contact (the
             point was off the object or the surface is wrong) and is not learned from.
+
+    Raises:
+        InvalidInput: a non-positive shape constant or malformed effects.
 
     """
 
@@ -102,7 +115,9 @@ class OnlineLearner:
         self.depths = np.asarray(depths, dtype=np.float64)
         self.model_factory = model_factory
         self.corrections = corrections
-        self.effects = dict(effects or {})
+        self.effects = effects_from_dict(effects)
+        # every poke read (time, point, normal, peak normal force): plastic-set counts
+        self._spots: List[tuple] = []
         self.min_peak_force = float(min_peak_force)
         self._failed_points: List[np.ndarray] = []
         self.model = None
@@ -132,12 +147,45 @@ class OnlineLearner:
                                              'the point is off the object or the surface is '
                                              'wrong')
                     continue
+                count = self._remember(record, peak)
                 if self.corrections is not None:
                     record = self.corrections([record])[0]
+                elif self.effects:
+                    record = correct_record(record, self.effects, count)
                 fresh.append(extract_curve(record))
             except PointforceError as exc:
                 self.skipped[poke_id] = str(exc)
         return fresh
+
+    def _remember(self, record, peak: float) -> int:
+        """Note a poke's spot; return how many earlier pokes pressed there (plastic set)."""
+        self._spots.append((float(record.t_controller[0]) if len(record) else 0.0,
+                            record.point.copy(), record.normal.copy(), peak))
+        if 'plastic_set' not in self.effects:
+            return 0
+        counts, order = self._spot_counts()
+        return int(counts[np.flatnonzero(order == len(self._spots) - 1)[0]])
+
+    def _spot_counts(self):
+        """Earlier pokes within the plastic radius of every remembered poke, in time order."""
+        order = np.argsort([s[0] for s in self._spots], kind='stable')
+        radius = self.effects.get('plastic_set', {}).get('radius', PLASTIC_RADIUS)
+        counts = count_earlier(np.array([self._spots[i][1] for i in order]),
+                               np.array([self._spots[i][2] for i in order]),
+                               np.array([self._spots[i][3] for i in order]), radius)
+        return counts, order
+
+    def model_surface(self) -> Surface:
+        """Surface the model is baked on: the observed one moved by the surface effects."""
+        if not any(k in self.effects for k in ('surface_offset', 'plastic_set')):
+            return self.surface
+        points = counts = None
+        if 'plastic_set' in self.effects and self._spots:
+            counts, order = self._spot_counts()
+            points = np.array([self._spots[i][1] for i in order])
+            counts = counts + 1  # the set after each poke, itself included
+        return correct_surface(self.surface, self.effects, poke_points=points,
+                               poke_counts=counts)
 
     def update(self) -> Optional[LearnerStatus]:
         """Fit the pokes that arrived since the last call; return the new status or ``None``."""
@@ -166,11 +214,13 @@ class OnlineLearner:
             return None
         baked = self.model.bake(self.surface, self.depths)
         version = len(self.curves)
-        contact = ContactModel(surface=self.surface, response=baked,
+        corrected = [k for k in ('surface_offset', 'plastic_set') if k in self.effects]
+        contact = ContactModel(surface=self.model_surface(), response=baked,
                                shape_constant=self.shape_constant, version=version,
                                effects=self.effects,
                                meta={'kind': getattr(self.model, 'kind', 'unknown'),
-                                     'pokes': [c.poke_id for c in self.curves]})
+                                     'pokes': [c.poke_id for c in self.curves],
+                                     'surface_corrected': corrected})
         path = save_model(contact, self.model_dir)
         pre = np.concatenate(self._prequential) if self._prequential else np.zeros(0)
         self.status = LearnerStatus(

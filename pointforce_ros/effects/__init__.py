@@ -5,17 +5,19 @@
 * :mod:`.model`: the structured base model and its extension by effects; fitting.
 * :mod:`.diagnose`: :func:`diagnose` and the CLI entry :func:`run_diagnose`.
 * :mod:`.correct`: storing accepted effects and correcting data / surfaces with them.
+* :mod:`.forward`: the forward terms the contact service adds back at query time.
 * :mod:`.report`: Markdown + PNG report.
 """
 
 from pointforce_ros.effects.correct import (apply_series_compliance, correct_curve,
-                                            correct_records, correct_surface, effects_from_dict,
-                                            effects_to_dict, predict_measured, relaxed_fraction)
+                                            correct_record, correct_records, correct_surface,
+                                            effects_from_dict, effects_to_dict,
+                                            predict_measured, relaxed_fraction)
 from pointforce_ros.effects.data import load_pokes, read_poke_table, write_poke_table
 from pointforce_ros.effects.diagnose import diagnose, DiagnoseReport, run_diagnose
 from pointforce_ros.effects.library import LIBRARY
 
-__all__ = ['apply_series_compliance', 'correct_curve', 'correct_records', 'correct_surface',
-           'diagnose', 'DiagnoseReport', 'effects_from_dict', 'effects_to_dict', 'LIBRARY',
-           'load_pokes', 'predict_measured', 'read_poke_table', 'relaxed_fraction',
+__all__ = ['apply_series_compliance', 'correct_curve', 'correct_record', 'correct_records',
+           'correct_surface', 'diagnose', 'DiagnoseReport', 'effects_from_dict', 'effects_to_dict',
+           'LIBRARY', 'load_pokes', 'predict_measured', 'read_poke_table', 'relaxed_fraction',
            'run_diagnose', 'write_poke_table']

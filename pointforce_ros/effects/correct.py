@@ -121,6 +121,25 @@ def correct_records(records: Sequence[PokeRecord], effects: Effects) -> List[Pok
     return [_correct_one(rec, effects, int(k)) for rec, k in zip(records, counts)]
 
 
+def correct_record(record: PokeRecord, effects: Effects, count_before: int = 0) -> PokeRecord:
+    """Remove the accepted effects from one poke (see :func:`correct_records`).
+
+    Args:
+        record: the poke.
+        effects: ``{name: {param: value}}``.
+        count_before: earlier pokes at its spot (plastic set), counted by the caller.
+
+    Raises:
+        InvalidInput: bad effects, a non-record or a negative ``count_before``.
+
+    """
+    if not isinstance(record, PokeRecord):
+        raise InvalidInput(f'correct_record: expected a PokeRecord, got {type(record).__name__}')
+    if int(count_before) < 0:
+        raise InvalidInput(f'correct_record: count_before must be >= 0, got {count_before}')
+    return _correct_one(record, effects_from_dict(effects), int(count_before))
+
+
 def _correct_one(rec: PokeRecord, effects: Dict[str, Dict[str, float]], count: int
                  ) -> PokeRecord:
     t = rec.t_controller

@@ -2,7 +2,9 @@
 
 Answers from the latest contact model: a file in ``model_dir`` (polled) or the path announced on
 the learner's latched model topic. A new model is swapped in without dropping requests. Malformed
-requests get ``success=False`` and a message; the node keeps serving.
+requests get ``success=False`` and a message; the node keeps serving. Accepted effects stored in
+the model add their forward terms (:mod:`pointforce_ros.effects.forward`): series compliance
+(``series_compliance``), a viscoelastic hold fraction (``hold_time``) and a surface offset.
 """
 
 import time
@@ -41,7 +43,16 @@ class ContactWrenchNode(Node):
                           bounds=(0.0005, 0.05))
         poll = declare(self, 'poll_period', 1.0, 'Seconds between model_dir polls',
                        bounds=(0.05, 60.0))
-        self.server = WrenchServer(spacing=spacing)
+        series = declare(self, 'series_compliance', True,
+                         'Apply an accepted series compliance of the model (the table or the '
+                         'arm gives way by compliance x normal force); false when it was only '
+                         "the poking arm's and the planner drives another robot")
+        hold_time = declare(self, 'hold_time', 0.0,
+                            'For a viscoelastic model: seconds the pose is held after a fast '
+                            'approach (0: instantaneous force, the upper bound), s',
+                            bounds=(0.0, 1e6))
+        self.server = WrenchServer(spacing=spacing, series_compliance=series,
+                                   hold_time=hold_time)
         self.requests_served = 0
         self.requests_failed = 0
         self._try_load_dir()
@@ -63,7 +74,7 @@ class ContactWrenchNode(Node):
         try:
             if self.server.load_latest(self.model_dir):
                 self.get_logger().info(f'loaded model v{self.server.version} from '
-                                       f'{self.server.loaded_path}')
+                                       f'{self.server.loaded_path}{self._terms()}')
         except PointforceError as exc:
             self.get_logger().error(f'cannot load model from {self.model_dir}: {exc}',
                                     throttle_duration_sec=10.0)
@@ -73,9 +84,16 @@ class ContactWrenchNode(Node):
             return
         try:
             self.server.load(Path(msg.model_path))
-            self.get_logger().info(f'hot-swapped to model v{self.server.version}')
+            self.get_logger().info(f'hot-swapped to model v{self.server.version}{self._terms()}')
         except PointforceError as exc:
             self.get_logger().error(f'model v{msg.version} at {msg.model_path} rejected: {exc}')
+
+    def _terms(self) -> str:
+        terms = self.server.forward_terms
+        if terms is None or not (terms.applied or terms.skipped):
+            return ''
+        return (f'; effects applied: {list(terms.applied)}'
+                + (f', not applied: {dict(terms.skipped)}' if terms.skipped else ''))
 
     def _on_single(self, request, response):
         start = time.perf_counter()

@@ -5,6 +5,8 @@ poke store directory the poke server writes; a refit is triggered by ``/poke_ser
 (the new poke id) and, as a fallback, by polling the store. Publishes the latched ``~/model``
 (:class:`pointforce_interfaces.msg.ModelStatus`), which the contact service follows, and serves
 ``~/suggest_poke``. On restart it reloads the stored pokes and produces the same model.
+``effects_file`` (diagnose's ``effects.json``) makes the learner remove the accepted effects from
+the pokes and store them in every model, whose forward terms the contact service then applies.
 """
 
 import json
@@ -23,6 +25,7 @@ from std_msgs.msg import String
 from msg_adapters.geometry import sec_to_stamp, stamp_to_sec
 from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.pointcloud2 import surface_from_msg
+from pointforce_ros.effects.correct import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.learner import OnlineLearner
 from pointforce_ros.model_io import load_surface
@@ -64,6 +67,11 @@ class StiffnessLearnerNode(Node):
         self.min_peak_force = declare(self, 'min_peak_force', 0.3,
                                       'A poke that never exceeded this force made no contact '
                                       'and is not learned from, N', bounds=(0.0, 50.0))
+        effects_file = declare(self, 'effects_file', '',
+                               'Accepted effects (effects.json written by pointforce diagnose): '
+                               'removed from every poke before learning and stored in each '
+                               'model for the contact service; empty: none')
+        self.effects = self._load_effects(effects_file)
         record = declare(self, 'record_topics', False,
                          'Rebuild pokes from the /poke_server/tcp_pose, wrench and poke_record '
                          'topics into store_dir (a learner away from the poke server, or a bag '
@@ -95,11 +103,24 @@ class StiffnessLearnerNode(Node):
         self.create_service(SuggestPoke, '~/suggest_poke', self._on_suggest,
                             callback_group=ReentrantCallbackGroup())
 
+    def _load_effects(self, path: str) -> dict:
+        """Read and validate ``effects_file``; on any problem log it and learn without effects."""
+        if not path:
+            return {}
+        try:
+            effects = effects_from_dict(json.loads(Path(path).read_text()))
+        except (OSError, ValueError, PointforceError) as exc:
+            self.get_logger().error(f'effects_file {path}: {exc}; learning WITHOUT effects')
+            return {}
+        self.get_logger().info(f'accepted effects from {path}: {sorted(effects) or "none"}')
+        return effects
+
     def _set_surface(self, surface):
         with self._lock:
             self.learner = OnlineLearner(self.store_dir, self.model_dir, surface,
                                          shape_constant=self.shape_constant,
-                                         min_peak_force=self.min_peak_force)
+                                         min_peak_force=self.min_peak_force,
+                                         effects=self.effects)
         self.get_logger().info(f'surface of {len(surface)} points; learning from '
                                f'{self.store_dir}')
         self.refit()

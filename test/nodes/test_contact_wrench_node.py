@@ -170,3 +170,59 @@ def test_eight_concurrent_clients_500_calls_each_no_failure(served, planners):
     for i in range(8):
         order = np.argsort(depths[i])
         assert np.all(np.diff(np.asarray(forces[i])[order]) >= -1e-9)
+
+
+# --------------------------------------------------------------------------- accepted effects
+
+
+def test_stored_effects_add_their_forward_terms(ros_graph, tmp_path):
+    """Series compliance: the answer F at commanded depth d is the clean wrench at d - c F_n.
+
+    Viscoelastic: scaled by the fraction left after ``hold_time``. Both read from the file.
+    """
+    from pointforce_ros.model_io import ContactModel
+    compliance, g, tau, hold = 2e-4, 0.25, 2.0, 1.0
+    clean = patch_contact_model(spacing=0.003)
+    effects = {'series_compliance': {'compliance': compliance},
+               'viscoelastic': {'g': g, 'tau': tau}, 'ft_bias': {'fx': 0.1, 'fy': 0, 'fz': 0}}
+    model = ContactModel(surface=clean.surface, response=clean.response, version=3,
+                         shape_constant=clean.shape_constant, effects=effects)
+    save_model(model, tmp_path / 'models')
+    node = ros_graph.add(ContactWrenchNode(
+        context=ros_graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(tmp_path / 'models')),
+                             Parameter('hold_time', value=hold)]))
+    client_node = ros_graph.add(Node('effects_planner', context=ros_graph.context))
+    single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
+    assert single.wait_for_service(timeout_sec=15.0) and batch.wait_for_service(timeout_sec=15.0)
+    assert node.server.version == 3
+    assert set(node.server.forward_terms.applied) == {'series_compliance', 'viscoelastic'}
+    assert dict(node.server.forward_terms.skipped).keys() == {'ft_bias'}
+    reference = WrenchServer()
+    reference.swap(clean)
+    scale = 1.0 - g * (1.0 - np.exp(-hold / tau))
+    depths = [0.002, 0.004, 0.006]
+    request = ContactWrenchBatch.Request(mesh=mesh_to_msg(SPHERE),
+                                         approach=Vector3(x=0.0, y=0.0, z=-1.0),
+                                         torque_centre=to_point([0.5, 0.0, 0.06]))
+    request.poses = [pose_to_msg(Pose(position=[0.5, 0.0, 0.06 - d])) for d in depths]
+    answers = ros_graph.wait_future(batch.call_async(request), 20, 'batch')
+    assert answers.success, answers.message
+    for depth, wrench in zip(depths, answers.wrenches):
+        response = ros_graph.wait_future(single.call_async(_request(depth)[0]), 20, 'single')
+        assert response.success, response.message
+        force = response.wrench.force.z
+        assert wrench.force.z == pytest.approx(force, rel=1e-9)
+        # the fixed point: the clean (instantaneous) force at the retreated depth, relaxed
+        shifted = depth - compliance * force
+        pose = Pose(position=[0.5, 0.0, 0.06 - shifted])
+        direct, _ = reference.answer(ContactQuery(mesh=SPHERE, poses=(pose,),
+                                                  approach=[0, 0, -1],
+                                                  torque_centre=pose.position))
+        assert force == pytest.approx(scale * direct.wrench.force[2], rel=1e-5)
+        # and the compliance matters: the clean answer at the commanded depth is larger
+        plain, _ = reference.answer(ContactQuery(mesh=SPHERE, poses=(_request(depth)[1],),
+                                                 approach=[0, 0, -1],
+                                                 torque_centre=[0.5, 0.0, 0.06 - depth]))
+        assert force < 0.9 * scale * plain.wrench.force[2]

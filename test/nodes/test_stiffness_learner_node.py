@@ -66,3 +66,98 @@ def test_refit_on_landed_poke_survives_restart_and_suggests(ros_graph, tmp_path)
     ros_graph.wait_for(lambda: statuses and statuses[-1].version == 5, 30, 'model after restart')
     np.testing.assert_allclose(load_model(statuses[-1].model_path).response.forces, before,
                                rtol=1e-9, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- accepted effects
+
+SPOTS = np.array([[0.491, -0.01, 0.04], [0.511, 0.01, 0.04], [0.491, 0.015, 0.04]])
+PLASTIC = {'plastic_set': {'max_set': 0.0008, 'n0': 3.0, 'radius': 0.004}}
+
+
+def _plastic_setup(tmp_path):
+    """Three spots poked five times under config/scenarios/plastic_set.yaml (0.8 mm set).
+
+    The first four rounds are stored for the learner; the fifth round is held out.
+    """
+    xs, ys = np.meshgrid(np.linspace(0.465, 0.535, 36), np.linspace(-0.035, 0.035, 36))
+    pts = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.04)])
+    save_surface(Surface(points=pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1))),
+                 tmp_path / 'surface.npz')
+    records = simulate_campaign(OBJECT, load_scenario('plastic_set'), points=SPOTS,
+                                normals=np.tile([0.0, 0.0, 1.0], (3, 1)), repeats=5, seed=3,
+                                force_limit=3.0, depth_limit=0.01, speed=0.004, gap=0.5)
+    store = PokeStore(tmp_path / 'pokes')
+    for r in records[:12]:
+        store.add(r)
+    return records[12:]
+
+
+def _learn(graph, tmp_path, effects_file):
+    statuses = []
+    probe = graph.add(Node(f'probe_{tmp_path.name}', context=graph.context))
+    probe.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
+    node = graph.add(StiffnessLearnerNode(context=graph.context, parameter_overrides=[
+        Parameter('store_dir', value=str(tmp_path / 'pokes')),
+        Parameter('model_dir', value=str(tmp_path / 'models')),
+        Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
+        Parameter('effects_file', value=str(effects_file)),
+        Parameter('poll_period', value=600.0)]))
+    graph.wait_for(lambda: statuses and statuses[-1].version == 12, 60, 'model v12')
+    status = statuses[-1]
+    graph.remove(node)
+    graph.remove(probe)
+    return status, load_model(status.model_path)
+
+
+def _heldout_rmse(model, records):
+    """Normal-force RMSE (N) of a point probe at the held-out pokes' tips, loading phase.
+
+    Answered by the contact simulator on the surface the contact service uses.
+    """
+    from pointforce_ros.contact import ContactSimulator
+    from pointforce_ros.effects.forward import model_surface
+    sim = ContactSimulator(model_surface(model), model.response, model.shape_constant)
+    err = []
+    for r in records:
+        top = int(np.argmax(r.displacement()))
+        for i in range(0, top, 4):
+            tip = r.tcp_pose[i, :3]
+            force = sim.query_points(tip[None], -r.normal, tip).wrench.force
+            err.append(force @ r.normal - r.normal_force()[i])
+    return float(np.sqrt(np.mean(np.square(err))))
+
+
+def test_effects_file_corrects_the_pokes_and_lowers_the_heldout_error(ros_graph, tmp_path):
+    import json
+    from pointforce_ros.effects import effects_to_dict
+    results = {}
+    for name, effects in (('plain', None), ('effects', PLASTIC), ('broken', 'broken')):
+        folder = tmp_path / name
+        folder.mkdir()
+        held = _plastic_setup(folder)
+        path = ''
+        if effects == 'broken':
+            path = folder / 'effects.json'
+            path.write_text(json.dumps({'plastic_set': {'max_set': 'deep'}}))
+        elif effects:
+            path = folder / 'effects.json'
+            path.write_text(json.dumps(effects_to_dict(effects)))
+        status, model = _learn(ros_graph, folder, path)
+        results[name] = (status, model, _heldout_rmse(model, held))
+    plain, corrected, broken = results['plain'], results['effects'], results['broken']
+    assert list(corrected[0].effects) == ['plastic_set'] and list(plain[0].effects) == []
+    assert corrected[1].effects == effects_to_dict(PLASTIC)
+    assert corrected[1].meta['surface_corrected'] == ['plastic_set']
+    # the model surface sank by the set after four pokes at each spot, elsewhere it did not
+    z = corrected[1].surface.points[:, 2]
+    near = np.min(np.linalg.norm(corrected[1].surface.points[:, None, :2] - SPOTS[None, :, :2],
+                                 axis=2), axis=1) < 0.004
+    np.testing.assert_allclose(0.04 - z[near], 0.0008 * -np.expm1(-4 / 3.0), rtol=1e-9)
+    np.testing.assert_array_equal(z[~near], 0.04)
+    # held-out fifth pokes: the set moved their onset 0.59 mm deeper than the first poke's;
+    # the plain learner averaged onsets over four pokes, the corrected one knows where it is
+    assert plain[2] > 0.05
+    assert corrected[2] < 0.2 * plain[2]
+    # a bad effects file: error logged, the node learns without effects (same as plain)
+    assert list(broken[0].effects) == [] and broken[1].effects == {}
+    assert broken[2] == pytest.approx(plain[2], rel=1e-6)

@@ -141,6 +141,60 @@ class Finding:
     groups: Tuple[Tuple[str, float, float, int], ...] = ()
 
 
+@dataclass(frozen=True)
+class OnsetOffset:
+    """The surface offset the learner's per-poke contact onset absorbs (camera-bias estimate).
+
+    The learner's contact law starts at a fitted onset ``d0`` per poke
+    (:func:`~pointforce_ros.pokes.curves.extract_curve`), so a constant camera depth bias
+    never reaches its predictions: it sits in ``d0``. Its mean is the bias estimate.
+
+    Attributes:
+        offset: ``-mean(d0)``, metres (> 0: the true surface lies outside the observed one,
+            the sign of the library's ``surface_offset``).
+        sem: standard error of the mean over pokes, metres.
+        spread: standard deviation of ``d0`` over pokes, metres (camera noise + fit).
+        count: pokes whose onset was found.
+
+    """
+
+    offset: float
+    sem: float
+    spread: float
+    count: int
+
+    def describe(self) -> str:
+        """Return one line for the console and the report."""
+        return (f'surface offset {self.offset * 1e3:.2f} +- {self.sem * 1e3:.2f} mm absorbed '
+                f'by the onset (mean of {self.count} per-poke contact onsets d0, spread '
+                f'{self.spread * 1e3:.2f} mm): the camera-bias estimate; the learner absorbs '
+                'it without a correction')
+
+
+def onset_offset(records) -> Optional[OnsetOffset]:
+    """Return the surface offset absorbed by the per-poke onsets of point pokes (None: < 2).
+
+    Pokes whose loading curve cannot be cut (no contact, too short) are left out.
+    """
+    from pointforce_ros.pokes.curves import extract_curve
+    onsets = []
+    for rec in records:
+        if rec.probe != 'point':
+            continue
+        try:
+            curve = extract_curve(rec)
+        except PointforceError:
+            continue
+        if curve.meta.get('onset_observed', True):
+            onsets.append(float(curve.onset_d))
+    if len(onsets) < 2:
+        return None
+    onsets = np.asarray(onsets)
+    spread = float(np.std(onsets, ddof=1))
+    return OnsetOffset(offset=-float(np.mean(onsets)), sem=spread / np.sqrt(len(onsets)),
+                       spread=spread, count=len(onsets))
+
+
 @dataclass
 class DiagnoseReport:
     """Result of :func:`diagnose` (see the module docstring for the procedure).
@@ -172,6 +226,7 @@ class DiagnoseReport:
     residual_after: Dict[str, np.ndarray]
     probe_trials: int
     not_testable: Dict[str, str]
+    onset: Optional[OnsetOffset] = None
 
     @property
     def accepted_names(self) -> List[str]:
@@ -181,6 +236,24 @@ class DiagnoseReport:
     def effects(self) -> Dict[str, Dict[str, float]]:
         """Return the accepted effects as ``{name: {param: value}}`` (``ContactModel.effects``)."""
         return {a.name: dict(a.params) for a in self.accepted}
+
+    def offset_disagreement(self) -> str:
+        """Return a warning when an accepted surface offset disagrees with the onset estimate.
+
+        They measure the same thing; a gap of more than 3 standard errors plus 0.5 mm means the
+        base law's shape does not fit the curves and the offset fit soaked that up.
+        """
+        fitted = {a.name: a for a in self.accepted}.get('surface_offset')
+        if fitted is None or self.onset is None:
+            return ''
+        gap = fitted.params['offset'] - self.onset.offset
+        sigma = float(np.hypot(self.onset.sem, fitted.std.get('offset', 0.0)))
+        if abs(gap) <= 3.0 * sigma + 5e-4:
+            return ''
+        return (f'caution: the fitted surface offset ({fitted.params["offset"] * 1e3:.2f} mm) '
+                f'differs from the onset estimate ({self.onset.offset * 1e3:.2f} mm) by '
+                f'{gap * 1e3:.2f} mm: the curves\' shape departs from the base law (see the '
+                'unexplained residual), trust the onset estimate for the camera bias')
 
     def summary(self) -> str:
         """Return a few lines for the console."""
@@ -198,6 +271,11 @@ class DiagnoseReport:
                 lines.append(f'{UNDERPOWERED}: the strongest candidate was {best.name} '
                              f'(held-out RMSE {self.rmse_before:.4g} -> {best.rmse:.4g} N), '
                              'not accepted: poke more before drawing a conclusion')
+        if self.onset is not None:
+            lines.append(self.onset.describe())
+            note = self.offset_disagreement()
+            if note:
+                lines.append(note)
         if self.unexplained:
             top = self.structure_after[0] if self.structure_after else None
             lines.append('unexplained residual: systematic part '
@@ -410,6 +488,9 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
                      f'Wilcoxon test (best possible p = {smallest_p:.3g}); at least {needed} '
                      'pokes are needed before any effect can be accepted')
         say(notes[-1])
+    onset = onset_offset(records)
+    if onset is not None:
+        say(onset.describe())
     groups = fold_indices(len(batch), int(folds), seed)
     min_drop = float(resolution) * float(np.median(batch.peak))
     current: List[str] = []
@@ -520,7 +601,7 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         structure_before=analyse_structure(batch, resid_before),
         structure_after=structure_after, residual_before=resid_before,
         residual_after=resid_after, probe_trials=probes,
-        not_testable=dict(NOT_TESTABLE_ON_POKES))
+        not_testable=dict(NOT_TESTABLE_ON_POKES), onset=onset)
 
 
 def run_diagnose(data, out_dir, seed: int = 0, **kwargs) -> int:

@@ -120,11 +120,12 @@ def hold_fraction(visco: Mapping, hold_time: float) -> float:
 
 
 def model_surface(model) -> Surface:
-    """The surface the service should press against: ``model.surface`` with a surface offset
-    applied unless ``model.meta['surface_corrected']`` says it already is.
+    """Return the surface the service should press against.
 
-    A ``plastic_set`` without the learner's correction cannot be applied (the poked spots are
-    not in the file); the surface is then returned as stored.
+    That is ``model.surface`` with a surface offset applied unless
+    ``model.meta['surface_corrected']`` says it already is. A ``plastic_set`` without the
+    learner's correction cannot be applied (the poked spots are not in the file); the surface
+    is then returned as stored.
     """
     effects = effects_from_dict(getattr(model, 'effects', {}) or {})
     done = set((getattr(model, 'meta', {}) or {}).get('surface_corrected', ()))

@@ -154,6 +154,11 @@ def _markdown(report) -> str:
                              f'{units.get(k, "")} |')
     else:
         lines.append('No effect was accepted.')
+    if report.onset is not None:
+        lines += ['', f'Camera bias: {report.onset.describe()}.']
+        caution = report.offset_disagreement()
+        if caution:
+            lines += ['', f'**{caution[0].upper() + caution[1:]}.**']
     lines += ['', f'Contact-law exponent p = {report.exponent:.3f}.', '',
               '| held-out force error | before | after |', '| --- | --- | --- |',
               f'| RMSE, point pokes (N) | {_fmt(report.rmse_before)} | '

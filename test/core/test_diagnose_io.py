@@ -304,3 +304,55 @@ def test_write_report_and_run_diagnose(tmp_path, capsys):
     assert 'no effect accepted' in out and (tmp_path / 'cli' / 'report.md').is_file()
     assert run_diagnose(tmp_path / 'nothing-here', tmp_path / 'cli2') == 2
     assert 'no poke data' in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- forward terms
+
+
+def test_retreat_solves_the_series_spring_in_closed_form():
+    from pointforce_ros.effects.forward import solve_retreat
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(-0.001, 0.006, 40)          # commanded depths, some out of contact
+    k = rng.uniform(500.0, 5000.0, 40)               # contact stiffness, N/m
+    compliance = 2e-4                                # m/N
+
+    def push_back(index, shift):                     # a linear contact spring per pose
+        return k[index] * np.maximum(depth[index] - shift, 0.0)
+
+    shift, evaluations = solve_retreat(push_back, compliance, len(depth))
+    expected = compliance * k * np.maximum(depth, 0.0) / (1.0 + compliance * k)
+    np.testing.assert_allclose(shift, expected, rtol=0, atol=1e-8)
+    assert evaluations < 20
+    # Hertz-like law: the retreat is the fixed point s = c F(d - s)
+    shift, _ = solve_retreat(lambda i, s: 3e4 * np.maximum(depth[i] - s, 0) ** 1.5,
+                             compliance, len(depth))
+    np.testing.assert_allclose(shift, compliance * 3e4 * np.maximum(depth - shift, 0) ** 1.5,
+                               rtol=0, atol=1e-8)
+
+
+def test_forward_terms_say_what_they_apply_and_why_not():
+    from pointforce_ros.effects.forward import ForwardTerms, hold_fraction, model_surface
+    effects = {'series_compliance': {'compliance': 1e-4}, 'viscoelastic': {'g': 0.3, 'tau': 2.0},
+               'time_offset': {'offset': 0.01}, 'surface_offset': {'offset': 0.002}}
+    terms = ForwardTerms.of(effects, hold_time=2.0)
+    assert terms.compliance == 1e-4
+    assert terms.force_scale == pytest.approx(1.0 - 0.3 * (1.0 - np.exp(-1.0)), rel=1e-12)
+    assert set(terms.applied) == {'series_compliance', 'viscoelastic', 'surface_offset'}
+    assert dict(terms.skipped).keys() == {'time_offset'}
+    off = ForwardTerms.of(effects, series_compliance=False)
+    assert off.compliance == 0.0 and off.force_scale == 1.0
+    assert 'series_compliance' in dict(off.skipped)
+    assert hold_fraction({'g': 0.3, 'tau': 2.0}, 1e9) == pytest.approx(0.7)
+    with pytest.raises(InvalidInput, match='hold_time'):
+        ForwardTerms.of(effects, hold_time=-1.0)
+    # a file that has not applied the surface offset gets it at load, one that has does not
+    surface = Surface(points=np.zeros((3, 3)) + [[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0]],
+                      normals=np.tile([0.0, 0.0, 1.0], (3, 1)))
+    table = BakedResponse(depths=np.array([0.0, 0.01]), forces=np.zeros((3, 2)),
+                          slopes=np.zeros(3))
+    raw = ContactModel(surface=surface, response=table, shape_constant=0.004,
+                       effects=effects_to_dict(effects))
+    np.testing.assert_allclose(model_surface(raw).points[:, 2], 0.002)
+    done = ContactModel(surface=surface, response=table, shape_constant=0.004, effects=effects,
+                        meta={'surface_corrected': ['surface_offset']})
+    np.testing.assert_allclose(model_surface(done).points[:, 2], 0.0)

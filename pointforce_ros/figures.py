@@ -107,7 +107,12 @@ def make_poke_fixture(name: str, out=DATA_DIR, count: int = 30, seed: int = 0,
         f'{time.monotonic() - started:.0f} s')
     records = simulate_campaign(fem_cell_object(spec, live), scen, count=int(count), seed=seed,
                                 force_limit=spec.force_cap, depth_limit=spec.max_depth)
-    curves = [extract_curve(r) for r in records]
+    curves = []
+    for record in records:
+        try:
+            curves.append(extract_curve(record))
+        except InvalidInput as exc:          # e.g. a poke on the dome's rim that made no contact
+            say(f'[figures-data] {name}: skipped {record.poke_id}: {exc}')
     say(f'[figures-data] {name}: {len(curves)} curves, {time.monotonic() - started:.0f} s')
     arrays = curves_to_arrays(curves)
     arrays.update(surface_points=surface.points.astype(np.float32),

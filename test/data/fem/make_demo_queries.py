@@ -29,16 +29,26 @@ def main():
     args = parser.parse_args()
     spec = load_object(args.object)
     queries = demo_query_set(spec)
-    force, torque = [], []
+    names = [q[0] for q in queries]
+    # Partial results survive an interrupted run: each finished query is kept and skipped next time.
+    partial = HERE / f'demo_queries_{spec.name}.partial.npz'
+    done = {}
+    if partial.exists():
+        with np.load(partial, allow_pickle=False) as z:
+            done = {str(n): (f, m) for n, f, m in zip(z['names'], z['force'], z['torque'])}
     start = time.monotonic()
     for k, (name, mesh, pose, approach, centre) in enumerate(queries):
-        f, m = probe_wrench_full(spec, mesh, pose, centre, h=spec.mesh_live)
-        force.append(f)
-        torque.append(m)
-        print(f'{k + 1}/{len(queries)} {name}: F = {np.round(f, 3)} N, '
+        if name not in done:
+            done[name] = probe_wrench_full(spec, mesh, pose, centre, h=spec.mesh_live)
+            keys = list(done)
+            np.savez(partial, names=np.array(keys), force=np.array([done[n][0] for n in keys]),
+                     torque=np.array([done[n][1] for n in keys]))
+        print(f'{k + 1}/{len(queries)} {name}: F = {np.round(done[name][0], 3)} N, '
               f'{time.monotonic() - start:.0f} s', flush=True)
-    np.savez(HERE / f'demo_queries_{spec.name}.npz', names=np.array([q[0] for q in queries]),
-             force=np.array(force), torque=np.array(torque))
+    np.savez(HERE / f'demo_queries_{spec.name}.npz', names=np.array(names),
+             force=np.array([done[n][0] for n in names]),
+             torque=np.array([done[n][1] for n in names]))
+    partial.unlink()
 
 
 if __name__ == '__main__':

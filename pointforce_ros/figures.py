@@ -360,6 +360,63 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
 
 
 # ---------------------------------------------------------------- figure 2: probe trials
+def error_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 5,
+                 repeats: int = 10, seed: int = 0) -> Dict:
+    """Where ours' held-out error comes from, at ``size`` training pokes.
+
+    For each random training subset, every held-out poke is predicted three ways and scored
+    as in figure 1 (contact region):
+
+    - ``predicted``: ours as is (onset, stiffness and exponent from the processes);
+    - ``own_stiffness``: the held-out poke's *own* fitted ``(log F, p)`` with the predicted
+      onset: what is left when the stiffness field is known exactly, i.e. the cost of the
+      onset scatter between pokes (camera noise at the poked point) that no model of the
+      surface can predict;
+    - ``own_law``: the held-out poke's own fit, all three parameters (how well the contact
+      law represents one curve; the measurement-noise floor).
+
+    Returns:
+        ``{'size', 'repeats', 'predicted', 'own_stiffness', 'own_law'}``: median RMSE in
+        newtons over the subsets.
+
+    Raises:
+        InvalidInput: ``size`` leaves no held-out poke or ``repeats < 1``.
+
+    """
+    from pointforce_ros.response.common import curve_features
+    from pointforce_ros.response.evaluate import CONTACT_MARGIN
+    from pointforce_ros.response.ours import ContactGpModel
+
+    curves = list(curves)
+    if not 1 <= size < len(curves) or repeats < 1:
+        raise InvalidInput(f'error_budget: need 1 <= size < {len(curves)} and repeats >= 1, '
+                           f'got size {size}, repeats {repeats}')
+    feats = curve_features(curves, surface)
+    own = np.array([ContactGpModel().fit_curve(c)[0] for c in curves])
+    keep = [c.d >= c.onset_d - CONTACT_MARGIN for c in curves]
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _ in range(int(repeats)):
+        train = rng.choice(len(curves), size=size, replace=False)
+        test = np.setdiff1d(np.arange(len(curves)), train)
+        model = ContactGpModel().fit([curves[i] for i in train], surface)
+        pred = model.predict_params(feats[test])
+        variants = {'predicted': pred, 'own_stiffness': np.column_stack([pred[:, 0],
+                                                                         own[test, 1:]]),
+                    'own_law': own[test]}
+        row = {}
+        for name, params in variants.items():
+            err = [model.force_from_params(np.repeat(params[k][None], int(keep[i].sum()), 0),
+                                           curves[i].d[keep[i]]) - curves[i].f[keep[i]]
+                   for k, i in enumerate(test)]
+            err = np.concatenate(err)
+            row[name] = float(np.sqrt(np.mean(err * err)))
+        rows.append(row)
+    out = {'size': int(size), 'repeats': int(repeats)}
+    out.update({k: float(np.median([r[k] for r in rows])) for k in rows[0]})
+    return out
+
+
 def wrench_rmse(pred_force, pred_torque, true_force, true_torque) -> Tuple[float, float]:
     """RMS of the force (N) and torque (N m) error vectors over all rows ((R, 3) each)."""
     ef = np.asarray(pred_force, float) - np.asarray(true_force, float)
@@ -710,7 +767,20 @@ def markdown_report(result: Mapping) -> str:
                      f"{_fmt(g['ratio_10'], 2)} | {_fmt(g['half_at_10'])} | "
                      f"{_fmt(g['ours_3'])} vs {_fmt(g['baseline_10'])} | "
                      f"{_fmt(g['three_vs_ten'])} |")
-    lines += ['', '(baseline = the better of ET and Auto-ET at that size)', '',
+    lines += ['', '(baseline = the better of ET and Auto-ET at that size)', '']
+    if result.get('error_budget'):
+        lines += ['### Error budget of ours [N] (same held-out protocol)', '',
+                  '`own stiffness`: each held-out poke\'s own fitted stiffness and exponent with '
+                  'the predicted onset (the cost of the onset scatter between pokes, which no '
+                  'surface model can predict); `own law`: its own fit (noise floor).', '',
+                  '| object | pokes | ours | own stiffness | own law |',
+                  '| --- | --- | --- | --- | --- |']
+        for name, budgets in result['error_budget'].items():
+            for b in budgets:
+                lines.append(f"| {name} | {b['size']} | {_fmt(b['predicted'])} | "
+                             f"{_fmt(b['own_stiffness'])} | {_fmt(b['own_law'])} |")
+        lines.append('')
+    lines += [
               '## 2. Line and cylinder probes: wrench RMSE on held-out trials', '',
               'RMS of the force / torque error vector over every step of every evaluated trial '
               '(trial 0 identifies c and is not scored); point models trained on '
@@ -803,7 +873,8 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = {'objects': [], 'repeats': repeats, 'seed': int(seed), 'auto_budget': auto_budget,
-              'learning': {}, 'learning_goals': {}, 'probes': {}, 'probe_goals': {},
+              'learning': {}, 'learning_goals': {}, 'error_budget': {}, 'probes': {},
+              'probe_goals': {},
               'skipped': {}, 'stale': [], 'files': []}
     for k, name in enumerate(objects):
         say(f'[figures] {k + 1}/{len(objects)} {name}: loading fixtures')
@@ -822,6 +893,9 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         result['learning'][name] = [{k2: r[k2] for k2 in ('model', 'size', 'median', 'q25',
                                                           'q75', 'fit_s')} for r in rows]
         result['learning_goals'][name] = learning_goals(rows)
+        result['error_budget'][name] = [error_budget(curves, surface, size=s, repeats=repeats,
+                                                     seed=seed) for s in (5, 10)
+                                        if s < len(curves)]
         line = ', '.join(f"{r['model']}@{r['size']} {r['median']:.3f}" for r in rows
                          if r['size'] in (3, 5, 10))
         say(f'[figures]   learning curves ({time.monotonic() - t0:.0f} s): {line} N')

@@ -269,6 +269,25 @@ class ContactGpModel:
         f, _, _ = self._law(theta[:, 0], theta[:, 1], theta[:, 2], d)
         return f
 
+    def force_from_params(self, params, d) -> np.ndarray:
+        """Force (M,), newtons, of the contact law with per-row ``params`` (M, 3) at ``d`` (M,).
+
+        ``params`` are ``(d0 [m], log F, p)`` as :attr:`poke_params` and :meth:`predict_params`
+        give them (for example a held-out poke's own fit, in an error budget).
+
+        Raises:
+            InvalidInput: shapes disagree or values are not finite.
+
+        """
+        params = np.asarray(params, dtype=float)
+        d = np.asarray(d, dtype=float)
+        if params.ndim != 2 or params.shape[1] != 3 or d.shape != (len(params),) \
+                or not (np.all(np.isfinite(params)) and np.all(np.isfinite(d))):
+            raise InvalidInput(f'force_from_params: need finite (M, 3) params and (M,) depths, '
+                               f'got {params.shape} and {d.shape}')
+        f, _, _ = self._law(params[:, 0], params[:, 1], params[:, 2], d)
+        return f
+
     def predict_std(self, features: np.ndarray, d) -> np.ndarray:
         """Predictive standard deviation (M,) of the force curve, newtons (delta method).
 

@@ -168,3 +168,19 @@ def test_probe_goals_ratio_and_peak_fraction():
     assert g['peak_fraction'] == pytest.approx(0.12) and g['peak_met'] is False
     res['rmse']['ours']['force'] = 0.75
     assert figures.probe_goals(res)['ratio_met'] is False
+
+
+def test_error_budget_separates_the_noise_floor_from_the_prediction():
+    from pointforce_ros.response.synthetic import spread_indices, SyntheticObject
+
+    obj = SyntheticObject()
+    surface = obj.surface(0.004)
+    rng = np.random.default_rng(3)
+    curves = obj.curves(surface, spread_indices(surface, 10, rng), rng, ft_noise=0.03)
+    budget = figures.error_budget(curves, surface, size=4, repeats=3, seed=1)
+    # The held-out pokes' own fits leave the F/T noise (0.03 N along the normal) ...
+    assert 0.02 < budget['own_law'] < 0.045, budget
+    # ... and anything predicted from other pokes can only add to it.
+    assert budget['own_law'] < budget['own_stiffness'] and budget['own_law'] < budget['predicted']
+    with pytest.raises(InvalidInput, match='size'):
+        figures.error_budget(curves, surface, size=len(curves))

@@ -30,7 +30,7 @@ def main():
     spec = load_object(args.object)
     queries = demo_query_set(spec)
     names = [q[0] for q in queries]
-    # Partial results survive an interrupted run: each finished query is kept and skipped next time.
+    # Each finished query is kept and skipped on the next run (an interrupted run resumes).
     partial = HERE / f'demo_queries_{spec.name}.partial.npz'
     done = {}
     if partial.exists():

@@ -360,61 +360,50 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
 
 
 # ---------------------------------------------------------------- figure 2: probe trials
-def error_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 5,
-                 repeats: int = 10, seed: int = 0) -> Dict:
-    """Where ours' held-out error comes from, at ``size`` training pokes.
+def truth_floor(name: str, curves: Sequence[PokeCurve], scenario: str = 'realistic',
+                stride: int = 5) -> float:
+    """Held-out RMSE (N) of the *true* physics that knows only the camera's mean bias.
 
-    For each random training subset, every held-out poke is predicted three ways and scored
-    as in figure 1 (contact region):
-
-    - ``predicted``: ours as is (onset, stiffness and exponent from the processes);
-    - ``own_stiffness``: the held-out poke's *own* fitted ``(log F, p)`` with the predicted
-      onset: what is left when the stiffness field is known exactly, i.e. the cost of the
-      onset scatter between pokes (camera noise at the poked point) that no model of the
-      surface can predict;
-    - ``own_law``: the held-out poke's own fit, all three parameters (how well the contact
-      law represents one curve; the measurement-noise floor).
-
-    Returns:
-        ``{'size', 'repeats', 'predicted', 'own_stiffness', 'own_law'}``: median RMSE in
-        newtons over the subsets.
+    Every curve is predicted by the object's own FEM live path at its poked point, at depth
+    ``d + bias`` (``bias`` = the scenario's camera depth bias): a model that knew the stiffness
+    field exactly and the camera's bias, but not the camera noise at each poked point (which
+    shifts each poke's onset at random). No model learned from other pokes can beat it. Scored
+    like figure 1 (contact region), on every ``stride``-th sample.
 
     Raises:
-        InvalidInput: ``size`` leaves no held-out poke or ``repeats < 1``.
+        DataError: the object's live cache is missing or stale.
 
     """
-    from pointforce_ros.response.common import curve_features
+    from pointforce_ros.cell.fem.live import LiveContact
+    from pointforce_ros.cell.scenario import load_scenario
+    from pointforce_ros.response.evaluate import CONTACT_MARGIN
+
+    live = LiveContact.load(name, build=False)
+    bias = float(load_scenario(scenario).camera_kwargs()['depth_bias'])
+    err = []
+    for c in curves:
+        idx = np.flatnonzero(c.d >= c.onset_d - CONTACT_MARGIN)[::max(1, int(stride))]
+        x, y = float(c.point[0]), float(c.point[1])
+        f = np.array([live.normal_force(x, y, d + bias) if d + bias > 0 else 0.0
+                      for d in c.d[idx]])
+        err.append(f - c.f[idx])
+    err = np.concatenate(err)
+    return float(np.sqrt(np.mean(err * err)))
+
+
+def own_law_rmse(curves: Sequence[PokeCurve]) -> float:
+    """RMSE (N) of each curve against its *own* contact-law fit: the law's noise floor."""
     from pointforce_ros.response.evaluate import CONTACT_MARGIN
     from pointforce_ros.response.ours import ContactGpModel
 
-    curves = list(curves)
-    if not 1 <= size < len(curves) or repeats < 1:
-        raise InvalidInput(f'error_budget: need 1 <= size < {len(curves)} and repeats >= 1, '
-                           f'got size {size}, repeats {repeats}')
-    feats = curve_features(curves, surface)
-    own = np.array([ContactGpModel().fit_curve(c)[0] for c in curves])
-    keep = [c.d >= c.onset_d - CONTACT_MARGIN for c in curves]
-    rng = np.random.default_rng(seed)
-    rows = []
-    for _ in range(int(repeats)):
-        train = rng.choice(len(curves), size=size, replace=False)
-        test = np.setdiff1d(np.arange(len(curves)), train)
-        model = ContactGpModel().fit([curves[i] for i in train], surface)
-        pred = model.predict_params(feats[test])
-        variants = {'predicted': pred, 'own_stiffness': np.column_stack([pred[:, 0],
-                                                                         own[test, 1:]]),
-                    'own_law': own[test]}
-        row = {}
-        for name, params in variants.items():
-            err = [model.force_from_params(np.repeat(params[k][None], int(keep[i].sum()), 0),
-                                           curves[i].d[keep[i]]) - curves[i].f[keep[i]]
-                   for k, i in enumerate(test)]
-            err = np.concatenate(err)
-            row[name] = float(np.sqrt(np.mean(err * err)))
-        rows.append(row)
-    out = {'size': int(size), 'repeats': int(repeats)}
-    out.update({k: float(np.median([r[k] for r in rows])) for k in rows[0]})
-    return out
+    model = ContactGpModel()
+    err = []
+    for c in curves:
+        keep = c.d >= c.onset_d - CONTACT_MARGIN
+        params = np.repeat(model.fit_curve(c)[0][None], int(keep.sum()), axis=0)
+        err.append(model.force_from_params(params, c.d[keep]) - c.f[keep])
+    err = np.concatenate(err)
+    return float(np.sqrt(np.mean(err * err)))
 
 
 def wrench_rmse(pred_force, pred_torque, true_force, true_torque) -> Tuple[float, float]:
@@ -769,16 +758,15 @@ def markdown_report(result: Mapping) -> str:
                      f"{_fmt(g['three_vs_ten'])} |")
     lines += ['', '(baseline = the better of ET and Auto-ET at that size)', '']
     if result.get('error_budget'):
-        lines += ['### Error budget of ours [N] (same held-out protocol)', '',
-                  '`own stiffness`: each held-out poke\'s own fitted stiffness and exponent with '
-                  'the predicted onset (the cost of the onset scatter between pokes, which no '
-                  'surface model can predict); `own law`: its own fit (noise floor).', '',
-                  '| object | pokes | ours | own stiffness | own law |',
-                  '| --- | --- | --- | --- | --- |']
-        for name, budgets in result['error_budget'].items():
-            for b in budgets:
-                lines.append(f"| {name} | {b['size']} | {_fmt(b['predicted'])} | "
-                             f"{_fmt(b['own_stiffness'])} | {_fmt(b['own_law'])} |")
+        lines += ['### Floors [N] (same held-out protocol, all 30 pokes)', '',
+                  '`true physics`: the object\'s own FEM force at every held-out sample, knowing '
+                  'the camera\'s mean bias but not its noise at each poked point (that noise '
+                  'moves each poke\'s contact onset at random). No model learned from other '
+                  'pokes can go below it. `own law`: each curve against its own contact-law fit '
+                  '(the F/T noise floor).', '',
+                  '| object | true physics | own law |', '| --- | --- | --- |']
+        for name, b in result['error_budget'].items():
+            lines.append(f"| {name} | {_fmt(b.get('truth'))} | {_fmt(b['own_law'])} |")
         lines.append('')
     lines += [
               '## 2. Line and cylinder probes: wrench RMSE on held-out trials', '',
@@ -893,9 +881,11 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         result['learning'][name] = [{k2: r[k2] for k2 in ('model', 'size', 'median', 'q25',
                                                           'q75', 'fit_s')} for r in rows]
         result['learning_goals'][name] = learning_goals(rows)
-        result['error_budget'][name] = [error_budget(curves, surface, size=s, repeats=repeats,
-                                                     seed=seed) for s in (5, 10)
-                                        if s < len(curves)]
+        result['error_budget'][name] = {'own_law': own_law_rmse(curves)}
+        try:
+            result['error_budget'][name]['truth'] = truth_floor(name, curves)
+        except DataError as exc:
+            say(f'[figures]   no truth floor: {exc}')
         line = ', '.join(f"{r['model']}@{r['size']} {r['median']:.3f}" for r in rows
                          if r['size'] in (3, 5, 10))
         say(f'[figures]   learning curves ({time.monotonic() - t0:.0f} s): {line} N')

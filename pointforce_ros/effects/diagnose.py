@@ -2,8 +2,8 @@
 
 Procedure (``diagnose``):
 
-1. Load point pokes (store, bag, CSV table or records) and prepare a batch
-   (:func:`~pointforce_ros.effects.data.make_batch`). Probe trials are counted but not scored.
+1. Load point pokes (store, bag, CSV table, records, or a ``pointforce cell generate``
+   folder) and prepare a batch (:func:`~pointforce_ros.effects.data.make_batch`).
 2. Split the pokes, seeded and by poke, into ``folds`` groups. Each group is held out once: the
    global parameters (exponent and effect parameters) are fitted on the other groups, and the
    held-out pokes are scored with them (their per-poke amplitude and contact direction, the
@@ -20,6 +20,19 @@ Procedure (``diagnose``):
      prediction by less than that is not worth a term, however clean the data);
    * the penalised held-out score ``n ln(MSE) + k ln(n)`` (``n`` pokes, ``k`` fitted effect
      parameters: a BIC counted per poke, the unit of independent data) drops.
+
+   Two plausibility checks follow; a candidate failing one is not accepted, and the report
+   says why (``CandidateResult.rejected``):
+
+   * *on a bound*: in a training-fold fit, the candidate's own parameters or the base law's
+     (exponent, curvature) sit on a bound of the search box where the current set's fit did
+     not. The optimum is then not interior: the parameters are not estimates, and the gain
+     comes from bending a law that does not fit the curves (e.g. on an object whose curves
+     stiffen over a bone, an offset of 5 mm with the exponent driven to its bound 4 buys a
+     better shape, while the true camera bias is 2 mm);
+   * *onset*: a surface offset must agree with the one the per-poke contact onsets give
+     (:class:`OnsetOffset`, an independent measure of the same quantity that does not assume
+     a global law) within ``3 sem + onset_tolerance``.
 
    The significant candidate with the lowest penalised score is accepted; the next round
    starts from it. After each acceptance a backward check drops any earlier effect that is no
@@ -64,8 +77,11 @@ class CandidateResult:
         p_value: one-sided Wilcoxon signed-rank p on per-poke held-out MSE.
         delta_score: change of the penalised score ``n ln(MSE) + k ln(n)``.
         improved: number of pokes whose held-out error dropped.
-        significant: passed all three tests.
+        significant: passed all three tests and neither plausibility check.
         values: fitted parameters on the first training fold (for the record).
+        rejected: why a candidate that passed the three tests was still not accepted (its
+            fit sits on a bound of the search box, or a surface offset contradicts the
+            onset estimate); empty otherwise.
 
     """
 
@@ -78,6 +94,7 @@ class CandidateResult:
     improved: int
     significant: bool
     values: Dict[str, float] = field(default_factory=dict)
+    rejected: str = ''
 
 
 @dataclass(frozen=True)
@@ -271,6 +288,13 @@ class DiagnoseReport:
                 lines.append(f'{UNDERPOWERED}: the strongest candidate was {best.name} '
                              f'(held-out RMSE {self.rmse_before:.4g} -> {best.rmse:.4g} N), '
                              'not accepted: poke more before drawing a conclusion')
+        refused = {}
+        for rnd in self.rounds:
+            for c in rnd.candidates:
+                if c.rejected:
+                    refused.setdefault(c.name, c.rejected)
+        for name, why in refused.items():
+            lines.append(f'not accepted: {name} passed the tests but {why}')
         if self.onset is not None:
             lines.append(self.onset.describe())
             note = self.offset_disagreement()
@@ -309,6 +333,43 @@ def _pooled_rmse(batch: PokeBatch, sse: np.ndarray) -> float:
 def _score(batch: PokeBatch, sse: np.ndarray, k: int) -> float:
     n = len(batch)
     return n * np.log(max(np.sum(sse) / batch.n_samples, 1e-300)) + k * np.log(n)
+
+
+def _on_bound(fit: Fit, effects: Sequence[str], rel: float = 1e-3) -> set:
+    """``(effect, parameter)`` pairs of ``effects`` (``base`` for the law) on a search bound."""
+    out = set()
+    for (name, p), x in zip(fit.layout.entries, fit.x):
+        if name not in effects:
+            continue
+        margin = rel * (p.upper - p.lower)
+        if x <= p.lower + margin or x >= p.upper - margin:
+            out.add((name, p.name))
+    return out
+
+
+def _plausibility(name: str, cand_fits, cur_fits, onset: Optional[OnsetOffset],
+                  onset_tolerance: float) -> str:
+    """Return why a significant candidate cannot be accepted, or ''."""
+    for (_, new), (_, old) in zip(cand_fits, cur_fits):
+        flagged = _on_bound(new, ('base', name)) - _on_bound(old, ('base',))
+        if flagged:
+            text = ', '.join(f'{e}.{k} = {_value_text(new.values[e][k])}'
+                             for e, k in sorted(flagged))
+            return (f'fit on a bound of the search box ({text}): not an interior optimum, '
+                    'the law does not fit the curves')
+    if name == 'surface_offset' and onset is not None:
+        fitted = float(np.mean([f.values[name]['offset'] for _, f in cand_fits]))
+        allowed = 3.0 * onset.sem + float(onset_tolerance)
+        if abs(fitted - onset.offset) > allowed:
+            return (f'offset {fitted * 1e3:.2f} mm contradicts the onset estimate '
+                    f'{onset.offset * 1e3:.2f} +- {onset.sem * 1e3:.2f} mm (allowed gap '
+                    f'{allowed * 1e3:.2f} mm): the fit bends the law instead of moving the '
+                    'surface')
+    return ''
+
+
+def _value_text(value: float) -> str:
+    return f'{value:.4g}'
 
 
 def _compare(batch, sse_old, sse_new, k_add, alpha, min_improvement, min_drop):
@@ -440,7 +501,8 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
              min_improvement: float = 0.03, resolution: float = 0.001,
              tolerance: float = 0.005, bootstrap: int = 20,
              max_rate: float = 50.0, window: float = 0.002,
-             candidates: Optional[Sequence[str]] = None, log=None) -> DiagnoseReport:
+             candidates: Optional[Sequence[str]] = None, onset_tolerance: float = 0.001,
+             log=None) -> DiagnoseReport:
     """Find which library effects explain the residual of held-out pokes (module docstring).
 
     Args:
@@ -458,6 +520,9 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         max_rate: samples are block-averaged down to at most this rate, Hz.
         window: samples farther than this outside the surface are ignored, metres.
         candidates: restrict the library (names); all by default.
+        onset_tolerance: largest gap, metres, beyond three standard errors, between an
+            accepted surface offset and the onset estimate (the onset fit's own bias on a
+            soft cap: 0.7 mm measured on ``lamb``).
         log: ``log(str)`` progress callback (e.g. ``print``), or None.
 
     Raises:
@@ -468,9 +533,9 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     say = log if log is not None else (lambda message: None)
     if not 0 < alpha < 1:
         raise InvalidInput(f'diagnose: alpha must be in (0, 1), got {alpha}')
-    if min(min_improvement, resolution, tolerance, bootstrap) < 0:
-        raise InvalidInput('diagnose: min_improvement, resolution, tolerance and bootstrap '
-                           'must be >= 0')
+    if min(min_improvement, resolution, tolerance, bootstrap, onset_tolerance) < 0:
+        raise InvalidInput('diagnose: min_improvement, resolution, tolerance, bootstrap and '
+                           'onset_tolerance must be >= 0')
     names = list(LIBRARY) if candidates is None else list(candidates)
     unknown = [c for c in names if c not in LIBRARY]
     if unknown:
@@ -515,9 +580,12 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
             rmse, imp, p_value, delta, improved, sig = _compare(
                 batch, sse, cand_sse, LIBRARY[name].n_params, alpha, min_improvement, min_drop)
             trial[name] = (cand_fits, cand_sse)
+            why = _plausibility(name, cand_fits, fits, onset, onset_tolerance) if sig else ''
+            if why:
+                say(f'{name}: significant but not accepted: {why}')
             results.append(CandidateResult(name, LIBRARY[name].n_params, rmse, imp, p_value,
-                                           delta, improved, sig,
-                                           dict(cand_fits[0][1].values.get(name, {}))))
+                                           delta, improved, sig and not why,
+                                           dict(cand_fits[0][1].values.get(name, {})), why))
         results.sort(key=lambda c: (not c.significant, c.delta_score))
         chosen = results[0].name if results and results[0].significant else None
         rounds.append(SelectionRound(tuple(current), _pooled_rmse(batch, sse), tuple(results),
@@ -590,6 +658,7 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         settings={'seed': int(seed), 'alpha': float(alpha), 'folds': int(folds),
                   'min_improvement': float(min_improvement), 'resolution': float(resolution),
                   'tolerance': float(tolerance),
+                  'onset_tolerance': float(onset_tolerance),
                   'bootstrap': int(bootstrap), 'max_rate': float(max_rate),
                   'window': float(window)},
         ids=batch.ids, points=batch.point.copy(), notes=notes, rounds=rounds,

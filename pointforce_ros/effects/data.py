@@ -3,6 +3,7 @@
 Sources :func:`load_pokes` accepts:
 
 * a :class:`~pointforce_ros.pokes.store.PokeStore` directory (``index.json`` + ``poke-*`` bags),
+  or a ``pointforce cell generate`` folder holding one as ``pokes/``,
 * a single poke bag directory (rosbag2 MCAP with ``metadata.yaml``),
 * an imported table (``.csv``, DESIGN.md section 4), one row per sample::
 
@@ -180,6 +181,9 @@ def load_pokes(data) -> List[PokeRecord]:
         return [read_poke_bag(path)]
     if (path / PokeStore.INDEX).is_file() or any(path.glob('poke-*/metadata.yaml')):
         return list(PokeStore(path))
+    pokes = path / 'pokes'
+    if (pokes / PokeStore.INDEX).is_file() or any(pokes.glob('poke-*/metadata.yaml')):
+        return list(PokeStore(pokes))  # a ``pointforce cell generate`` folder
     raise DataError(f'{path}: neither a poke store (index.json, poke-* bags) nor a bag')
 
 

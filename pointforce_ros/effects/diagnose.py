@@ -40,7 +40,14 @@ Procedure (``diagnose``):
    an effect that only stood in for one found later does not stay. Selection stops when no
    candidate is significant.
 4. The accepted set is refitted on all pokes; parameter uncertainty is a bootstrap over pokes.
-5. The held-out residual after selection is compared with the sensor noise (estimated from
+5. Probe trials, where the data have them (a ``cell generate`` folder's ``probes.npz`` with
+   its ``surface.npz``, or ``probes=`` and ``surface=``), are scored by
+   :func:`~pointforce_ros.effects.probes.score_probe_trials`: the point model the nodes learn
+   (ours) from all point pokes without and with the accepted effects, answered through the
+   contact service; force and torque RMSE before and after. The ``spatial_coupling`` effect
+   (the shape constant of the contact simulator) is tested on them there: point pokes cannot
+   identify it.
+6. The held-out residual after selection is compared with the sensor noise (estimated from
    sample-to-sample differences). When its systematic part exceeds ``tolerance`` times the
    median peak force, the report says "unexplained residual" and shows its structure (by depth,
    phase, time in the poke, poke order, poke, and the best-fitting periodic component) instead
@@ -58,6 +65,8 @@ from scipy.stats import wilcoxon
 
 from pointforce_ros.effects.data import load_pokes, make_batch, PokeBatch
 from pointforce_ros.effects.library import LIBRARY, NOT_TESTABLE_ON_POKES
+from pointforce_ros.effects.probes import (generated_files, load_probe_trials, ProbeScore,
+                                           score_probe_trials)
 from pointforce_ros.effects.model import (Fit, fit_global, fold_indices, heldout_sse,
                                           residual_table)
 from pointforce_ros.errors import InvalidInput, NotConverged, PointforceError
@@ -244,6 +253,7 @@ class DiagnoseReport:
     probe_trials: int
     not_testable: Dict[str, str]
     onset: Optional[OnsetOffset] = None
+    probe: Optional[ProbeScore] = None
 
     @property
     def accepted_names(self) -> List[str]:
@@ -300,6 +310,8 @@ class DiagnoseReport:
             note = self.offset_disagreement()
             if note:
                 lines.append(note)
+        if self.probe is not None:
+            lines.append(self.probe.describe())
         if self.unexplained:
             top = self.structure_after[0] if self.structure_after else None
             lines.append('unexplained residual: systematic part '
@@ -502,6 +514,7 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
              tolerance: float = 0.005, bootstrap: int = 20,
              max_rate: float = 50.0, window: float = 0.002,
              candidates: Optional[Sequence[str]] = None, onset_tolerance: float = 0.001,
+             probes=None, surface=None, shape_constant: float = 0.004,
              log=None) -> DiagnoseReport:
     """Find which library effects explain the residual of held-out pokes (module docstring).
 
@@ -523,6 +536,14 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         onset_tolerance: largest gap, metres, beyond three standard errors, between an
             accepted surface offset and the onset estimate (the onset fit's own bias on a
             soft cap: 0.7 mm measured on ``lamb``).
+        probes: probe trials (a ``probes.npz`` path or a sequence of
+            :class:`~pointforce_ros.effects.probes.ProbeTrial`); by default those of the
+            ``cell generate`` folder ``data`` is or lies in. None there: not scored.
+        surface: the equilibrium surface the point model is baked on for the probe trials (a
+            :class:`~pointforce_ros.types.Surface` or a ``surface.npz`` path); by default the
+            generate folder's.
+        shape_constant: ``c`` of the served model for the probe trials, metres (the
+            learner's ``shape_constant`` parameter).
         log: ``log(str)`` progress callback (e.g. ``print``), or None.
 
     Raises:
@@ -542,10 +563,25 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         raise InvalidInput(f'diagnose: unknown candidate(s) {unknown}; known: {list(LIBRARY)}')
     records = load_pokes(data)
     source = str(data) if not isinstance(data, (list, tuple)) else f'{len(records)} records'
-    probes = sum(1 for r in records if r.probe != 'point')
+    probes_in_records = sum(1 for r in records if r.probe != 'point')
     batch, notes = make_batch(records, window=window, max_rate=max_rate)
+    found = generated_files(data)
+    trials = probes if probes is not None else found.get('probes')
+    if isinstance(trials, (str, Path)):
+        trials = load_probe_trials(trials)
+    trials = list(trials or [])
+    surface = surface if surface is not None else found.get('surface')
+    if isinstance(surface, (str, Path)):
+        from pointforce_ros.model_io import load_surface
+        surface = load_surface(surface)
     say(f'diagnose: {len(batch)} point pokes, {batch.n_samples} samples'
-        + (f', {probes} probe trial(s) not scored' if probes else ''))
+        + (f', {len(trials)} probe trial(s)' if trials else '')
+        + (f', {probes_in_records} probe record(s) not scored (probe trials need ground '
+           'truth)' if probes_in_records else ''))
+    if trials and surface is None:
+        notes.append(f'{len(trials)} probe trial(s) not scored: no equilibrium surface '
+                     '(surface.npz next to the pokes, or surface=)')
+        say(notes[-1])
     smallest_p = 0.5 ** len(batch)  # one-sided Wilcoxon, every poke better
     if smallest_p >= alpha:
         needed = int(np.ceil(np.log(alpha) / np.log(0.5))) + 1
@@ -652,6 +688,16 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     if unexplained:
         say(f'unexplained residual: {sys_after:.3g} N systematic (tolerance {tol:.3g} N); '
             f'strongest structure: {structure_after[0].detail}')
+    probe = None
+    if trials and surface is not None:
+        say(f'probe trials: learning the point model without and with '
+            f'{", ".join(current) or "no effect"}, answering {len(trials)} trial(s)')
+        probe = score_probe_trials(records, trials, surface,
+                                   {a.name: dict(a.params) for a in accepted},
+                                   shape_constant=shape_constant, alpha=alpha,
+                                   min_improvement=min_improvement)
+        for line in probe.describe().splitlines():
+            say(line)
     lengths = np.diff(batch.starts)
     return DiagnoseReport(
         source=source,
@@ -660,7 +706,7 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
                   'tolerance': float(tolerance),
                   'onset_tolerance': float(onset_tolerance),
                   'bootstrap': int(bootstrap), 'max_rate': float(max_rate),
-                  'window': float(window)},
+                  'window': float(window), 'shape_constant': float(shape_constant)},
         ids=batch.ids, points=batch.point.copy(), notes=notes, rounds=rounds,
         accepted=accepted, exponent=float(final.values['base']['exponent']),
         rmse_before=rmse_before, rmse_after=rmse_after, noise_rms=noise,
@@ -669,8 +715,8 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         unexplained=bool(unexplained), tolerance=tol,
         structure_before=analyse_structure(batch, resid_before),
         structure_after=structure_after, residual_before=resid_before,
-        residual_after=resid_after, probe_trials=probes,
-        not_testable=dict(NOT_TESTABLE_ON_POKES), onset=onset)
+        residual_after=resid_after, probe_trials=len(trials) + probes_in_records,
+        not_testable=dict(NOT_TESTABLE_ON_POKES), onset=onset, probe=probe)
 
 
 def run_diagnose(data, out_dir, seed: int = 0, **kwargs) -> int:

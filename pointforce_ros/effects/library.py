@@ -205,8 +205,9 @@ _add(EffectSpec(
 
 NOT_TESTABLE_ON_POKES = {
     'spatial_coupling': 'spatial coupling beyond the shape function acts between contact '
-                        'points: it needs probe trials (rigid probes pressed into the object), '
-                        'a point probe has one contact point',
+                        'points, and a point probe has one: it is tested on probe trials '
+                        '(rigid probes pressed into the object, effects.probes: the shape '
+                        'constant c refitted on them, held out by trial)',
 }
 """Library members that point pokes cannot identify, with the reason (shown in reports)."""
 

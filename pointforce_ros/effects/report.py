@@ -8,6 +8,7 @@
   per-poke RMSE before against after;
 * ``worst_poke.png``: the poke with the largest residual before selection, measured and
   predicted force against depth, before and after;
+* ``probe_trials.png``: per-trial probe force RMSE before and after (when trials were scored);
 * ``effects.json``: the accepted effects as ``ContactModel.effects`` stores them.
 
 Matplotlib runs on the Agg backend (no display needed).
@@ -122,8 +123,9 @@ def _markdown(report) -> str:
     s = report.settings
     lines = ['# pointforce diagnose', '',
              f'Data: `{report.source}`: {len(report.ids)} point pokes'
-             + (f', {report.probe_trials} probe trial(s) present but not scored (the point-poke '
-                'effect library has no probe-trial residual yet)' if report.probe_trials else '')
+             + (f', {report.probe_trials} probe trial(s) present'
+                + ('' if report.probe is not None else ' but not scored (see the notes)')
+                if report.probe_trials else '')
              + '.', '',
              '## Method', '',
              'Base model: per poke `F = c_i (max(d, 0) / 3 mm)^p`, contact onset tied to the '
@@ -167,7 +169,7 @@ def _markdown(report) -> str:
               f'{_fmt(report.systematic_before)} | {_fmt(report.systematic_after)} |',
               f'| median per-poke RMSE (N) | {_fmt(float(np.median(report.poke_rmse_before)))}'
               f' | {_fmt(float(np.median(report.poke_rmse_after)))} |',
-              '| RMSE, probe trials (N) | not scored | not scored |', '']
+              ] + _probe_rows(report) + ['']
     if report.unexplained:
         lines += ['## Unexplained residual', '',
                   f'The systematic residual after selection ({_fmt(report.systematic_after)} N) '
@@ -182,6 +184,7 @@ def _markdown(report) -> str:
         if f.factor in ('depth', 'phase', 'time_in_poke', 'poke_order') and f.groups:
             lines.append('  ' + '; '.join(f'{g[0]}: mean {_fmt(g[1])} N, rms {_fmt(g[2])} N'
                                           for g in f.groups))
+    lines += _probe_section(report)
     lines += ['', '![residual before](residual_before.png)', '',
               '![residual after](residual_after.png)', '', '![selection](selection.png)', '',
               '![worst poke](worst_poke.png)', '', '## Selection rounds', '']
@@ -194,9 +197,10 @@ def _markdown(report) -> str:
                   'pokes better | significant |',
                   '| --- | --- | --- | --- | --- | --- | --- | --- |']
         for c in rnd.candidates:
+            verdict = 'yes' if c.significant else (f'no: {c.rejected}' if c.rejected else 'no')
             lines.append(f'| {c.name} | {c.n_params} | {_fmt(c.rmse)} | {c.improvement:.1%} | '
                          f'{c.p_value:.2g} | {c.delta_score:.1f} | {c.improved}/'
-                         f'{len(report.ids)} | {"yes" if c.significant else "no"} |')
+                         f'{len(report.ids)} | {verdict} |')
         lines.append('')
     if report.not_testable:
         lines += ['## Not testable with these data', '']
@@ -205,6 +209,59 @@ def _markdown(report) -> str:
     if report.notes:
         lines += ['## Notes', ''] + [f'- {n}' for n in report.notes] + ['']
     return '\n'.join(lines)
+
+
+def _probe_rows(report) -> list:
+    probe = report.probe
+    if probe is None:
+        return ['| RMSE, probe trials (N) | not scored | not scored |']
+    return [f'| RMSE, probe trials: force (N) | {_fmt(probe.force_rmse_before)} | '
+            f'{_fmt(probe.force_rmse_after)} |',
+            f'| RMSE, probe trials: torque (N m) | {_fmt(probe.torque_rmse_before)} | '
+            f'{_fmt(probe.torque_rmse_after)} |']
+
+
+def _probe_section(report) -> list:
+    probe = report.probe
+    if probe is None:
+        return []
+    label = ', '.join(probe.effects) or 'no effect'
+    lines = ['## Probe trials', '',
+             f'{len(probe.kinds)} trial(s) with ground truth, answered by the contact service '
+             f'from the point model (ours) learned on all point pokes, before (no effect) and '
+             f'after ({label}); shape constant c = {_fmt(probe.shape_constant * 1e3)} mm. '
+             'The trials are the clean response of the object, so no series compliance is '
+             'added back and a viscoelastic effect answers the instantaneous force.', '',
+             '| trial | probe | steps | force RMSE before (N) | after (N) | torque RMSE '
+             'before (N m) | after (N m) |', '| --- | --- | --- | --- | --- | --- | --- |']
+    for k, kind in enumerate(probe.kinds):
+        lines.append(f'| {k} | {kind} | {probe.steps[k]} | {_fmt(probe.force_before[k])} | '
+                     f'{_fmt(probe.force_after[k])} | {_fmt(probe.torque_before[k])} | '
+                     f'{_fmt(probe.torque_after[k])} |')
+    if probe.coupling is not None:
+        c = probe.coupling
+        lines += ['', f'Spatial coupling beyond the shape function: {c.describe()}.']
+        if c.accepted:
+            lines += ['', f'To use it, set the learner\'s `shape_constant` to '
+                      f'{c.fitted:.4g} m (it is not part of `effects.json`: the shape constant '
+                      'is a model parameter, not a correction of the pokes).']
+    lines += ['', '![probe trials](probe_trials.png)', '']
+    return lines
+
+
+def _probe_figure(plt, report, path):
+    probe = report.probe
+    fig, ax = plt.subplots(figsize=(7, 4))
+    x = np.arange(len(probe.kinds))
+    ax.bar(x - 0.2, probe.force_before, 0.4, label='before', color='#d62728')
+    ax.bar(x + 0.2, probe.force_after, 0.4, label='after', color='#1f77b4')
+    ax.set_xticks(x, [f'{k}: {kind}' for k, kind in enumerate(probe.kinds)], rotation=30)
+    ax.set_ylabel('force RMSE per trial (N)')
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def write_report(report, out_dir) -> Path:
@@ -229,6 +286,8 @@ def write_report(report, out_dir) -> Path:
                      + f' (RMSE {report.rmse_after:.3g} N)', out / 'residual_after.png')
     _selection_figure(plt, report, out / 'selection.png')
     _worst_figure(plt, report, out / 'worst_poke.png')
+    if report.probe is not None:
+        _probe_figure(plt, report, out / 'probe_trials.png')
     (out / 'effects.json').write_text(json.dumps(effects_to_dict(report), indent=2))
     path = out / 'report.md'
     path.write_text(_markdown(report))

@@ -7,8 +7,8 @@ each push). The curves stiffen sharply over the bone, so they are not power laws
 to accept ``surface_offset`` = 5.13 mm with the exponent on its bound 4 (the truth is the
 camera bias, 1.90 mm on average over the poked points). Regenerate (about 30 s)::
 
-    nice -n 10 pointforce cell generate --object lamb --scenario realistic --pokes 8 \\
-        --probes point --seed 1 --out /tmp/lamb_realistic
+    nice -n 10 pointforce cell generate --object lamb --scenario realistic --pokes 8
+        --probes point --seed 1 --out /tmp/lamb_realistic     (one line)
     python test/data/diagnose/make_lamb_fixture.py /tmp/lamb_realistic
 
 To stay small the file keeps, per poke, the samples from 8 mm outside the observed surface on

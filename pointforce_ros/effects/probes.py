@@ -227,6 +227,8 @@ class CouplingResult:
         improved: trials whose held-out error dropped.
         accepted: passed every test and the bound check.
         rejected: why a candidate that passed the tests was refused ('' otherwise).
+        trials: number of trials tested.
+        alpha: significance level of the test.
 
     """
 
@@ -241,11 +243,22 @@ class CouplingResult:
     improved: int
     accepted: bool
     rejected: str = ''
+    trials: int = 0
+    alpha: float = 0.01
+
+    @property
+    def underpowered(self) -> bool:
+        """Whether so few trials can never reach ``p < alpha`` (one-sided Wilcoxon)."""
+        return 0.5 ** self.trials >= self.alpha
 
     def describe(self) -> str:
         """Return one line for the console and the report."""
         verdict = 'accepted' if self.accepted else ('refused: ' + self.rejected
                                                     if self.rejected else 'not significant')
+        if not self.accepted and self.underpowered:
+            verdict += (f' (too few trials to test: {self.trials} cannot give p < '
+                        f'{self.alpha:g}; at least '
+                        f'{int(np.ceil(np.log(self.alpha) / np.log(0.5))) + 1} are needed)')
         return (f'spatial_coupling (probe trials): shape constant c {self.fitted * 1e3:.2f} +- '
                 f'{self.std * 1e3:.2f} mm against the model\'s {self.assumed * 1e3:.2f} mm; '
                 f'held-out probe force RMSE {self.rmse_before:.4g} -> {self.rmse_after:.4g} N '
@@ -317,7 +330,8 @@ def fit_spatial_coupling(model, trials: Sequence[ProbeTrial], *, spacing: float 
                           rmse_before=rmse_before, rmse_after=rmse_after,
                           improvement=float(improvement), p_value=p_value,
                           delta_score=float(delta), improved=int(np.sum(mse_new < mse_old)),
-                          accepted=bool(significant and not rejected), rejected=rejected)
+                          accepted=bool(significant and not rejected), rejected=rejected,
+                          trials=n, alpha=float(alpha))
 
 
 # --------------------------------------------------------------------------- scoring

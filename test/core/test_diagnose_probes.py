@@ -75,3 +75,22 @@ def test_generate_folder_files_are_found_from_the_folder_or_its_pokes(tmp_path):
     assert generated_files(tmp_path) == expected
     assert generated_files(tmp_path / 'pokes') == expected
     assert generated_files([]) == {}
+
+
+def test_generated_probe_file_round_trips_into_trials(tmp_path):
+    from pointforce_ros.cell.generate import save_probe_trials
+    from pointforce_ros.effects.probes import load_probe_trials
+    trials = probe_data.make_trials(0.004, count=1)
+    save_probe_trials([{'kind': t.kind, 'vertices': t.mesh.vertices,
+                        'triangles': t.mesh.triangles, 'start_position': t.start.position,
+                        'orientation': t.start.orientation, 'direction': t.direction,
+                        'torque_centre': t.torque_centre, 'depths': t.depths, 'force': t.force,
+                        'torque': t.torque, 'seconds': 0.0} for t in trials], tmp_path)
+    loaded = load_probe_trials(tmp_path)
+    assert [t.kind for t in loaded] == ['line', 'cylinder']
+    for a, b in zip(trials, loaded):
+        np.testing.assert_array_equal(a.force, b.force)
+        np.testing.assert_array_equal(a.mesh.triangles, b.mesh.triangles)
+        poses_a, poses_b = a.poses(), b.poses()
+        np.testing.assert_allclose([p.position for p in poses_a],
+                                   [p.position for p in poses_b], atol=0)

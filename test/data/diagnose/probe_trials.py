@@ -14,8 +14,8 @@ Trials follow ``cell.generate.probe_trials``: the probe just touches the top at 
 pushed along a direction tilted up to ``max_tilt_deg`` from straight down, with a random roll.
 """
 
-from pathlib import Path
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 

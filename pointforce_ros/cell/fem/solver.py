@@ -10,6 +10,7 @@ out. Outputs are in SI units in the ``base`` frame.
 
 from dataclasses import dataclass
 import os
+import time
 from typing import Optional
 
 import numpy as np
@@ -133,6 +134,8 @@ class FemModel:
         self.first_step = 0.25e-3
         self._lu = None
         self._lu_shape = None
+        self._t_factor = 0.0
+        self._t_solve = 0.0
         self.stats = dict(factorisations=0, pcg_iterations=0)
 
     # -- energy, residual, tangent -------------------------------------------------------
@@ -177,8 +180,11 @@ class FemModel:
         """Solve ``k x = r``: PCG preconditioned by the last factorisation, else refactorise.
 
         A factorisation (SuperLU, symmetric minimum-degree ordering) is reused across Newton
-        iterations and load steps while preconditioned CG converges in ``reuse_iter``
-        iterations; otherwise the current tangent is factorised.
+        iterations and load steps while preconditioned CG converges within an iteration budget:
+        at least ``reuse_iter``, and up to half of what one factorisation costs in
+        preconditioner solves (measured), since a change of the contact set perturbs the
+        tangent by a low-rank term that PCG resolves in about as many iterations as its rank.
+        Otherwise the current tangent is factorised.
         """
         if self._lu is not None and self._lu_shape == k.shape:
             op = spla.LinearOperator(k.shape, matvec=self._lu.solve, dtype=float)
@@ -186,19 +192,28 @@ class FemModel:
 
             def cb(_):
                 count[0] += 1
-            x, info = spla.cg(k, r, rtol=self.linear_rtol, atol=0.0, maxiter=self.reuse_iter,
+            budget = self.reuse_iter
+            if self._t_solve > 0:
+                budget = int(np.clip(0.5 * self._t_factor / self._t_solve, self.reuse_iter,
+                                     10 * self.reuse_iter))
+            t0 = time.perf_counter()
+            x, info = spla.cg(k, r, rtol=self.linear_rtol, atol=0.0, maxiter=budget,
                               M=op, callback=cb)
+            if count[0]:
+                self._t_solve = (time.perf_counter() - t0) / count[0]
             self.stats['pcg_iterations'] += count[0]
             if info == 0 and np.all(np.isfinite(x)):
                 return x
         kc = k.tocsc()
         self.stats['factorisations'] += 1
+        t0 = time.perf_counter()
         try:
             self._lu = spla.splu(kc, permc_spec='MMD_AT_PLUS_A',
                                  options=dict(SymmetricMode=True))
         except RuntimeError:  # exactly singular: least squares step
             self._lu = None
             return spla.lsqr(kc, r, atol=1e-12, btol=1e-12)[0]
+        self._t_factor = time.perf_counter() - t0
         self._lu_shape = k.shape
         return self._lu.solve(r)
 

@@ -108,7 +108,8 @@ def row(object_name: str, set_name: str, report, seconds: float) -> str:
         if tried is not None:
             notes.append(f'first round: {effect} p={tried.p_value:.2g}, RMSE '
                          f'{-100 * tried.improvement:+.1f} %, {tried.improved}/'
-                         f'{len(report.ids)} pokes better')
+                         f'{len(report.ids)} pokes better'
+                         + (f', refused: {tried.rejected}' if tried.rejected else ''))
     if report.unexplained:
         notes.append('unexplained residual')
     if report.onset is not None and set_name in ('clean', 'camera_bias'):

@@ -123,6 +123,7 @@ class OnlineLearner:
         self.model = None
         self.curves: List[PokeCurve] = []
         self.skipped: Dict[str, str] = {}
+        self._c_updates = 0   # models saved for a new shape constant (versions stay increasing)
         self._prequential: List[np.ndarray] = []
         self.status: Optional[LearnerStatus] = None
         self._lock = threading.RLock()  # update() mutates the model that suggest() reads
@@ -212,8 +213,30 @@ class OnlineLearner:
             self.curves.append(curve)
         if self.model is None:
             return None
+        return self._save(start)
+
+    def set_shape_constant(self, c: float) -> Optional[LearnerStatus]:
+        """Use shape constant ``c`` (m) from now on; save a new model version if there is one.
+
+        For a ``c`` identified from data (``identify_shape_constant_from_probe`` or a dent):
+        the response is unchanged, the saved model's simulator uses the new ``c``.
+
+        Raises:
+            InvalidInput: ``c`` not finite and positive.
+
+        """
+        if not (np.isfinite(c) and c > 0):
+            raise InvalidInput(f'shape_constant: must be > 0 m, got {c}')
+        with self._lock:
+            self.shape_constant = float(c)
+            if self.model is None:
+                return None
+            self._c_updates += 1
+            return self._save(time.perf_counter())
+
+    def _save(self, start: float) -> LearnerStatus:
         baked = self.model.bake(self.surface, self.depths)
-        version = len(self.curves)
+        version = len(self.curves) + self._c_updates
         corrected = [k for k in ('surface_offset', 'plastic_set') if k in self.effects]
         contact = ContactModel(surface=self.model_surface(), response=baked,
                                shape_constant=self.shape_constant, version=version,

@@ -95,6 +95,15 @@ class WrenchServer:
             raise ModelNotReady('no contact model loaded yet: run the learner or give model_dir')
         return current
 
+    def simulator(self) -> ContactSimulator:
+        """Return the contact simulator of the current model (identification, tools).
+
+        Raises:
+            ModelNotReady: no model loaded.
+
+        """
+        return self._snapshot()[1]
+
     def answer(self, query: ContactQuery):
         """Answer the first pose of ``query``: returns (ContactResult, model version).
 

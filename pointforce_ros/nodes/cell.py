@@ -151,6 +151,28 @@ class CellSession:
         """Call a service and wait for its response (RuntimeError naming it on time-out)."""
         return self.client_launcher.wait_future(client.call_async(request), timeout, what)
 
+    def set_parameter(self, node: str, name: str, value) -> None:
+        """Set a parameter of a cell node over ``/<node>/set_parameters`` (``ros2 param set``).
+
+        Raises:
+            DeviceFault: the service did not appear or the node refused the value (its reason).
+
+        """
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+
+        client = self.client.create_client(SetParameters, f'/{node}/set_parameters')
+        try:
+            if not client.wait_for_service(timeout_sec=20.0):
+                raise DeviceFault(f'service /{node}/set_parameters did not appear within 20 s')
+            request = SetParameters.Request(
+                parameters=[Parameter(name, value=value).to_parameter_msg()])
+            result = self.call(client, request, 60.0, f'{node} set_parameters').results[0]
+        finally:
+            self.client.destroy_client(client)
+        if not result.successful:
+            raise DeviceFault(f'{node} refused {name} = {value}: {result.reason}')
+
     def trigger(self, name: str):
         """Call a std_srvs/Trigger of the cell (``add_scan``, ``capture``, ``next_view`` ...)."""
         from std_srvs.srv import Trigger

@@ -14,8 +14,10 @@ import threading
 from pathlib import Path
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+import numpy as np
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import SuggestPoke
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -102,6 +104,30 @@ class StiffnessLearnerNode(Node):
                                      RELIABLE, callback_group=refit_group)
         self.create_service(SuggestPoke, '~/suggest_poke', self._on_suggest,
                             callback_group=ReentrantCallbackGroup())
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+    def _on_set_parameters(self, params):
+        """``shape_constant`` may change at run time (a ``c`` identified from data).
+
+        The new value is checked against its bounds (the declared ones are checked too) and,
+        once a model exists, saved as a new model version the contact service hot-swaps to.
+        """
+        for param in params:
+            if param.name != 'shape_constant':
+                continue
+            c = float(param.value)
+            if not (np.isfinite(c) and 1e-4 <= c <= 0.1):
+                return SetParametersResult(successful=False,
+                                           reason=f'shape_constant must be in [1e-4, 0.1] m, '
+                                                  f'got {c}')
+            self.shape_constant = c
+            learner = self.learner
+            if learner is not None:
+                status = learner.set_shape_constant(c)
+                if status is not None:
+                    self._publish(status, learner)
+            self.get_logger().info(f'shape constant c = {1e3 * c:.3f} mm')
+        return SetParametersResult(successful=True)
 
     def _load_effects(self, path: str) -> dict:
         """Read and validate ``effects_file``; on any problem log it and learn without effects."""
@@ -171,6 +197,9 @@ class StiffnessLearnerNode(Node):
                 return
         if status is None:
             return
+        self._publish(status, learner)
+
+    def _publish(self, status, learner):
         msg = ModelStatus(version=status.version, num_pokes=status.num_pokes,
                           training_rmse=status.training_rmse,
                           validation_rmse=status.validation_rmse,

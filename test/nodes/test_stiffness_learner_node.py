@@ -68,6 +68,35 @@ def test_refit_on_landed_poke_survives_restart_and_suggests(ros_graph, tmp_path)
                                rtol=1e-9, atol=1e-9)
 
 
+def test_shape_constant_set_at_run_time_saves_a_new_model(ros_graph, tmp_path):
+    from rcl_interfaces.srv import SetParameters
+
+    _setup(tmp_path)
+    _learner(ros_graph, tmp_path)
+    probe = ros_graph.add(Node('c_probe', context=ros_graph.context))
+    statuses = []
+    probe.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
+    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 30, 'model v4')
+    first = load_model(statuses[-1].model_path)
+    client = probe.create_client(SetParameters, '/stiffness_learner/set_parameters')
+    assert client.wait_for_service(timeout_sec=10)
+
+    def set_c(value):
+        request = SetParameters.Request(
+            parameters=[Parameter('shape_constant', value=value).to_parameter_msg()])
+        return ros_graph.wait_future(client.call_async(request), 20, 'set c').results[0]
+
+    assert not set_c(0.5).successful            # outside [1e-4, 0.1] m: refused
+    assert statuses[-1].version == 4
+    assert set_c(0.0007).successful
+    ros_graph.wait_for(lambda: statuses[-1].version == 5, 30, 'model v5 with the new c')
+    second = load_model(statuses[-1].model_path)
+    assert second.shape_constant == pytest.approx(0.0007)
+    assert first.shape_constant != pytest.approx(0.0007)
+    # same pokes, same response: only the shape constant changed
+    np.testing.assert_allclose(second.response.forces, first.response.forces)
+
+
 # --------------------------------------------------------------------------- accepted effects
 
 SPOTS = np.array([[0.491, -0.01, 0.04], [0.511, 0.01, 0.04], [0.491, 0.015, 0.04]])

@@ -16,9 +16,13 @@ BENCHMARKS: Dict[str, str] = {
     'contact': 'pointforce_ros.contact.bench:bench_contact',
     'batch': 'pointforce_ros.contact.bench:bench_batch',
     'learn': 'pointforce_ros.response.bench:bench_learn',
-    'cell': 'pointforce_ros.cell.bench:bench_cell',
+    'cell': 'pointforce_ros.cell.fem.bench:bench_cell',
     'ros': 'pointforce_ros.nodes.bench:bench_ros',
 }
+
+
+QUICK: Dict[str, dict] = {'cell': {'queries': 200, 'full_solve': False}}
+"""Keyword arguments of ``--quick`` per benchmark (default ``{'quick': True}``)."""
 
 
 def _load(target: str) -> Callable:
@@ -32,7 +36,8 @@ def _load(target: str) -> Callable:
 def _cmd_bench(args) -> int:
     names = list(BENCHMARKS) if args.name == 'all' else [args.name]
     for name in names:
-        result = _load(BENCHMARKS[name])(**({'quick': True} if args.quick else {}))
+        kwargs = QUICK.get(name, {'quick': True}) if args.quick else {}
+        result = _load(BENCHMARKS[name])(**kwargs)
         result = {'benchmark': name, **result}
         if args.json:
             print(json.dumps(result, sort_keys=True))

@@ -165,6 +165,12 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
     started = time.monotonic()
     out = Path(out)
     pokes = pokes or (4 if quick else 8)
+    cell_dir = out / 'cell'
+    if cell_dir.exists() and any(cell_dir.iterdir()):
+        # the learner learns from every poke in its store: start clean, keep the old run
+        kept = out / time.strftime('cell-previous-%Y%m%d-%H%M%S')
+        cell_dir.rename(kept)
+        print(f'[demo] an earlier run is in {cell_dir}: moved to {kept} (nothing deleted)')
     print(f'[demo] simulated cell: object {object_name}, scenario {scenario}, {pokes} pokes -> '
           f'{out}')
     with CellSession(out / 'cell', object_name=object_name, scenario=scenario) as cell:

@@ -1,11 +1,16 @@
 """FEM validation against closed forms and invariants (coarse meshes; fine runs are fixtures).
 
 Fixtures in test/data/fem/ come from ``python test/data/fem/make_fem_cache.py --validation``:
-``hertz_fine.npz`` (rigid sphere R = 10 mm, E = 100 kPa, nu = 0.3, quarter block 150 mm with a
-bonded base and symmetry planes, 0.35 mm elements at the contact, depths 0.3 and 0.5 mm, i.e.
-d / R = 0.03-0.05 and contact radius 1.7-2.2 mm; the bonded 150 mm thickness adds about +1 %
-to Hertz by Dimitriadis et al. 2002) and ``refine_fine.npz``
-(point probe, homogeneous 60 x 60 x 40 mm block, 1.5 mm elements, depths 2 and 5 mm).
+
+- ``hertz_fine.npz``: rigid sphere R = 10 mm, E = 100 kPa, nu = 0.45 (as the objects), quarter
+  of a 600 x 600 x 300 mm block with a bonded base and symmetry planes, small-strain, depths 0.3
+  and 0.5 mm (d / R = 0.03-0.05, contact radius 1.7-2.2 mm), at 0.7 / 0.5 / 0.35 mm elements at
+  the contact; and nu = 0.3 at 0.35 mm. Measured FE / Hertz at 0.35 mm: 1.015 / 1.014 (nu 0.45),
+  1.037 / 1.043 (nu 0.3). The closed-form terms Hertz neglects (exact sphere, bonded block,
+  in-plane surface motion: ``validation.hertz_expected_ratio``) predict 1.013 / 1.016 and
+  1.034 / 1.042: the FE is within 0.4 % of them.
+- ``refine_fine.npz``: point probe (2 mm tip), homogeneous 60 x 60 x 40 mm block, neo-Hookean,
+  depths 2 and 5 mm, at 3 / 1.5 / 1 mm elements near the probe.
 """
 
 import os
@@ -29,44 +34,89 @@ def coarse_poke():
     return validation.refine_case(0.003)
 
 
-def test_hertz_fine_fixture():
-    """FE / Hertz = 1.044 (0.3 mm) and 1.050 (0.5 mm) at 0.35 mm elements.
+def _hertz_expected(nu, depths, thickness=None):
+    p = validation.HERTZ
+    return validation.hertz_expected_ratio(depths, p['radius'], p['young'], nu,
+                                           thickness or p['size'])
 
-    About 1.0-1.3 % is the bonded 150 mm block (Dimitriadis et al. 2002); the rest is the
-    stiffness of trilinear hexahedra with 3x3-point contact at a / h = 5-6. The brief's 3 %
-    target is not met (2x2 contact points on a 300 mm block gave 1.037-1.040); the bound here
-    is 5.5 %, stiff side only.
+
+def test_closed_form_corrections_reduce_to_hertz_in_their_limits():
+    p = validation.HERTZ
+    r, e = p['radius'], p['young']
+    d = np.array([1e-7, 1e-6])
+    hz = validation.hertz_force(d, r, e, 0.3)
+    np.testing.assert_allclose(validation.sneddon_sphere_force(d, r, e, 0.3), hz, rtol=1e-4)
+    # Sneddon's sphere is softer than the paraboloid, by (a / R)^2 order
+    d = np.array([3e-4, 5e-4])
+    below = 1 - validation.sneddon_sphere_force(d, r, e, 0.3) / validation.hertz_force(
+        d, r, e, 0.3)
+    assert np.all(below > 0) and below[1] > below[0] and below[1] < 0.01
+    assert validation.tangential_factor(0.002, r, 0.4999) == pytest.approx(1.0, abs=1e-4)
+    assert validation.tangential_factor(0.002, r, 0.3) > validation.tangential_factor(
+        0.002, r, 0.45) > 1.0
+    assert validation.bonded_layer_factor(0.002, 1e3, 0.45) == pytest.approx(1.0, abs=1e-5)
+    thin = validation.bonded_layer_factor(0.002, 0.02, 0.45)
+    assert 1.05 < thin < 1.2  # Dimitriadis: +1.041 chi at nu = 0.45, chi = 0.1
+
+
+def test_hertz_fine_fixture_within_3_percent_and_explained():
+    """Finest mesh (0.35 mm at the contact): FE / Hertz within 3 %, FE / closed form within 1 %.
+
+    What is left over Hertz is physics Hertz neglects, checked against closed forms: the exact
+    sphere (Sneddon, -0.3 to -0.5 %), the bonded 300 mm block (Dimitriadis et al. 2002,
+    +0.6 to +0.8 %) and the in-plane motion of a compressible surface under a curved probe
+    (+1.0 to +1.3 % at nu 0.45, +3.2 to +4.0 % at nu 0.3).
     """
     data = np.load(os.path.join(DATA, 'hertz_fine.npz'))
-    ratio = data['linear_ratio']
-    assert np.all(ratio > 1.0) and np.all(ratio < 1.055), ratio
+    depths, ratio = data['depths'], data['ratio']
+    assert float(data['poisson']) == validation.HERTZ['poisson']
+    np.testing.assert_allclose(depths, validation.HERTZ_DEPTHS)
+    assert np.all(np.abs(ratio[-1] - 1) < 0.03), ratio[-1]
+    expected = _hertz_expected(float(data['poisson']), depths)
+    gap = ratio / expected - 1  # (H, K): discretisation and contact-integration error
+    assert np.all(np.abs(gap[-1]) < 0.01), gap
+    # converging: the finest mesh is closer to the closed form than the coarsest
+    assert np.abs(gap[-1]).max() < np.abs(gap[0]).max(), gap
+    # nu = 0.3 on the same mesh: the larger in-plane term is predicted to 0.5 %
+    measured = data['nu03_ratio'] / ratio[-1]
+    predicted = _hertz_expected(0.3, depths) / expected
+    assert np.all(predicted > 1.015)
+    np.testing.assert_allclose(measured, predicted, rtol=0.005)
 
 
 def test_hertz_coarse_run_and_neo_hookean_agree_at_small_depth():
     fine = np.load(os.path.join(DATA, 'hertz_fine.npz'))
-    # a smaller, coarser block: 1 mm elements, 60 mm quarter block (about +3 % from the
+    # a smaller, coarser block: 1 mm elements, 60 mm quarter block (+3.5 % from the
     # bonded base at this contact radius)
     kw = dict(depths=(0.0005,), size=0.06, h_max=0.012, rings=128)
     linear = validation.hertz_case(0.001, **kw)
-    ratio = linear['ratio'][0]
-    # discretisation and the thinner block make it stiffer, never softer, and not by much
-    assert 0.99 < ratio < 1.2
-    assert ratio >= fine['linear_ratio'][-1] - 0.005
+    ratio = linear['ratio'][0] / _hertz_expected(validation.HERTZ['poisson'], [0.0005], 0.06)[0]
+    # against the closed form of this block: discretisation makes it stiffer, by a few %
+    assert 0.995 < ratio < 1.08, ratio
+    assert ratio >= fine['ratio'][-1, -1] / fine['expected'][-1] - 0.005
     # at d / R = 0.05 the large-deformation model agrees with small-strain elasticity
     nonlinear = validation.hertz_case(0.001, nonlinear=True, **kw)
     assert nonlinear['force'][0] == pytest.approx(linear['force'][0], rel=0.02)
 
 
 def test_mesh_refinement_of_the_point_poke(coarse_poke):
-    """3 mm (the live caches' size) against 1.5 mm elements: the coarse mesh is stiffer.
+    """Refining the validation mesh from 1.5 to 1 mm: +4.4 % at 2 mm depth, +6.4 % at 5 mm.
 
-    Measured: +11 % at 2 mm and +13 % at 5 mm depth. The brief's 5 % target is not met for the
-    2 mm-radius point probe at 3 mm elements (a regression bound, see the report).
+    The fixture holds 3 / 1.5 / 1 mm runs (3 -> 1.5 mm: +11.5 % / +13.3 %); the coarse 3 mm run
+    is repeated here, so a fixture that no longer matches the solver fails. The issue's < 5 %
+    is met at 2 mm and not at 5 mm (the 2 mm-radius tip under a 25 degree cone is resolved by
+    one or two elements; the changes shrink only like h^0.5). Successive changes shrink and the
+    coarser mesh is always the stiffer.
     """
     fine = np.load(os.path.join(DATA, 'refine_fine.npz'))
-    np.testing.assert_allclose(coarse_poke['depths'], fine['depths'])
-    change = (coarse_poke['force'][:, 2] - fine['force'][:, 2]) / fine['force'][:, 2]
-    assert np.all(change > 0) and np.all(change < 0.15), change
+    np.testing.assert_allclose(fine['h'], validation.REFINE_H)
+    fz = fine['force'][:, :, 2]  # (H, K)
+    np.testing.assert_allclose(coarse_poke['depths'], fine['depths'][0])
+    np.testing.assert_allclose(coarse_poke['force'][:, 2], fz[0], rtol=5e-3)
+    change = fz[1] / fz[2] - 1  # 1.5 mm -> 1 mm, at depths 2 and 5 mm
+    assert np.all(change > 0) and change[0] < 0.05 and change[1] < 0.07, change
+    assert np.all(fz[:-1] > fz[1:])
+    assert np.all(fz[0] / fz[1] - 1 > 1.5 * change)
 
 
 def test_symmetric_poke_has_no_torque_and_table_balances_the_probe(coarse_poke):

@@ -6,20 +6,23 @@ Usage::
     python test/data/fem/make_fem_cache.py                 # everything (about an hour)
     python test/data/fem/make_fem_cache.py --object lamb   # one object's live cache
     python test/data/fem/make_fem_cache.py --validation    # Hertz + refinement fixtures only
+    python test/data/fem/make_fem_cache.py --validation --part hertz   # one of the two
 
 Scenario of each file:
 - ``live_<object>.npz``: the live point-probe table of ``config/objects/<object>.yaml``
   (nonlinear neo-Hookean pokes along the surface normal on ``live.grid`` locations, probe
   :data:`pointforce_ros.cell.fem.live.POINT_PROBE`, element size ``mesh.live`` near the probe)
   plus held-out full solves at seeded random locations and the live path's error on them.
-- ``hertz_fine.npz``: rigid sphere R = 10 mm on a homogeneous quarter block (bonded base,
-  symmetry planes), E = 100 kPa, nu = 0.3, small-strain, depths 0.3 and 0.5 mm
-  (:data:`pointforce_ros.cell.fem.validation.HERTZ`, ``HERTZ_H_FINE`` elements at the contact).
+- ``hertz_fine.npz``: rigid sphere R = 10 mm on a homogeneous quarter block (600 x 600 x 300 mm,
+  bonded base, symmetry planes), E = 100 kPa, nu = 0.45, small-strain, depths 0.3 and 0.5 mm,
+  at 0.7 / 0.5 / 0.35 mm elements at the contact, plus nu = 0.3 at 0.35 mm
+  (:data:`pointforce_ros.cell.fem.validation.HERTZ`, ``HERTZ_H_FINE``); about 17 min.
 - ``refine_fine.npz``: point probe on a homogeneous 60 x 60 x 40 mm block (E = 100 kPa,
-  nu = 0.45) to 2 and 5 mm at 1.5 mm elements; the test runs the same at 3 mm.
+  nu = 0.45), neo-Hookean, to 2 and 5 mm at 3 / 1.5 / 1 mm elements (``REFINE_H``).
 
 Measured on the shared 2-core machine (heavily loaded, times are wall clock): lamb (4 x 5 grid)
-2199 s, plush (5 x 4) 414 s, thin_layer 1295 s, vest 1144 s, dome 1640 s, validation 1097 s.
+2199 s, plush (5 x 4) 414 s, thin_layer 1295 s, vest 1144 s, dome 1640 s; validation: Hertz
+669 s (0.35 mm runs 266-282 s), refinement about 19 min (the 1 mm run 1032 s).
 
 Runs with ``nice`` friendliness in mind: one process, progress on stdout, timings at the end.
 """
@@ -29,7 +32,11 @@ import os
 import sys
 import time
 
-import numpy as np
+for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+    # one BLAS thread: on a shared, loaded machine threaded BLAS spins and runs ~2x slower
+    os.environ.setdefault(_var, '1')
+
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', '..')))
 
@@ -92,6 +99,8 @@ def main(argv=None):
     ap.add_argument('--object', action='append', help='object name (repeatable); default all')
     ap.add_argument('--validation', action='store_true', help='only the validation fixtures')
     ap.add_argument('--no-validation', action='store_true', help='skip validation fixtures')
+    ap.add_argument('--part', choices=('hertz', 'refine'), action='append',
+                    help='with --validation: only this fixture (repeatable)')
     args = ap.parse_args(argv)
     t0 = time.time()
     if not args.validation:
@@ -100,7 +109,7 @@ def main(argv=None):
             build_object(name)
     if args.validation or (not args.object and not args.no_validation):
         t1 = time.time()
-        validation.make_fixtures(HERE, progress=say)
+        validation.make_fixtures(HERE, progress=say, parts=args.part or ('hertz', 'refine'))
         say(f'validation fixtures: {time.time() - t1:.0f} s')
     say(f'total {time.time() - t0:.0f} s')
 

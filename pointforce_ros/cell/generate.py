@@ -23,7 +23,7 @@ from typing import Callable, Dict, List, Sequence
 
 import numpy as np
 
-from pointforce_ros.errors import InvalidInput
+from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.pokes.store import PokeStore, TYPESTORE
 from pointforce_ros.transforms import matrix_to_quaternion
 
@@ -151,7 +151,8 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
     Each trial pushes the probe along a direction tilted up to ``max_tilt_deg`` from straight
     down, with a random roll about it, from just touching the undeformed top to
     ``spec.max_depth`` in ``steps`` steps (full nonlinear solve at ``spec.mesh_live``); steps
-    past 1.5 x the object's force cap are dropped.
+    past 1.5 x the object's force cap are dropped. A trial whose full solve does not converge
+    is skipped with a progress line (the others are kept).
     """
     from pointforce_ros.cell.fem.indentation import solve_indentation
     from pointforce_ros.cell.fem.probes import cylinder_probe, paddle_probe, pose_for_push
@@ -180,8 +181,13 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
         start = pose_for_push(top - direction * (clearance + 0.0005), direction, roll)
         depths = np.linspace(0.0, spec.max_depth + clearance + 0.0005, steps + 1)[1:]
         began = time.monotonic()
-        result = solve_indentation(spec, mesh, start, direction, depths,
-                                   torque_centre=start.position, h=spec.mesh_live)
+        try:
+            result = solve_indentation(spec, mesh, start, direction, depths,
+                                       torque_centre=start.position, h=spec.mesh_live)
+        except NotConverged as exc:
+            # one hard pose must not cost the trials already solved (minutes each)
+            bar.step(f'{kind}: skipped, the full solve did not converge ({exc})')
+            continue
         normal_force = -(result.force @ direction)
         keep = normal_force <= 1.5 * spec.force_cap
         keep[0] = True

@@ -1,0 +1,32 @@
+"""Probe trials of the cell generator keep the solved trials when one full solve fails."""
+
+import numpy as np
+
+from pointforce_ros.cell import generate
+from pointforce_ros.cell.fem import indentation
+from pointforce_ros.cell.objects import load_object
+from pointforce_ros.errors import NotConverged
+
+
+def test_a_trial_that_does_not_converge_is_skipped_and_the_others_kept(monkeypatch):
+    spec = load_object('plush')
+    calls = []
+
+    class Result:
+        def __init__(self, depths):
+            self.depths = np.asarray(depths)
+            self.force = np.outer(np.arange(1, len(depths) + 1), [0.0, 0.0, 1.0])
+            self.torque = np.zeros((len(depths), 3))
+
+    def solve(spec_, mesh, start, direction, depths, torque_centre=None, h=None):
+        calls.append(len(calls))
+        if len(calls) == 2:            # the second pose is the hard one
+            raise NotConverged('step 3 (depth 7.760 mm) failed after 5 bisections')
+        return Result(depths)
+
+    monkeypatch.setattr(indentation, 'solve_indentation', solve)
+    lines = []
+    trials = generate.probe_trials(spec, ['line'], 3, seed=0, progress=lines.append, steps=4)
+    assert len(calls) == 3 and len(trials) == 2
+    assert any('skipped' in line and 'did not converge' in line for line in lines)
+    assert all(t['kind'] == 'line' and len(t['depths']) >= 1 for t in trials)

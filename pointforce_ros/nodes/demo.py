@@ -215,8 +215,11 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
                   f'{rms_eye:.2f} N over {len(queries)} queries')
         fit = _calibrate(cell, spec)
         if fit is not None:
+            # the learner saves the next version as it accepts the parameter, and the service
+            # may swap to it before set_parameter returns: take the target version first
+            target = max(m.version for m in cell.models) + 1
             cell.set_parameter('stiffness_learner', 'shape_constant', float(fit.c))
-            cell.wait_model(cell.wrench_node.server.version + 1)
+            cell.wait_model(target)
         _, sphere_answer = _ask(cell, queries, gt, verbose=True)
         learner = cell.learner_node.learner
         model = learner.model

@@ -241,6 +241,17 @@ def _check_hash(data, name: str, what: str, say) -> bool:
     return ok
 
 
+def _read_fixture(data_dir, name: str, part: str) -> Dict[str, np.ndarray]:
+    """Arrays of ``<part>_<name>.npz`` (DataError naming the command that makes it)."""
+    path = Path(data_dir) / f'{part}_{name}.npz'
+    if not path.is_file():
+        what = 'poke' if part == 'pokes' else 'probe'
+        raise DataError(f'no {what} fixture {path}: make it with python '
+                        f'test/data/figures/make_figures_data.py --object {name} --part {part}')
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
 def load_poke_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] = print
                       ) -> Tuple[Surface, List[PokeCurve], bool]:
     """Read ``pokes_<name>.npz``: ``(surface, curves, fresh)``.
@@ -251,12 +262,7 @@ def load_poke_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] =
         DataError: the file is missing (the message says how to make it) or inconsistent.
 
     """
-    path = Path(data_dir) / f'pokes_{name}.npz'
-    if not path.is_file():
-        raise DataError(f'no poke fixture {path}: make it with python '
-                        f'test/data/figures/make_figures_data.py --object {name} --part pokes')
-    with np.load(path, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
+    data = _read_fixture(data_dir, name, 'pokes')
     surface = Surface(points=data['surface_points'].astype(np.float64),
                       normals=_unit(data['surface_normals']),
                       colors=np.clip(data['surface_colors'].astype(np.float64), 0.0, 1.0))
@@ -280,12 +286,7 @@ def load_probe_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] 
         DataError: the file is missing (the message says how to make it).
 
     """
-    path = Path(data_dir) / f'probes_{name}.npz'
-    if not path.is_file():
-        raise DataError(f'no probe fixture {path}: make it with python '
-                        f'test/data/figures/make_figures_data.py --object {name} --part probes')
-    with np.load(path, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
+    data = _read_fixture(data_dir, name, 'probes')
     trials = []
     for i, kind in enumerate(data['trial_kinds']):
         t = {key: data[f'trial{i:02d}_{key}'] for key in (
@@ -646,13 +647,10 @@ def plot_learning(per_object: Mapping[str, Sequence[Mapping]], path) -> None:
     names = list(per_object)
     fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.4 * max(len(names), 1), 3.2),
                              dpi=110, squeeze=False)
+    from pointforce_ros.response.evaluate import draw_learning_rows
+
     for ax, name in zip(axes[0], names):
-        rows = per_object[name]
-        for model in dict.fromkeys(r['model'] for r in rows):
-            sel = sorted((r for r in rows if r['model'] == model), key=lambda r: r['size'])
-            x = [r['size'] for r in sel]
-            ax.plot(x, [r['median'] for r in sel], marker='o', label=model)
-            ax.fill_between(x, [r['q25'] for r in sel], [r['q75'] for r in sel], alpha=0.2)
+        draw_learning_rows(ax, per_object[name])
         ax.set_xscale('log')
         ax.set_xticks(list(SIZES))
         ax.set_xticklabels([str(s) for s in SIZES])

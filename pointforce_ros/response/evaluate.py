@@ -114,17 +114,22 @@ def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
     return rows
 
 
+def draw_learning_rows(ax, rows: Sequence[Mapping]) -> None:
+    """Plot each model's median RMSE against training pokes, with its inter-quartile band."""
+    for name in dict.fromkeys(r['model'] for r in rows):
+        sel = sorted((r for r in rows if r['model'] == name), key=lambda r: r['size'])
+        x = [r['size'] for r in sel]
+        ax.plot(x, [r['median'] for r in sel], marker='o', label=name)
+        ax.fill_between(x, [r['q25'] for r in sel], [r['q75'] for r in sel], alpha=0.2)
+
+
 def plot_learning_curve(rows: Sequence[Mapping], path, title: str = 'Held-out RMSE') -> None:
     """Write a PNG of median RMSE (with the inter-quartile band) against training pokes."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(5.0, 3.6), dpi=120)
-    for name in dict.fromkeys(r['model'] for r in rows):
-        sel = sorted((r for r in rows if r['model'] == name), key=lambda r: r['size'])
-        x = [r['size'] for r in sel]
-        ax.plot(x, [r['median'] for r in sel], marker='o', label=name)
-        ax.fill_between(x, [r['q25'] for r in sel], [r['q75'] for r in sel], alpha=0.2)
+    draw_learning_rows(ax, rows)
     ax.set_xlabel('training pokes')
     ax.set_ylabel('held-out RMSE [N]')
     ax.set_title(title)

@@ -174,6 +174,7 @@ class FeatureGp:
         self._z = None
         self._phi = None
         self._chol = None
+        self._chol_inv = None
         self._alpha = None
         self._rinv1 = None
         self._one_rinv_one = None
@@ -274,6 +275,26 @@ class FeatureGp:
         self._rinv1 = inv.T @ (inv @ np.ones(len(y)))
         self._one_rinv_one = float(self._rinv1.sum())
         self._alpha = inv.T @ (inv @ (y - state.beta))
+
+    def gls_mean_scale(self, y: np.ndarray):
+        """``(beta, s2)`` of other targets ``y`` on the points this process is conditioned on.
+
+        The generalised-least-squares constant mean and the profiled signal variance (with
+        this process's prior), as :meth:`fit` computes them, for targets that share the
+        kernel: several outputs then need one Cholesky.
+
+        Raises:
+            ModelNotReady: not conditioned yet.
+
+        """
+        if self._chol_inv is None:
+            raise ModelNotReady('FeatureGp: not conditioned')
+        y = np.asarray(y, dtype=float)
+        beta = float(self._rinv1 @ y / self._one_rinv_one)
+        w = self._chol_inv @ (y - beta)
+        s2 = float((w @ w + self.prior_dof * self.prior_scale ** 2)
+                   / (len(y) - 1 + self.prior_dof))
+        return beta, s2
 
     def _corr(self, ga, pa, gb, pb) -> np.ndarray:
         st = self.state

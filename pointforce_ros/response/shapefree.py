@@ -118,23 +118,16 @@ class ShapeFreeGpModel:
             self._onset_gp.fit(x, onsets)
             shared = FeatureGp(frame, self.shape_prior, grid=self.grid)
             state = shared.fit(x, y.mean(axis=1))
-            self._knot_gps = [self._condition(frame, x, y[:, k], state, shared.prior_dof)
-                              for k in range(y.shape[1])]
+            self._knot_gps = []
+            for k in range(y.shape[1]):
+                beta, s2 = shared.gls_mean_scale(y[:, k])
+                gp = FeatureGp(frame, self.shape_prior, grid=self.grid)
+                gp.condition(x, y[:, k], GpState(state.lp, state.lc, state.ln, state.tau,
+                                                 state.nugget, s2, beta))
+                self._knot_gps.append(gp)
         self._ids = [c.poke_id for c in curves]
         self.fit_seconds = time.perf_counter() - start
         return self
-
-    def _condition(self, frame, x, yk, state: GpState, prior_dof: float) -> FeatureGp:
-        """Return a knot's process: the shared length scales, its own mean and scale (GLS)."""
-        gp = FeatureGp(frame, self.shape_prior, grid=self.grid)
-        gp.condition(x, yk, state)
-        beta = float(gp._rinv1 @ yk / gp._one_rinv_one)
-        r = yk - beta
-        w = gp._chol_inv @ r
-        s2 = float((w @ w + prior_dof * self.shape_prior ** 2) / (len(yk) - 1 + prior_dof))
-        gp.condition(x, yk, GpState(state.lp, state.lc, state.ln, state.tau, state.nugget, s2,
-                                    beta))
-        return gp
 
     def predict(self, features: np.ndarray, d) -> np.ndarray:
         """Mean force (M,), newtons, at ``features`` (M, 9) and depths ``d`` (M,) metres.

@@ -27,13 +27,19 @@ def _campaign(count, seed, id_prefix):
                              id_prefix=id_prefix)
 
 
-def test_refits_as_pokes_land_and_restart_reproduces_the_model(tmp_path):
+def _stored_learner(tmp_path, count: int, seed: int):
+    """A store holding ``count`` clean pokes and an (unfitted) learner on it."""
     store = PokeStore(tmp_path / 'pokes')
-    for record in _campaign(5, seed=1, id_prefix='poke-0'):
+    for record in _campaign(count, seed=seed, id_prefix='poke-0'):
         store.add(record)
     surface = _surface()
     learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
                             shape_constant=0.004)
+    return store, surface, learner
+
+
+def test_refits_as_pokes_land_and_restart_reproduces_the_model(tmp_path):
+    store, surface, learner = _stored_learner(tmp_path, 5, seed=1)
     with pytest.raises(ModelNotReady):
         learner.suggest(1)
     first = learner.update()
@@ -112,12 +118,7 @@ def test_no_contact_poke_is_skipped_and_suggestions_stay_on_pokeable_points(tmp_
 
 
 def test_rim_points_and_failed_locations_are_not_suggested(tmp_path):
-    store = PokeStore(tmp_path / 'pokes')
-    for record in _campaign(3, seed=7, id_prefix='poke-0'):
-        store.add(record)
-    surface = _surface()
-    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
-                            shape_constant=0.004)
+    store, surface, learner = _stored_learner(tmp_path, 3, seed=7)
     learner.update()
     indices, _ = learner.suggest(20, exclude_radius=0.004, edge_margin=0.008)
     chosen = surface.points[indices]

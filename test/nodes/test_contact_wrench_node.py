@@ -75,13 +75,19 @@ def test_malformed_requests_fail_cleanly_and_the_node_keeps_serving(served, brea
     assert good.success and node.requests_failed == 1
 
 
-def test_batch_equals_single_queries(served):
-    graph, _, _, single, batch, _, _ = served
-    depths = [0.0, 0.002, 0.004]
+def _batch_request(depths):
+    """The sphere straight down at 0.5, 0 from 6 cm, one pose per depth (m)."""
     request = ContactWrenchBatch.Request(mesh=mesh_to_msg(SPHERE),
                                          approach=Vector3(x=0.0, y=0.0, z=-1.0),
                                          torque_centre=to_point([0.5, 0.0, 0.06]))
     request.poses = [pose_to_msg(Pose(position=[0.5, 0.0, 0.06 - d])) for d in depths]
+    return request
+
+
+def test_batch_equals_single_queries(served):
+    graph, _, _, single, batch, _, _ = served
+    depths = [0.0, 0.002, 0.004]
+    request = _batch_request(depths)
     response = graph.wait_future(batch.call_async(request), 10, 'batch')
     assert response.success and len(response.wrenches) == 3
     for d, w in zip(depths, response.wrenches):
@@ -203,10 +209,7 @@ def test_stored_effects_add_their_forward_terms(ros_graph, tmp_path):
     reference.swap(clean)
     scale = 1.0 - g * (1.0 - np.exp(-hold / tau))
     depths = [0.002, 0.004, 0.006]
-    request = ContactWrenchBatch.Request(mesh=mesh_to_msg(SPHERE),
-                                         approach=Vector3(x=0.0, y=0.0, z=-1.0),
-                                         torque_centre=to_point([0.5, 0.0, 0.06]))
-    request.poses = [pose_to_msg(Pose(position=[0.5, 0.0, 0.06 - d])) for d in depths]
+    request = _batch_request(depths)
     answers = ros_graph.wait_future(batch.call_async(request), 20, 'batch')
     assert answers.success, answers.message
     for depth, wrench in zip(depths, answers.wrenches):

@@ -196,12 +196,44 @@ def point_dent(spec, depth: Optional[float] = None, h: Optional[float] = None) -
             'force': res.force[-1]}
 
 
+_TRIAL_KEYS = ('vertices', 'triangles', 'start_position', 'orientation', 'direction',
+               'torque_centre', 'depths', 'force', 'torque')
+
+
+def _trial_arrays(prefix: str, trials: Sequence[Optional[Mapping]]) -> Dict[str, np.ndarray]:
+    """Trials as flat npz arrays ``<prefix>NN_<key>``; None (a skipped trial) keeps its index."""
+    arrays = {f'{prefix}{i:02d}_{key}': np.asarray(trial[key])
+              for i, trial in enumerate(trials) if trial is not None for key in _TRIAL_KEYS}
+    arrays[f'{prefix}kinds'] = np.array([t['kind'] if t is not None else 'skipped'
+                                         for t in trials])
+    arrays[f'{prefix}seconds'] = np.array([t['seconds'] if t is not None else 0.0
+                                           for t in trials])
+    return arrays
+
+
+def _arrays_trials(prefix: str, data: Mapping) -> List[Optional[Dict]]:
+    """Inverse of :func:`_trial_arrays` (raw arrays, no Mesh)."""
+    out = []
+    for i, (kind, sec) in enumerate(zip(data.get(f'{prefix}kinds', []),
+                                        data.get(f'{prefix}seconds', []))):
+        if str(kind) == 'skipped':
+            out.append(None)
+            continue
+        trial = {key: data[f'{prefix}{i:02d}_{key}'] for key in _TRIAL_KEYS}
+        trial.update(kind=str(kind), seconds=float(sec))
+        out.append(trial)
+    return out
+
+
 def make_probe_fixture(name: str, out=DATA_DIR, lines: int = 3, cylinders: int = 2,
                        seed: int = 0, say: Callable[[str], None] = print) -> Path:
     """Write ``probes_<name>.npz``: line/cylinder trials and a point-poke dent (see module).
 
+    Each solved trial (minutes) is kept in ``probes_<name>.partial.npz`` at once; a rerun with
+    the same arguments resumes from it and gives the same file as an uninterrupted run.
+
     Raises:
-        NotConverged: a full solve failed.
+        NotConverged: the dent's full solve failed.
 
     """
     from pointforce_ros.cell.generate import probe_trials
@@ -209,25 +241,54 @@ def make_probe_fixture(name: str, out=DATA_DIR, lines: int = 3, cylinders: int =
 
     started = time.monotonic()
     spec = load_object(name)
-    dent = point_dent(spec)
-    say(f'[figures-data] {name}: dent at {dent["depth"] * 1e3:.1f} mm, '
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    partial = out / f'probes_{name}.partial.npz'
+    settings = np.asarray(f'{physics_hash(spec)} seed={seed} lines={lines} '
+                          f'cylinders={cylinders}')
+    saved: Dict[str, np.ndarray] = {}
+    if partial.is_file():
+        with np.load(partial, allow_pickle=False) as z:
+            saved = {k: z[k] for k in z.files}
+        if str(saved.get('settings')) != str(settings):
+            say(f'[figures-data] {partial} is for other settings: starting over')
+            saved = {}
+        else:
+            say(f'[figures-data] resuming from {partial}')
+
+    def keep(**parts):
+        saved.update(parts)
+        tmp = out / f'probes_{name}.tmp.partial.npz'
+        np.savez_compressed(tmp, settings=settings, **saved)
+        os.replace(tmp, partial)
+
+    if 'dent_depth' in saved:
+        dent = {k[5:]: saved[k] for k in saved if k.startswith('dent_')}
+    else:
+        dent = point_dent(spec)
+        keep(**{f'dent_{k}': np.asarray(v) for k, v in dent.items()})
+    say(f'[figures-data] {name}: dent at {float(dent["depth"]) * 1e3:.1f} mm, '
         f'{time.monotonic() - started:.0f} s')
-    trials = probe_trials(spec, ['line'], lines, seed, progress=say) if lines else []
-    if cylinders:
-        trials += probe_trials(spec, ['cylinder'], cylinders, seed + 1, progress=say)
+    trials = []
+    for kind, count, kind_seed in (('line', lines, seed), ('cylinder', cylinders, seed + 1)):
+        if not count:
+            continue
+        prefix = f'{kind}_trial'
+        trials += probe_trials(
+            spec, [kind], count, kind_seed, progress=say,
+            done=_arrays_trials(prefix, saved),
+            on_trial=lambda so_far, prefix=prefix: keep(**_trial_arrays(prefix, so_far)))
     arrays = {f'trial{i:02d}_{key}': np.asarray(trial[key])
-              for i, trial in enumerate(trials)
-              for key in ('vertices', 'triangles', 'start_position', 'orientation',
-                          'direction', 'torque_centre', 'depths', 'force', 'torque')}
+              for i, trial in enumerate(trials) for key in _TRIAL_KEYS}
     arrays.update({f'dent_{k}': np.asarray(v) for k, v in dent.items()})
     arrays.update(trial_kinds=np.array([t['kind'] for t in trials]),
                   trial_seconds=np.array([t['seconds'] for t in trials]),
                   spec_hash=np.asarray(physics_hash(spec)), seed=np.asarray(int(seed)),
                   seconds=np.asarray(time.monotonic() - started))
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     path = out / f'probes_{name}.npz'
     np.savez_compressed(path, **arrays)
+    if partial.is_file():
+        partial.unlink()
     return path
 
 

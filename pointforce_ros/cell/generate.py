@@ -19,7 +19,7 @@ Same seed, same arrays (and the same MCAP bytes: message times come from the sim
 import json
 import time
 from pathlib import Path
-from typing import Callable, Dict, List, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -144,15 +144,23 @@ def scan_object(spec, scenario, views: int = 2, seed: int = 0, distance: float =
 
 
 def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
-                 progress: Callable[[str], None] = print, steps: int = 6,
-                 max_tilt_deg: float = 15.0) -> List[Dict]:
+                 progress: Callable[[str], None] = print, steps: int = 8,
+                 max_tilt_deg: float = 15.0, done: Sequence[Dict] = (),
+                 on_trial: Optional[Callable[[List[Dict]], None]] = None) -> List[Dict]:
     """Line / cylinder probe trials at random locations and orientations with FEM ground truth.
 
     Each trial pushes the probe along a direction tilted up to ``max_tilt_deg`` from straight
     down, with a random roll about it, from just touching the undeformed top to
-    ``spec.max_depth`` in ``steps`` steps (full nonlinear solve at ``spec.mesh_live``); steps
-    past 1.5 x the object's force cap are dropped. A trial whose full solve does not converge
-    is skipped with a progress line (the others are kept).
+    ``spec.max_depth`` in ``steps`` steps (full nonlinear solve at ``spec.mesh_live``); the
+    push ends at the first step past 1.5 x the object's force cap, and that step is dropped. A
+    trial whose full solve does not converge is skipped with a progress line (the others are
+    kept).
+
+    Resuming: ``done`` holds trials an interrupted run already solved (in order, as this
+    passed them to ``on_trial``, None for a skipped one); their poses are drawn again, so the
+    rest are the same as in an uninterrupted run, but they are not solved again. ``on_trial``
+    is called after each trial with the list so far, None marking a skipped trial (to save
+    partial work).
     """
     from pointforce_ros.cell.fem.indentation import solve_indentation
     from pointforce_ros.cell.fem.probes import cylinder_probe, paddle_probe, pose_for_push
@@ -161,7 +169,8 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
     plan = [k for k in kinds if k in makers for _ in range(int(count))]
     bar = Progress('probes', len(plan), progress)
     trials = []
-    for kind in plan:
+    done = list(done)
+    for index, kind in enumerate(plan):
         mesh = makers[kind]()
         cx, cy = spec.centre
         x = cx + rng.uniform(-0.2, 0.2) * spec.size[0]
@@ -180,17 +189,26 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
             else 0.0
         start = pose_for_push(top - direction * (clearance + 0.0005), direction, roll)
         depths = np.linspace(0.0, spec.max_depth + clearance + 0.0005, steps + 1)[1:]
+        if index < len(done):
+            trials.append(done[index])
+            bar.step(f'{kind}: solved before (resumed)')
+            continue
         began = time.monotonic()
         try:
             result = solve_indentation(spec, mesh, start, direction, depths,
-                                       torque_centre=start.position, h=spec.mesh_live)
+                                       torque_centre=start.position, h=spec.mesh_live,
+                                       stop_force=1.5 * spec.force_cap)
         except NotConverged as exc:
             # one hard pose must not cost the trials already solved (minutes each)
             bar.step(f'{kind}: skipped, the full solve did not converge ({exc})')
+            trials.append(None)
+            if on_trial is not None:
+                on_trial(trials)
             continue
         normal_force = -(result.force @ direction)
         keep = normal_force <= 1.5 * spec.force_cap
         keep[0] = True
+        depths = result.depths
         trials.append({
             'kind': kind, 'vertices': mesh.vertices, 'triangles': mesh.triangles,
             'start_position': start.position, 'orientation': start.orientation,
@@ -198,7 +216,9 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
             'depths': result.depths[keep], 'force': result.force[keep],
             'torque': result.torque[keep], 'seconds': time.monotonic() - began})
         bar.step(f'{kind}: {normal_force[keep][-1]:.1f} N at {1e3 * depths[keep][-1]:.1f} mm')
-    return trials
+        if on_trial is not None:
+            on_trial(trials)
+    return [t for t in trials if t is not None]
 
 
 def save_probe_trials(trials: List[Dict], out: Path) -> None:

@@ -7,14 +7,15 @@ Algorithm for one rigid body pose (all in ``base``, metres, newtons):
    ``a``; for each rigid sample ``p`` take its 3 nearest surface points in that plane and
    average their positions, normals and nominal displacements
    ``d_k = -(p - p_k)^T n_k`` (eq. 1) into the *estimated equilibrium point* ``q`` and ``d``.
-3. Keep ``d > 0``. Only the front-most rigid sample counts per surface location: of all
-   samples whose nearest surface point is the same, the one that penetrates deepest (largest
-   ``d``) is kept (the projection along ``a`` implies that the body's far side, which projects
-   onto the same location, cannot touch it); candidates with the same 3 neighbours (hence the
-   same ``q``: ``g = 1`` off the diagonal) are merged the same way, and coincident surface
-   points are de-duplicated when the simulator is built.
-4. Solve the LCP ``0 <= G d~ - d _|_ d~ >= 0`` with ``G_ij = c / (c + |q_i - q_j|)`` (eq. 2-3;
-   see :mod:`pointforce_ros.contact.lcp` for the sign convention and the solver).
+3. Keep ``d > d0``, where ``d0`` is the contact onset of the learned response at those
+   neighbours (the paper keeps ``d > 0``; see below). Only the front-most rigid sample counts
+   per surface location: of all samples whose nearest surface point is the same, the one that
+   penetrates deepest (largest ``d - d0``) is kept (the projection along ``a`` implies that
+   the body's far side, which projects onto the same location, cannot touch it); candidates
+   with the same 3 neighbours (hence the same ``q``: ``g = 1`` off the diagonal) are merged
+   the same way, and coincident surface points are de-duplicated when the simulator is built.
+4. Solve the LCP ``0 <= G d~ - (d - d0) _|_ d~ >= 0`` with ``G_ij = c / (c + |q_i - q_j|)``
+   (eq. 2-3; see :mod:`pointforce_ros.contact.lcp` for the sign convention and the solver).
 5. ``f_i = y(q_i, d_i) - y(q_i, d_i - d~_i)`` with ``y`` the baked point response interpolated
    over the 3 neighbours with equal weights (as ``q`` is averaged), ``F = sum f_i n_i`` and
    ``tau = sum (p_i - centre) x f_i n_i`` (eq. 4): the wrench the object exerts on the rigid
@@ -24,6 +25,16 @@ Two restrictions beyond the paper, both stated in :class:`ContactSimulator`: onl
 facing the approaching body (``n . a < 0``) take part, and a rigid sample whose third-nearest
 surface point is farther than ``max_gap`` in the projection plane is not over the surface and
 cannot touch it (the paper's projection would invent a contact with the edge of the cloud).
+
+One correction of the paper: contact begins at the response's own onset ``d0``
+(:meth:`BakedResponse.onsets`), not at ``d = 0``. A depth camera's bias puts the observed
+surface millimetres inside or outside the real one, and the learned ``y(x, d)`` carries that:
+its force starts at ``d0`` (-2 to -3 mm on the cell's realistic scenario, -5 to +5 mm in the
+paper). Keeping only ``d > 0`` drops every contact between the real and the observed surface:
+on a line probe pushed 2 mm past first touch that lost two thirds of the force. With ``e = d -
+d0`` the penetration of the surface the response saw, the LCP distributes ``e`` and the force
+is unchanged in form, ``y(q, d) - y(q, d - d~)`` (a lone contact, ``d~ = e``, gives ``y(q, d)``).
+A response without ``onsets`` gets ``d0 = 0``, the paper's rule.
 
 Speed: one KD-tree per approach direction over the projected surface (cached), a conservative
 per-cell height bound that discards rigid samples that cannot penetrate before any tree query,
@@ -263,6 +274,11 @@ class ContactSimulator:
         self._points = surface.points
         self._normals = surface.normals
         self._pn = np.einsum('ij,ij->i', surface.points, surface.normals)
+        onsets = getattr(response, 'onsets', None)
+        onset = np.asarray(onsets(), dtype=np.float64) if callable(onsets) else np.zeros(
+            len(surface))
+        # a row that never reaches contact force keeps the paper's rule (geometry only)
+        self._onset = np.where(np.isfinite(onset), onset, 0.0)
         _, first = np.unique(surface.points, axis=0, return_index=True)
         self._unique = np.sort(first)
         self.duplicates_removed = len(surface) - len(self._unique)
@@ -420,7 +436,8 @@ class ContactSimulator:
         cij = np.floor((uv - origin) / cell).astype(np.int64)
         height = self._points[idx] @ a
         tan = np.sqrt(np.clip(1.0 - cos * cos, 0.0, None)) / cos
-        tau = height - max_gap * tan - 1e-9
+        reach = np.maximum(-self._onset[idx], 0.0) / cos   # contact before the surface
+        tau = height - max_gap * tan - reach - 1e-9
         per_cell = np.full(tuple(shape), np.inf)
         np.minimum.at(per_cell, (cij[:, 0], cij[:, 1]), tau)
         bound = minimum_filter(per_cell, size=3, mode='constant', cval=np.inf)
@@ -456,30 +473,31 @@ class ContactSimulator:
         p = np.einsum('kj,kij->ki', local[r_idx], rot[b_idx]) + pos[b_idx]
         nsum = self._normals[nbr].sum(axis=1)
         d = (self._pn[nbr].sum(axis=1) - np.einsum('ki,ki->k', p, nsum)) / 3.0
-        keep = d > 0.0
-        b_idx, p, nbr, nsum, d = b_idx[keep], p[keep], nbr[keep], nsum[keep], d[keep]
+        e = d - self._onset[nbr].mean(axis=1)       # penetration past the response's onset
+        keep = e > 0.0
+        b_idx, p, nbr, nsum, d, e = b_idx[keep], p[keep], nbr[keep], nsum[keep], d[keep], e[keep]
         if len(d) == 0:
             return empty
         # 3. Front-most (deepest) sample per surface location, then per neighbour triple.
-        sel = _deepest_per_key(b_idx * len(self._points) + nbr[:, 0], d)
+        sel = _deepest_per_key(b_idx * len(self._points) + nbr[:, 0], e)
         if sel is not None:
-            b_idx, p, nbr, nsum, d = b_idx[sel], p[sel], nbr[sel], nsum[sel], d[sel]
+            b_idx, p, nbr, nsum, d, e = b_idx[sel], p[sel], nbr[sel], nsum[sel], d[sel], e[sel]
         tri = np.sort(nbr, axis=1)
-        sel = _deepest_per_triple(b_idx, tri, d)
+        sel = _deepest_per_triple(b_idx, tri, e)
         if sel is not None:
-            b_idx, p, nbr, nsum, d = b_idx[sel], p[sel], nbr[sel], nsum[sel], d[sel]
+            b_idx, p, nbr, nsum, d, e = b_idx[sel], p[sel], nbr[sel], nsum[sel], d[sel], e[sel]
         q = self._points[nbr].mean(axis=1)
         nq = nsum / np.linalg.norm(nsum, axis=1, keepdims=True)
         # 4. LCP per pose, padded stacks of similar size (one pose: a plain dense solve).
         if B == 1:
             diff = q[:, None, :] - q[None, :, :]
             G = shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), self.c)
-            with single_threaded_blas() if len(d) > 64 else contextlib.nullcontext():
-                x, _ = bpp_dense(G, d)
+            with single_threaded_blas() if len(e) > 64 else contextlib.nullcontext():
+                x, _ = bpp_dense(G, e)
             u = G @ x
-            residual = np.array([lcp_residual(G, d, x)])
+            residual = np.array([lcp_residual(G, e, x)])
         else:
-            x, u, residual = self._solve_grouped(b_idx, q, d, B)
+            x, u, residual = self._solve_grouped(b_idx, q, e, B)
         # 5. Forces and wrench (eq. 4).
         f = np.zeros(len(d))
         act = np.flatnonzero(x > 0.0)

@@ -14,6 +14,10 @@ from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import as_array
 
 
+ONSET_FORCE = 1e-3
+"""Force (N) above which a baked row counts as in contact (well under F/T noise)."""
+
+
 @dataclass(frozen=True)
 class BakedResponse:
     """Force-versus-displacement table for every point of one equilibrium surface.
@@ -57,6 +61,35 @@ class BakedResponse:
     def __len__(self) -> int:
         """Return the number of surface points ``N``."""
         return len(self.forces)
+
+    def onsets(self, threshold: float = ONSET_FORCE) -> np.ndarray:
+        """(N,) displacement where each point's force first exceeds ``threshold``, metres.
+
+        The contact onset of the table: where camera bias made force start before the
+        observed surface it is negative. With ``k`` the first grid depth above the threshold,
+        it is where the table's segment into ``k`` extrapolates to zero force (exactly where
+        the interpolated force leaves zero when the row is zero before ``k``), kept within
+        that segment; ``depths[0]`` for a row already above the threshold there, ``+inf`` for
+        a row that never reaches it. Computed once per threshold.
+        """
+        cache = self.__dict__.setdefault('_onsets', {})
+        if threshold not in cache:
+            f = self.forces
+            above = f > threshold
+            k = np.argmax(above, axis=1)
+            rows = np.arange(len(f))
+            out = np.full(len(f), np.inf)
+            hit = above[rows, k]
+            first = hit & (k == 0)
+            out[first] = self.depths[0]
+            mid = hit & (k > 0)
+            km, rm = k[mid], rows[mid]
+            f0, f1 = f[rm, km - 1], f[rm, km]
+            d0, d1 = self.depths[km - 1], self.depths[km]
+            out[mid] = np.clip(d0 - f0 / (f1 - f0) * (d1 - d0), d0 - (d1 - d0), d1)
+            out = np.maximum(out, self.depths[0])
+            cache[threshold] = out
+        return cache[threshold]
 
     def force(self, indices: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Interpolate ``y(x_i, d)`` for surface indices ``indices`` (M,) at depths ``d`` (M,).

@@ -67,6 +67,33 @@ def test_single_contact_point_actual_equals_nominal(flat):
                                rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize('bias', [0.002, -0.0015])
+def test_contact_starts_at_the_responses_onset_not_at_the_observed_surface(bias):
+    # A camera that sees the surface `bias` too deep learns y(d) = k (d + bias)^1.5: force
+    # starts at d0 = -bias. The wrench of a body must then equal that of the true surface with
+    # the unshifted law, for every pose: contacts between the two surfaces count too.
+    rng = np.random.default_rng(3)
+    depths = np.linspace(-0.004, 0.03, 681)
+    true_surface = grid_surface(half=0.03, step=0.001)
+    seen = Surface(points=true_surface.points - [0.0, 0.0, bias], normals=true_surface.normals)
+    k = 2.0e4 * (1.0 + rng.uniform(0.0, 1.0, len(true_surface)))
+    law = power_response(k, 1.5, depths=depths)
+    shifted = power_response(k, 1.5, depths=depths + bias)
+    shifted = type(law)(depths=depths, forces=shifted.forces, slopes=shifted.slopes)
+    sim_true = ContactSimulator(true_surface, law, c=C)
+    sim_seen = ContactSimulator(seen, shifted, c=C)
+    np.testing.assert_allclose(shifted.onsets(), -bias, atol=1e-12)
+    mesh = icosphere(0.012, 2)
+    for depth in (0.0005, 0.002, 0.004):
+        pose = Pose(position=np.array([0.002, -0.001, 0.012 - depth]),
+                    orientation=np.array([0.0, 0.0, 0.0, 1.0]))
+        a = sim_true.query(mesh, pose, DOWN, np.zeros(3))
+        b = sim_seen.query(mesh, pose, DOWN, np.zeros(3))
+        assert a.contact_count > 0 and b.contact_count == a.contact_count
+        np.testing.assert_allclose(b.wrench.force, a.wrench.force, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(b.wrench.torque, a.wrench.torque, rtol=1e-6, atol=1e-11)
+
+
 def test_flat_punch_on_a_homogeneous_linear_surface(flat):
     # 5 x 5 punch points 3 mm apart, each offset (0.25, 0.25) mm from a surface node: its 3
     # nearest nodes are (i, j), (i+1, j), (i, j+1), so q = punch point + (1/12, 1/12) mm and

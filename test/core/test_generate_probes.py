@@ -18,7 +18,8 @@ def test_a_trial_that_does_not_converge_is_skipped_and_the_others_kept(monkeypat
             self.force = np.outer(np.arange(1, len(depths) + 1), [0.0, 0.0, 1.0])
             self.torque = np.zeros((len(depths), 3))
 
-    def solve(spec_, mesh, start, direction, depths, torque_centre=None, h=None):
+    def solve(spec_, mesh, start, direction, depths, torque_centre=None, h=None,
+              stop_force=None):
         calls.append(len(calls))
         if len(calls) == 2:            # the second pose is the hard one
             raise NotConverged('step 3 (depth 7.760 mm) failed after 5 bisections')
@@ -30,3 +31,34 @@ def test_a_trial_that_does_not_converge_is_skipped_and_the_others_kept(monkeypat
     assert len(calls) == 3 and len(trials) == 2
     assert any('skipped' in line and 'did not converge' in line for line in lines)
     assert all(t['kind'] == 'line' and len(t['depths']) >= 1 for t in trials)
+
+
+def test_an_interrupted_run_resumes_without_solving_again_and_gives_the_same_trials(monkeypatch):
+    spec = load_object('plush')
+    solved = []
+
+    class Result:
+        def __init__(self, start, depths):
+            self.depths = np.asarray(depths)[:3]
+            self.force = -np.outer(np.arange(1, 4), start.position)   # depends on the pose
+            self.torque = np.zeros((3, 3))
+
+    def solve(spec_, mesh, start, direction, depths, torque_centre=None, h=None,
+              stop_force=None):
+        assert stop_force == 1.5 * spec.force_cap
+        solved.append(start.position.copy())
+        return Result(start, depths)
+
+    monkeypatch.setattr(indentation, 'solve_indentation', solve)
+    whole = generate.probe_trials(spec, ['line'], 3, seed=4, progress=lambda _: None)
+    saved = []
+    generate.probe_trials(spec, ['line'], 2, seed=4, progress=lambda _: None,
+                          on_trial=lambda so_far: saved.append(list(so_far)))
+    assert [len(s) for s in saved] == [1, 2]
+    solved.clear()
+    resumed = generate.probe_trials(spec, ['line'], 3, seed=4, progress=lambda _: None,
+                                    done=saved[-1])
+    assert len(solved) == 1                 # only the third trial is solved again
+    for a, b in zip(whole, resumed):
+        np.testing.assert_array_equal(a['start_position'], b['start_position'])
+        np.testing.assert_array_equal(a['force'], b['force'])

@@ -302,7 +302,8 @@ class FemModel:
         return u, cs, total, lam
 
     def indent(self, probe_mesh: Mesh, start_pose: Pose, direction, depths,
-               torque_centre=None, max_bisections: int = 5) -> IndentationResult:
+               torque_centre=None, max_bisections: int = 5,
+               stop_force: Optional[float] = None) -> IndentationResult:
         """Push ``probe_mesh`` from ``start_pose`` along ``direction`` through ``depths``.
 
         Args:
@@ -313,6 +314,8 @@ class FemModel:
             torque_centre: (3,) point the torque is taken about, metres (default: the start
                 position).
             max_bisections: how often a failing step may be halved.
+            stop_force: stop after the first depth whose force along ``-direction`` exceeds
+                this (N); the result then holds the depths solved so far (None: all).
 
         Raises:
             InvalidInput: bad shapes, non-increasing depths, zero direction.
@@ -380,8 +383,10 @@ class FemModel:
                 surface=(self.mesh.nodes + u)[top],
                 pen=float(cs.penetration.max()) if len(cs.index) else 0.0,
                 count=len(cs.index), iters=iters))
+            if stop_force is not None and -(force @ direction) > stop_force:
+                break
         return IndentationResult(
-            depths=depths, probe_position=np.array([r['pos'] for r in rows]),
+            depths=depths[:len(rows)], probe_position=np.array([r['pos'] for r in rows]),
             force=np.array([r['force'] for r in rows]),
             torque=np.array([r['torque'] for r in rows]),
             table_force=np.array([r['table'] for r in rows]),

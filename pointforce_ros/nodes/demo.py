@@ -178,8 +178,17 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
         surface = cell.capture_surface(views=2)
         print(f'[demo] equilibrium surface: {len(surface)} points '
               f'({time.monotonic() - started:.0f} s)')
-        centre = np.array([spec.centre[0], spec.centre[1], spec.size[2]])
-        index = int(np.argmin(np.linalg.norm(surface.points - centre, axis=1)))
+        # The first poke lands where the calibration sphere will push: the point model is then
+        # conditioned there, and the push measures the contact coupling (c), not the point
+        # model's error at an unpoked spot (which c would otherwise absorb).
+        site = np.array([spec.centre[0] + CALIBRATION_OFFSET[0],
+                         spec.centre[1] + CALIBRATION_OFFSET[1]])
+        first = 'calibration site' if (DATA / f'demo_calibration_{spec.name}.npz').exists() \
+            else 'object centre'
+        if first == 'object centre':
+            site = np.asarray(spec.centre, dtype=float)
+        gap = np.linalg.norm(surface.points[:, :2] - site, axis=1)
+        index = int(np.argmin(np.where(surface.normals[:, 2] > 0.7, gap, np.inf)))
         for k in range(pokes):
             if k > 0:
                 suggestion = cell.suggest(1)
@@ -188,7 +197,7 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
                 index = int(suggestion.surface_indices[0])
                 why = f'suggested (model std {suggestion.uncertainty[0]:.2f} N)'
             else:
-                why = 'object centre'
+                why = first
             goal = PokeGoal(point=surface.points[index], normal=surface.normals[index],
                             surface_index=index, force_limit=float(spec.force_cap),
                             depth_limit=float(spec.max_depth), speed=0.004, standoff=0.006)

@@ -17,7 +17,15 @@ Pipeline, one call for one or more scans given as arrays (a ROS adapter turns
    1.5 voxel diagonals; a camera only sees the outside of an object, and the weighting
    outvotes stray flying pixels). Rule
    ``'centroid'``: ``n . (p - centroid) > 0`` (for a closed, roughly convex object). Rule
-   ``'up'``: ``n . up > 0`` with ``up`` a direction in ``base`` (an object lying on a table).
+   ``'up'``: ``n . up > 0`` with ``up`` a direction in ``base`` (an object lying on a table);
+8. smooth the positions (:func:`smooth_surface`): move each point along its normal onto a
+   quadric fitted to its neighbours within ``smooth_voxels`` voxel edges that face the same
+   way. A voxel centroid keeps the depth camera's range noise (0.4-0.9 mm per 2 mm voxel on
+   the cell's realistic scenario); a poke measures its displacement ``d`` from that point, so
+   that noise became a per-poke offset of the force curve that no model can predict at a new
+   location. The fit cut the spread of the learned onsets from 0.35 to 0.13 mm (plush) and
+   0.33 to 0.11 mm (vest) on the cell's poke fixtures; a quadric keeps curved surfaces
+   unbiased (a plane would flatten a dome).
 
 The result is a :class:`pointforce_ros.types.Surface` in ``base``.
 """
@@ -116,6 +124,9 @@ class SurfaceConfig:
         radius_voxels: radius of that neighbour count, in voxel edges.
         normal_radius: search radius of the normal estimation; ``None`` = 4 voxels.
         normal_max_nn: most neighbours used for one normal.
+        smooth_voxels: radius of the position smoothing (step 8), in voxel edges; 0 disables.
+        smooth_max_angle_deg: neighbours whose normal differs from the point's by more than
+            this are left out of its fit (edges and the far side of thin parts).
         orientation: ``'camera'``, ``'centroid'`` or ``'up'`` (see the module docstring).
         up: (3,) direction in ``base`` used by ``orientation='up'``.
         min_points: fewest points the finished surface may have.
@@ -134,6 +145,8 @@ class SurfaceConfig:
     radius_voxels: float = 2.5
     normal_radius: Optional[float] = None
     normal_max_nn: int = 30
+    smooth_voxels: float = 4.0
+    smooth_max_angle_deg: float = 35.0
     orientation: str = 'camera'
     up: Tuple[float, float, float] = (0.0, 0.0, 1.0)
     min_points: int = 10
@@ -159,6 +172,9 @@ class SurfaceConfig:
         if self.radius_min_neighbours < 0 or not (self.radius_voxels > 0):
             raise InvalidInput('SurfaceConfig: radius_min_neighbours must be >= 0 and '
                                'radius_voxels > 0')
+        if not (self.smooth_voxels >= 0 and 0 < self.smooth_max_angle_deg <= 90):
+            raise InvalidInput('SurfaceConfig: smooth_voxels must be >= 0 and '
+                               'smooth_max_angle_deg in (0, 90]')
         if self.normal_max_nn < 3 or self.min_points < 3:
             raise InvalidInput('SurfaceConfig: normal_max_nn and min_points must be >= 3')
         if self.orientation not in ORIENTATIONS:
@@ -260,6 +276,9 @@ def build_equilibrium_surface(scans: Union[Scan, Sequence[Scan]],
                                   np.array(views), config)
     flip = np.einsum('ij,ij->i', normals, outward) < 0.0
     normals[flip] *= -1.0
+    if config.smooth_voxels > 0:
+        out_points = smooth_surface(out_points, normals, config.smooth_voxels * config.voxel_size,
+                                    config.smooth_max_angle_deg)
     surface = Surface(points=out_points, normals=normals, colors=out_colours, frame='base')
     report = SurfaceReport(n_input=n_input, n_non_finite=n_input - n_finite,
                            n_outside_roi=n_finite - len(points), n_after_voxel=n_voxel,
@@ -292,6 +311,61 @@ def surface_from_cloud(points: np.ndarray, colors: Optional[np.ndarray] = None,
 
     """
     return equilibrium_surface(Scan(points=points, colors=colors, transform=transform), config)
+
+
+def smooth_surface(points: np.ndarray, normals: np.ndarray, radius: float,
+                   max_angle_deg: float = 35.0, max_neighbours: int = 64) -> np.ndarray:
+    """Return ``points`` moved along ``normals`` onto locally fitted quadrics (denoising).
+
+    For each point ``p`` with unit normal ``n``, the neighbours within ``radius`` whose
+    normals lie within ``max_angle_deg`` of ``n`` give heights ``h = (q - p) . n`` over
+    in-plane coordinates ``(u, v)``; a weighted least-squares fit of ``h = a0 + a1 u + a2 v +
+    a3 u^2 + a4 u v + a5 v^2`` (weights ``(1 - r^2 / radius^2)^2``) moves ``p`` to ``p + a0
+    n``. A point with fewer than 10 such neighbours gets a plane (3 terms) when it has 4, and
+    stays where it is otherwise. Vectorised over points (batched 6 x 6 solves).
+
+    Args:
+        points: (N, 3) metres. normals: (N, 3) unit. radius: metres (> 0).
+
+    Returns:
+        (N, 3) smoothed positions; the normals are not changed.
+
+    """
+    points = np.asarray(points, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    n_pts = len(points)
+    k = int(min(max_neighbours, n_pts))
+    if n_pts < 4 or not radius > 0:
+        return points.copy()
+    dist, nbr = cKDTree(points).query(points, k=k, distance_upper_bound=radius)
+    valid = np.isfinite(dist)
+    nbr = np.where(valid, nbr, 0)
+    cos_max = np.cos(np.radians(max_angle_deg))
+    valid &= np.einsum('ikj,ij->ik', normals[nbr], normals) >= cos_max
+    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    e1 = np.cross(normals, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(normals, e1)
+    rel = points[nbr] - points[:, None, :]
+    u = np.einsum('ikj,ij->ik', rel, e1) / radius        # scaled: well-conditioned solves
+    v = np.einsum('ikj,ij->ik', rel, e2) / radius
+    h = np.einsum('ikj,ij->ik', rel, normals)
+    w = np.where(valid, (1.0 - np.minimum(u * u + v * v, 1.0)) ** 2, 0.0)
+    count = valid.sum(axis=1)
+    out = points.copy()
+    for terms, least in ((6, 10), (3, 4)):
+        rows = count >= least if terms == 6 else (count >= least) & (count < 10)
+        if not np.any(rows):
+            continue
+        cols = [np.ones_like(u[rows]), u[rows], v[rows], u[rows] ** 2, u[rows] * v[rows],
+                v[rows] ** 2][:terms]
+        a = np.stack(cols, axis=-1)                                   # (M, k, terms)
+        aw = a * w[rows][..., None]
+        m = np.einsum('mki,mkj->mij', aw, a) + 1e-9 * np.eye(terms)
+        rhs = np.einsum('mki,mk->mi', aw, h[rows])
+        a0 = np.linalg.solve(m, rhs[..., None])[:, 0, 0]
+        out[rows] += a0[:, None] * normals[rows]
+    return out
 
 
 def _inside(points: np.ndarray, config: SurfaceConfig) -> np.ndarray:

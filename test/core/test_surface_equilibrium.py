@@ -1,5 +1,7 @@
 """Equilibrium surface from rendered clouds of known geometry (sphere cap, tilted plane, box)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -129,7 +131,9 @@ def test_nan_rows_are_dropped_not_fatal(cap_scan):
 
 def test_roi_crop_and_report_counts(cap_scan):
     scan, _ = cap_scan
-    config = SurfaceConfig(roi_min=(-0.03, -0.03, 0.002), roi_max=(0.03, 0.03, 0.06))
+    # the crop itself: smoothing (a later stage) may move an edge point along its normal
+    config = SurfaceConfig(roi_min=(-0.03, -0.03, 0.002), roi_max=(0.03, 0.03, 0.06),
+                           smooth_voxels=0.0)
     surface, report = build_equilibrium_surface(scan, config)
     assert np.all(np.abs(surface.points[:, :2]) <= 0.03 + 1e-9)
     assert report.n_input == len(scan.points)
@@ -244,3 +248,29 @@ def test_up_rule_orients_a_plane_seen_from_below_upward():
     up = surface_from_cloud(cam, transform=below, config=SurfaceConfig(orientation='up'))
     assert np.all(by_camera.normals[:, 2] < -0.95)  # towards the camera
     assert np.all(up.normals[:, 2] > 0.95)
+
+
+def test_smoothing_removes_range_noise_without_flattening_the_cap():
+    # camera range noise as the realistic scenario's (about 1 mm per pixel at 0.35 m): the
+    # voxel centroids keep part of it; the quadric fit must remove most of what is left,
+    # measured against the true sphere, and must not bias a noise-free cap
+    rng = np.random.default_rng(11)
+    transform = look_at([0.0, 0.05, 0.35], [0.0, 0.0, 0.0])
+    cam, _ = render(transform, hit_sphere_cap, rng, noise=0.001, outliers=0, nan_fraction=0.0)
+    scan = Scan(points=cam, transform=transform)
+    raw = equilibrium_surface(scan, dataclasses.replace(CAP_ROI, smooth_voxels=0.0))
+    smooth = equilibrium_surface(scan, CAP_ROI)
+
+    def radial_rms(surface):
+        top = surface.points[:, 2] > 0.01        # the cap, away from the table seam
+        r = np.linalg.norm(surface.points[top] - SPHERE_C, axis=1) - SPHERE_R
+        return float(np.sqrt(np.mean(r ** 2))), float(np.mean(r))
+
+    (rms_raw, _), (rms_smooth, bias) = radial_rms(raw), radial_rms(smooth)
+    assert rms_smooth < 0.5 * rms_raw, (rms_raw, rms_smooth)
+    assert abs(bias) < 0.1e-3
+    cam0, _ = render(transform, hit_sphere_cap, rng, noise=0.0, outliers=0, nan_fraction=0.0)
+    exact = equilibrium_surface(Scan(points=cam0, transform=transform), CAP_ROI)
+    top = exact.points[:, 2] > 0.01
+    moved = np.abs(np.linalg.norm(exact.points[top] - SPHERE_C, axis=1) - SPHERE_R)
+    assert np.percentile(moved, 95) < 0.05e-3

@@ -22,7 +22,8 @@ import numpy as np
 from pointforce_ros.effects.data import tare_reference
 from pointforce_ros.effects.library import (check_params, count_earlier, hysteresis_branch,
                                             hysteresis_factor, LIBRARY, PLASTIC_RADIUS,
-                                            plastic_depth, prony_filter, prony_inverse)
+                                            plastic_depth, PROBE_EFFECTS, prony_filter,
+                                            prony_inverse, prony_terms)
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.types import PokeRecord, Surface
@@ -61,10 +62,11 @@ def effects_from_dict(data) -> Dict[str, Dict[str, float]]:
     if not isinstance(data, Mapping):
         raise InvalidInput(f'effects: expected a mapping name -> parameters, got '
                            f'{type(data).__name__}')
-    unknown = [name for name in data if name not in LIBRARY]
+    known = list(LIBRARY) + list(PROBE_EFFECTS)
+    unknown = [name for name in data if name not in known]
     if unknown:
-        raise InvalidInput(f'effects: unknown effect(s) {unknown}; known: {", ".join(LIBRARY)}')
-    return {name: check_params(name, data[name]) for name in LIBRARY if name in data}
+        raise InvalidInput(f'effects: unknown effect(s) {unknown}; known: {", ".join(known)}')
+    return {name: check_params(name, data[name]) for name in known if name in data}
 
 
 def _interp_columns(t_query: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -190,7 +192,7 @@ def _deconvolve(force: np.ndarray, t: np.ndarray, normal: np.ndarray, visco) -> 
     is no longer observable: from the first such sample after the peak the result is zero.
     """
     dt = float(np.median(np.diff(t)))
-    elastic = prony_inverse(force, dt, [visco['g']], [visco['tau']])
+    elastic = prony_inverse(force, dt, *prony_terms(visco))
     f_n = force @ normal
     peak = int(np.argmax(f_n))
     scale = max(float(f_n[peak]), 0.0)
@@ -230,8 +232,7 @@ def correct_curve(curve: PokeCurve, effects: Effects, *, count_before: int = 0) 
     if 'time_offset' in effects and len(t) > 1:
         f = np.interp(np.clip(t + effects['time_offset']['offset'], t[0], t[-1]), t, f)
     if 'viscoelastic' in effects and len(t) > 1:
-        v = effects['viscoelastic']
-        f = prony_inverse(f, float(np.median(np.diff(t))), [v['g']], [v['tau']])
+        f = prony_inverse(f, float(np.median(np.diff(t))), *prony_terms(effects['viscoelastic']))
     if 'series_compliance' in effects:
         d = d - effects['series_compliance']['compliance'] * np.maximum(f, 0.0)
     shift = effects.get('surface_offset', {}).get('offset', 0.0)
@@ -280,7 +281,9 @@ def correct_surface(surface: Surface, effects: Effects, *, poke_points=None,
 def relaxed_fraction(effects: Effects) -> float:
     """Fraction of the instantaneous force left after a long hold (1 without relaxation)."""
     effects = effects_from_dict(effects)
-    return 1.0 - effects['viscoelastic']['g'] if 'viscoelastic' in effects else 1.0
+    if 'viscoelastic' not in effects:
+        return 1.0
+    return 1.0 - float(np.sum(prony_terms(effects['viscoelastic'])[0]))
 
 
 def apply_series_compliance(force_of_depth: Callable[[np.ndarray], np.ndarray], depth,
@@ -344,9 +347,9 @@ def predict_measured(force_of_depth: Callable[[np.ndarray], np.ndarray], t, d,
     s = d + effects.get('surface_offset', {}).get('offset', 0.0)
     force = apply_series_compliance(force_of_depth, s, effects)
     if 'viscoelastic' in effects:
-        v = effects['viscoelastic']
         elastic = force
-        force = prony_filter(force, float(np.median(np.diff(t))), [v['g']], [v['tau']])
+        force = prony_filter(force, float(np.median(np.diff(t))),
+                             *prony_terms(effects['viscoelastic']))
         force = np.where(elastic > 0, np.maximum(force, 0.0), 0.0)
     if 'hysteresis' in effects:
         h = effects['hysteresis']

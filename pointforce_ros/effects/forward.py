@@ -33,6 +33,7 @@ from typing import Callable, Mapping, Tuple
 import numpy as np
 
 from pointforce_ros.effects.correct import correct_surface, effects_from_dict
+from pointforce_ros.effects.library import prony_terms
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import Surface
 
@@ -45,6 +46,8 @@ NO_FORWARD_TERM = {
     'time_offset': 'pose/force stream offset: part of the measuring chain',
     'hysteresis': 'the model holds the loading branch; unloading needs the path',
     'friction': 'tangential and path-dependent; the service answers normal contact',
+    'spatial_coupling': 'a model parameter: the model must be learned with this shape '
+                        'constant (the learner\'s shape_constant), not a term added to answers',
 }
 """Accepted effects the service does not add back, with the reason."""
 
@@ -112,10 +115,10 @@ class ForwardTerms:
 def hold_fraction(visco: Mapping, hold_time: float) -> float:
     """Force left after holding ``hold_time`` s: ``1 - sum g_i (1 - exp(-t / tau_i))``.
 
-    ``visco`` holds ``g`` and ``tau`` (one Prony term, as the library's effect).
+    ``visco`` holds the library's Prony series (``e1..eK``, ``tau1..tauK``) or one term
+    (``g``, ``tau``); see :func:`~pointforce_ros.effects.library.prony_terms`.
     """
-    g = np.atleast_1d(np.asarray(visco['g'], dtype=np.float64))
-    tau = np.atleast_1d(np.asarray(visco['tau'], dtype=np.float64))
+    g, tau = prony_terms(visco)
     return float(1.0 - np.sum(g * -np.expm1(-float(hold_time) / tau)))
 
 

@@ -37,6 +37,9 @@ class ParamSpec:
         scale: typical size of the optimised coordinate (the optimiser works in ``x / scale``).
         log: optimise ``log10(value)`` (positive values spanning decades).
         description: one line for reports.
+        zero_ok: a fitted value on the lower bound is an estimate, not a failed fit (a
+            non-negative weight that the data put at zero); the bound check of diagnose
+            ignores that bound.
 
     """
 
@@ -48,6 +51,7 @@ class ParamSpec:
     scale: float
     log: bool = False
     description: str = ''
+    zero_ok: bool = False
 
     def to_value(self, x: float) -> float:
         """Return the parameter value for the optimised coordinate ``x``."""
@@ -80,6 +84,9 @@ class EffectSpec:
         correction: how :func:`pointforce_ros.effects.correct.correct_records` removes it.
         needs: what the data must contain for the effect to be identifiable.
         settings: fixed (not fitted) settings stored with the parameters.
+        derived: values computed from the parameters and stored with them (not fitted, not
+            counted by the penalty; reports give them an uncertainty), e.g. the total
+            relaxing fraction ``g`` of the Prony series.
 
     """
 
@@ -90,6 +97,7 @@ class EffectSpec:
     correction: str
     needs: str = ''
     settings: Tuple[Tuple[str, float], ...] = ()
+    derived: Tuple[str, ...] = ()
 
     @property
     def n_params(self) -> int:
@@ -157,14 +165,22 @@ _add(EffectSpec(
               'slope; transients at the turning point',
     correction='re-sample the force at t + offset'))
 
+PRONY_TAUS = (0.1, 0.3, 1.0, 3.0, 10.0)
+"""Fixed relaxation times of the library's Prony series, seconds (log-spaced; from a few
+analysis samples to a few pokes, what holds of about a second and the gaps between pokes can
+resolve)."""
+
 _add(EffectSpec(
-    'viscoelastic', 'rate dependence and relaxation (one-term Prony series)',
-    (ParamSpec('g', '1', 0.0, 0.95, (0.1,), 0.05, description='relaxing fraction'),
-     ParamSpec('tau', 's', -2.0, 2.0, (-0.5, 0.5), 0.3, log=True,
-               description='relaxation time')),
+    'viscoelastic', 'rate dependence and relaxation (Prony series, fixed relaxation times)',
+    tuple(ParamSpec(f'e{i + 1}', '1', 0.0, 10.0, (0.05,), 0.05, zero_ok=True,
+                    description=f'modulus of the term with tau = {tau:g} s relative to the '
+                                'long-term modulus (>= 0)')
+          for i, tau in enumerate(PRONY_TAUS)),
     signature='force decays during a hold, unloading below loading, stiffer at higher speed',
     correction='deconvolve the force with the inverse Prony filter (elastic response)',
-    needs='holds or different speeds'))
+    needs='holds or different speeds',
+    settings=tuple((f'tau{i + 1}', tau) for i, tau in enumerate(PRONY_TAUS)),
+    derived=('g',)))
 
 _add(EffectSpec(
     'hysteresis', 'rate-independent loading/unloading hysteresis',
@@ -181,7 +197,11 @@ _add(EffectSpec(
                description='tip retreats compliance * F along the normal'),),
     signature='curve softens with force independently of the local stiffness: stiff spots '
               'bend more than soft ones (Oliver-Pharr frame compliance)',
-    correction='subtract compliance * F_n from the displacement'))
+    correction='subtract compliance * F_n from the displacement',
+    needs='on point pokes alone only where the arm is soft against the object (0.5 mm/N on '
+          'a 2 mm/N spot): a stiff arm (20 N/mm) only reparametrises each poke\'s curve '
+          '(d_meas = d + C f) and the learned curve absorbs it; probe trials measured through '
+          'the arm name it (a wide probe deflects it by the total force of all its contacts)'))
 
 _add(EffectSpec(
     'plastic_set', 'plastic set with repeated pokes',
@@ -203,6 +223,18 @@ _add(EffectSpec(
     needs='oblique pokes (push axis off the contact normal) and the full force vector',
     settings=(('stick_velocity', STICK_VELOCITY),)))
 
+PROBE_EFFECTS: Dict[str, EffectSpec] = {
+    'spatial_coupling': EffectSpec(
+        'spatial_coupling', 'spatial coupling beyond the shape function (shape constant c)',
+        (ParamSpec('shape_constant', 'm', 5e-4, 0.05, (0.004,), 1e-3,
+                   description='c of g(r) = c / (c + r) that fits the probe trials'),),
+        signature='probe-trial force error growing with the contact patch',
+        correction='none on the pokes: the learner serves the model with this shape constant',
+        needs='probe trials with ground truth'),
+}
+"""Effects tested on probe trials only (``effects.probes``), stored in ``effects.json`` like the
+library's."""
+
 NOT_TESTABLE_ON_POKES = {
     'spatial_coupling': 'spatial coupling beyond the shape function acts between contact '
                         'points, and a point probe has one: it is tested on probe trials '
@@ -213,22 +245,53 @@ NOT_TESTABLE_ON_POKES = {
 
 
 def spec(name: str) -> EffectSpec:
-    """Return the library entry ``name``.
+    """Return the library entry ``name`` (a point-poke effect or one of :data:`PROBE_EFFECTS`).
 
     Raises:
         InvalidInput: an unknown effect (the message lists the known ones).
 
     """
+    if name in PROBE_EFFECTS:
+        return PROBE_EFFECTS[name]
     if name not in LIBRARY:
-        raise InvalidInput(f'unknown effect {name!r}; known: {", ".join(LIBRARY)}')
+        raise InvalidInput(f'unknown effect {name!r}; known: '
+                           f'{", ".join(list(LIBRARY) + list(PROBE_EFFECTS))}')
     return LIBRARY[name]
+
+
+def prony_terms(visco: Mapping) -> Tuple[np.ndarray, np.ndarray]:
+    """Return the Prony weights ``g`` (K,) and relaxation times ``tau`` (K,), seconds.
+
+    ``visco`` is a viscoelastic effect's parameter mapping. Two forms are read: the library's
+    (``e1..eK`` moduli relative to the long-term modulus, ``tau1..tauK`` seconds;
+    ``g_i = e_i / (1 + sum e)``) and a single term ``{'g', 'tau'}`` (older files, hand-written
+    effects).
+    """
+    if 'tau' in visco:
+        return (np.atleast_1d(np.asarray(visco['g'], dtype=np.float64)),
+                np.atleast_1d(np.asarray(visco['tau'], dtype=np.float64)))
+    count = sum(1 for key in visco if key.startswith('tau'))
+    e = np.array([float(visco[f'e{i + 1}']) for i in range(count)])
+    tau = np.array([float(visco[f'tau{i + 1}']) for i in range(count)])
+    return e / (1.0 + float(np.sum(e))), tau
+
+
+def derived_values(name: str, params: Mapping) -> Dict[str, float]:
+    """Return the derived values of effect ``name`` (viscoelastic: the total fraction ``g``)."""
+    if name == 'viscoelastic' and 'tau' not in params:
+        return {'g': float(np.sum(prony_terms(params)[0]))}
+    return {}
 
 
 def check_params(name: str, params: Mapping) -> Dict[str, float]:
     """Validate a parameter mapping of effect ``name``; return it as floats with settings.
 
+    Derived values (``EffectSpec.derived``) are recomputed from the parameters. A viscoelastic
+    effect may also be given as one term ``{'g': fraction in [0, 1), 'tau': seconds > 0}``.
+
     Raises:
-        InvalidInput: unknown effect, missing/unknown parameters or non-finite values.
+        InvalidInput: unknown effect, missing/unknown parameters, non-finite values, a
+            negative Prony modulus or a one-term fraction outside [0, 1).
 
     """
     entry = spec(name)
@@ -237,7 +300,10 @@ def check_params(name: str, params: Mapping) -> Dict[str, float]:
                            f'{type(params).__name__}')
     wanted = {p.name for p in entry.params}
     settings = entry.defaults()
-    unknown = set(params) - wanted - set(settings)
+    derived = set(entry.derived)
+    if name == 'viscoelastic' and 'tau' in params:
+        wanted, settings, derived = {'g', 'tau'}, {}, set()
+    unknown = set(params) - wanted - set(settings) - derived
     if unknown:
         raise InvalidInput(f'effect {name}: unknown parameter(s) {sorted(unknown)}; expected '
                            f'{sorted(wanted | set(settings))}')
@@ -246,6 +312,8 @@ def check_params(name: str, params: Mapping) -> Dict[str, float]:
         raise InvalidInput(f'effect {name}: missing parameter(s) {sorted(missing)}')
     out = dict(settings)
     for key, value in params.items():
+        if key in derived:
+            continue
         try:
             out[key] = float(value)
         except (TypeError, ValueError):
@@ -253,8 +321,18 @@ def check_params(name: str, params: Mapping) -> Dict[str, float]:
         if not np.isfinite(out[key]):
             raise InvalidInput(f'effect {name}.{key}: must be finite, got {value!r}')
     for p in entry.params:
-        if p.log and out[p.name] <= 0:
+        if p.name in out and p.log and out[p.name] <= 0:
             raise InvalidInput(f'effect {name}.{p.name}: must be > 0, got {out[p.name]}')
+        if p.name in out and p.zero_ok and out[p.name] < 0:
+            raise InvalidInput(f'effect {name}.{p.name}: must be >= 0, got {out[p.name]}')
+    if name == 'viscoelastic':
+        g, tau = prony_terms(out)
+        if np.any(tau <= 0):
+            raise InvalidInput(f'effect {name}: relaxation times must be > 0, got {tau}')
+        if np.any(g < 0) or float(np.sum(g)) >= 1.0:
+            raise InvalidInput(f'effect {name}: relaxing fraction must be in [0, 1), got '
+                               f'{float(np.sum(g))}')
+    out.update(derived_values(name, out))
     return out
 
 

@@ -35,10 +35,12 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pointforce_ros.effects.data import PokeBatch, velocity
-from pointforce_ros.effects.library import (BASE_PARAMS, hysteresis_branch, hysteresis_factor,
-                                            friction_direction, LIBRARY, ParamSpec,
-                                            plastic_depth, prony_filter, STICK_VELOCITY)
+from pointforce_ros.effects.library import (BASE_PARAMS, derived_values, hysteresis_branch,
+                                            hysteresis_factor, friction_direction, LIBRARY,
+                                            ParamSpec, plastic_depth, prony_filter, prony_terms,
+                                            STICK_VELOCITY)
 from pointforce_ros.errors import InvalidInput, NotConverged
+from pointforce_ros.response.common import single_threaded_blas
 
 S_REF = 0.003
 """Reference depth of the per-poke amplitude, metres."""
@@ -85,6 +87,8 @@ class Layout:
             out[name] = LIBRARY[name].defaults()
         for (name, p), xi in zip(self.entries, x):
             out[name][p.name] = p.to_value(xi)
+        for name in self.effects:
+            out[name].update(derived_values(name, out[name]))
         return out
 
     def coordinates(self, values: Mapping[str, Mapping[str, float]]) -> np.ndarray:
@@ -101,53 +105,80 @@ def _padded(batch: PokeBatch):
     return batch.seg, np.arange(batch.n_samples) - batch.starts[batch.seg]
 
 
-def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.ndarray,
-           g: float, tau: float, scale: Optional[np.ndarray] = None
-           ) -> Tuple[np.ndarray, np.ndarray]:
-    """Prony-relaxed shape of every poke and the history carried in from earlier pokes.
+_HEREDITARY_CACHE: Dict[Tuple, np.ndarray] = {}
 
-    Returns:
-        ``(own, carry)``: ``own`` (N,) is the relaxed response to the poke's own shape
-        (unit amplitude, unclamped: ``g_inf phi + g h``); ``carry`` (N,) newtons is what the
-        material remembers of the earlier pokes (``g H exp(-(t - t_0) / tau)``), non-zero
-        only for a complete, time-ordered batch (in a subset each poke starts at rest).
-        Both are multiplied by ``scale`` (the hysteresis branch factor, applied after the
-        relaxation as in the cell); the carried amplitudes are fitted accordingly.
 
+def _hereditary(batch: PokeBatch, phi: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Return the unit hereditary integrals ``h_k`` (N, K) of ``phi`` for times ``tau`` (K,).
+
+    They do not depend on the Prony weights, so the last result is kept: a fit that changes
+    only the weights (most of a finite-difference Jacobian) filters nothing again.
     """
+    key = (batch.n_samples, hash(batch.starts.tobytes()), hash(batch.dt.tobytes()),
+           tuple(np.round(tau, 12)), hash(phi.tobytes()))
+    cached = _HEREDITARY_CACHE.get(key)
+    if cached is not None:
+        return cached
     rows, cols = _padded(batch)
-    own = np.empty_like(phi)
+    h = np.empty((len(phi), len(tau)))
     dts = np.round(batch.dt, 9)
     for dt in np.unique(dts):
         take = dts[rows] == dt
         grid = np.zeros((len(batch), int(cols.max()) + 1))
         grid[rows[take], cols[take]] = phi[take]
-        own[take] = prony_filter(grid.T, float(dt), [g], [tau]).T[rows[take], cols[take]]
+        for k, tk in enumerate(tau):
+            h[take, k] = prony_filter(grid.T, float(dt), [1.0], [tk]).T[rows[take], cols[take]]
+    _HEREDITARY_CACHE.clear()
+    _HEREDITARY_CACHE[key] = h
+    return h
+
+
+def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.ndarray,
+           g: np.ndarray, tau: np.ndarray, scale: Optional[np.ndarray] = None
+           ) -> Tuple[np.ndarray, np.ndarray]:
+    """Prony-relaxed shape of every poke and the history carried in from earlier pokes.
+
+    ``g`` (K,) and ``tau`` (K,) are the Prony weights and relaxation times.
+
+    Returns:
+        ``(own, carry)``: ``own`` (N,) is the relaxed response to the poke's own shape
+        (unit amplitude, unclamped: ``g_inf phi + sum_k g_k h_k``); ``carry`` (N,) newtons is
+        what the material remembers of the earlier pokes (``sum_k g_k H_k exp(-(t - t_0) /
+        tau_k)``), non-zero only for a complete, time-ordered batch (in a subset each poke
+        starts at rest). Both are multiplied by ``scale`` (the hysteresis branch factor,
+        applied after the relaxation as in the cell); the carried amplitudes are fitted
+        accordingly.
+
+    """
+    g = np.atleast_1d(np.asarray(g, dtype=np.float64))
+    tau = np.atleast_1d(np.asarray(tau, dtype=np.float64))
+    h = _hereditary(batch, phi, tau)
+    g_inf = 1.0 - float(np.sum(g))
+    own = g_inf * phi + h @ g
     carry = np.zeros_like(phi)
-    if not np.array_equal(batch.order, np.arange(len(batch))) or g <= 0:
+    if not np.array_equal(batch.order, np.arange(len(batch))) or not np.any(g > 0):
         return (own if scale is None else own * scale), carry
     first = batch.starts[:-1]
     last = batch.starts[1:] - 1
-    decay = np.exp(-(batch.t - batch.per_sample(batch.t[first])) / tau)
+    decay = np.exp(-(batch.t - batch.per_sample(batch.t[first]))[:, None] / tau)   # (N, K)
     factor = np.ones_like(phi) if scale is None else scale
     act_own = np.where(active, own * factor, 0.0)
     s_oy = batch.sums(act_own * target_n)
-    s_od = batch.sums(act_own * decay * factor)
+    s_od = batch.sums(act_own[:, None] * decay * (g * factor[:, None]))          # (P, K)
     s_oo = batch.sums(act_own * act_own)
-    g_inf = 1.0 - g
-    h_last = (own[last] - g_inf * phi[last]) / g
+    h_last = h[last]                                                              # (P, K)
     decay_last = decay[last]
-    gap = np.exp(-(batch.t[first[1:]] - batch.t[last[:-1]]) / tau)
-    carried = np.zeros(len(batch))
-    h_in = 0.0
+    gap = np.exp(-(batch.t[first[1:]] - batch.t[last[:-1]])[:, None] / tau)       # (P-1, K)
+    carried = np.zeros((len(batch), len(g)))
+    h_in = np.zeros(len(g))
     for k in range(len(batch)):
         carried[k] = h_in
-        amp = max((s_oy[k] - g * h_in * s_od[k]) / s_oo[k], 0.0) if s_oo[k] > 0 else 0.0
+        amp = max((s_oy[k] - float(s_od[k] @ h_in)) / s_oo[k], 0.0) if s_oo[k] > 0 else 0.0
         if k + 1 < len(batch):
             h_in = (amp * h_last[k] + h_in * decay_last[k]) * gap[k]
     if scale is not None:
         own = own * scale
-    return own, g * batch.per_sample(carried) * decay * factor
+    return own, np.einsum('ik,ik->i', batch.per_sample(carried) * decay, g[None, :]) * factor
 
 
 def _solve_amplitudes(batch: PokeBatch, phi: np.ndarray, carry: Optional[np.ndarray],
@@ -262,8 +293,8 @@ def forward(batch: PokeBatch, values: Mapping[str, Mapping[str, float]]
         carry = None
         if visco is not None:
             # relaxation acts on the elastic response, the hysteresis branch on the result
-            phi, carry = _relax(batch, phi_e, target_n, active, float(visco['g']),
-                                float(visco['tau']), scale=branch)
+            g, tau = prony_terms(visco)
+            phi, carry = _relax(batch, phi_e, target_n, active, g, tau, scale=branch)
         else:
             phi = phi_e * branch if branch is not None else phi_e
         return _solve_amplitudes(batch, phi, carry, active, target, mu, stick, motion)
@@ -454,8 +485,29 @@ def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
 
     best = None
     last_error = None
+    with single_threaded_blas():
+        best, last_error = _solve_starts([x0 / scale for x0 in starts], residual, lower, upper,
+                                         max_nfev, n_samples)
+    if best is None:
+        raise NotConverged(f'effect fit {list(effects)} failed on every start: {last_error}')
+    sol, cost = best
+    x = sol.x * scale
+    return Fit(layout=layout, x=x, values=layout.values(x), cost=cost, nfev=int(sol.nfev))
+
+
+def _solve_starts(starts, residual, lower, upper, max_nfev, n_samples):
+    """Bounded least squares from every start (scaled coordinates).
+
+    Returns ``((solution, cost) or None, last error)``.
+
+    Run with BLAS on one thread: the Jacobians are tall and thin (samples x a few
+    parameters), where a multi-threaded BLAS gains nothing and, on a loaded machine, made the
+    SVDs of the trust-region solver 4x slower.
+    """
+    best = None
+    last_error = None
     for x0 in starts:
-        u0 = np.clip(x0 / scale, lower + 1e-9 * (upper - lower), upper - 1e-9 * (upper - lower))
+        u0 = np.clip(x0, lower + 1e-9 * (upper - lower), upper - 1e-9 * (upper - lower))
         try:
             sol = least_squares(residual, u0, bounds=(lower, upper), x_scale=1.0,
                                 diff_step=1e-3, max_nfev=max_nfev, method='trf', ftol=1e-6,
@@ -466,11 +518,7 @@ def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
         cost = 2.0 * float(sol.cost) / n_samples
         if best is None or cost < best[1]:
             best = (sol, cost)
-    if best is None:
-        raise NotConverged(f'effect fit {list(effects)} failed on every start: {last_error}')
-    sol, cost = best
-    x = sol.x * scale
-    return Fit(layout=layout, x=x, values=layout.values(x), cost=cost, nfev=int(sol.nfev))
+    return best, last_error
 
 
 def heldout_sse(batch: PokeBatch, fits: Sequence[Tuple[np.ndarray, Fit]]) -> np.ndarray:
@@ -498,11 +546,8 @@ def residual_table(batch: PokeBatch, fits: Sequence[Tuple[np.ndarray, Fit]]
         lateral residual, N), ``norm`` (norm of the residual vector, N), and ``rx, ry, rz`` (N).
 
     """
-    pred = np.zeros_like(batch.force)
-    for idx, fit in fits:
-        p, take = predict(batch, fit.values, idx)
-        pred[take] = p
-    resid = batch.force - pred
+    resid = heldout_residual(batch, fits)
+    pred = batch.force - resid
     n_seg = batch.normal_s
     normal = np.einsum('ij,ij->i', resid, n_seg)
     lateral = resid - normal[:, None] * n_seg
@@ -528,3 +573,82 @@ def fold_indices(n: int, folds: int, seed: int) -> List[np.ndarray]:
         raise InvalidInput(f'folds must be in 2..{n} (number of pokes), got {folds}')
     perm = np.random.default_rng(seed).permutation(n)
     return [np.sort(perm[k::folds]) for k in range(folds)]
+
+
+MODEL_BLOCK = 0.25
+"""Duration of the blocks the model RMSE averages the residual over, seconds."""
+
+
+def model_blocks(batch: PokeBatch, seconds: float = MODEL_BLOCK) -> np.ndarray:
+    """Block of every sample for the *model RMSE* (N,) int; -1: in no block.
+
+    A block is ``size = round(seconds / dt)`` consecutive samples (``dt`` the median analysis
+    interval; 12 samples, 0.24 s, at the default 50 Hz) of one phase (free space ``d < 0``,
+    loading, hold, unloading) of one poke; the last block of a phase run takes its leftover
+    samples (up to ``2 size - 1``); runs shorter than ``size`` samples are left out. Averaging
+    a residual over a block divides the variance of white sensor noise by the block size and
+    keeps every structure slower than the block (at 5 mm/s a block spans 1.2 mm of depth).
+    Blocks never mix loading and unloading, so a hysteresis or lag residual of opposite sign
+    on the two branches does not cancel.
+
+    Raises:
+        InvalidInput: ``seconds`` not > 0.
+
+    """
+    if not (np.isfinite(seconds) and seconds > 0):
+        raise InvalidInput(f'model_blocks: seconds must be > 0, got {seconds}')
+    size = max(int(round(float(seconds) / float(np.median(batch.dt)))), 1)
+    v = velocity(batch)
+    slow = np.abs(v) < 0.1 * batch.per_sample(batch.speed)
+    phase = np.where(batch.d < 0, 0, np.where(slow, 2, np.where(v > 0, 1, 3)))
+    n = batch.n_samples
+    new_run = np.ones(n, dtype=bool)
+    new_run[1:] = (phase[1:] != phase[:-1]) | (batch.seg[1:] != batch.seg[:-1])
+    run = np.cumsum(new_run) - 1
+    run_start = np.flatnonzero(new_run)
+    run_len = np.diff(np.append(run_start, n))
+    pos = np.arange(n) - run_start[run]
+    per_run = run_len // size                                   # blocks in each run
+    first_block = np.concatenate([[0], np.cumsum(per_run)[:-1]])
+    local = np.minimum(pos // size, np.maximum(per_run[run] - 1, 0))
+    return np.where(per_run[run] > 0, first_block[run] + local, -1)
+
+
+def block_sse(batch: PokeBatch, resid: np.ndarray, blocks: np.ndarray
+              ) -> Tuple[np.ndarray, np.ndarray]:
+    """Per-poke model SSE from block means of a residual and the samples it covers.
+
+    Args:
+        batch: the pokes.
+        resid: (N, 3) residual force vectors, N.
+        blocks: (N,) block ids of :func:`model_blocks` (-1: left out).
+
+    Returns:
+        ``(sse, count)``, both (P,): ``sum_b n_b |mean_b|^2`` over the blocks of each poke
+        (N^2) and the number of samples in them.
+
+    """
+    keep = blocks >= 0
+    b = blocks[keep]
+    n_blocks = int(b.max()) + 1 if len(b) else 0
+    n_b = np.bincount(b, minlength=n_blocks).astype(np.float64)
+    sums = np.stack([np.bincount(b, weights=resid[keep, k], minlength=n_blocks)
+                     for k in range(3)], axis=1)
+    energy = np.sum(sums ** 2, axis=1) / np.maximum(n_b, 1.0)          # n_b |mean_b|^2
+    poke = np.zeros(n_blocks, dtype=np.int64)
+    poke[b] = batch.seg[keep]
+    sse = np.bincount(poke, weights=energy, minlength=len(batch))
+    count = np.bincount(batch.seg[keep], minlength=len(batch)).astype(np.float64)
+    return sse, count
+
+
+def heldout_residual(batch: PokeBatch, fits: Sequence[Tuple[np.ndarray, Fit]]) -> np.ndarray:
+    """(N, 3) held-out force residual (measured - predicted) of every sample, N.
+
+    Each poke is predicted by the fit of the fold that held it out.
+    """
+    pred = np.zeros_like(batch.force)
+    for idx, fit in fits:
+        p, take = predict(batch, fit.values, idx)
+        pred[take] = p
+    return batch.force - pred

@@ -22,6 +22,17 @@ wrong coupling shows as a force error that grows with the contact patch. The eff
 (:func:`fit_spatial_coupling`) with the tests diagnose uses on pokes: leave-one-trial-out
 held-out error, one-sided Wilcoxon signed-rank on per-trial MSE, least relative improvement,
 penalised score, and a fit that must not sit on the end of the searched range.
+
+Series compliance is tested here too, on trials *measured through the arm*
+(``ProbeTrial.compliant``: the arm or table gave way under the probe's total force). On point
+pokes alone a series compliance only reparametrises each poke's curve (``d_meas = d + C f``
+with the poke's own force ``f``): the learned curve absorbs it and nothing is left to identify
+at a realistic stiffness (20 N/mm: p = 0.4-0.7 on pokes). A wide probe meets many contact
+points at once and the arm gives way by ``C`` times their *total* force, far more than any
+point's own share: a model that absorbed ``C`` into each point's curve is then too stiff.
+:func:`fit_series_compliance` fits ``C`` on those trials with the same tests, the model for each
+``C`` being the learned table corrected by ``C`` (``d -= C f`` per row, what the learner does to
+the pokes) and served with the retreat on the total force.
 """
 
 import dataclasses
@@ -43,6 +54,12 @@ COUPLING_RANGE = (5e-4, 0.05)
 COUPLING_GRID = 17
 """Log-spaced values of ``c`` tried over :data:`COUPLING_RANGE`."""
 
+COMPLIANCE_RANGE = (1e-6, 1e-3)
+"""Searched range of the series compliance ``C``, m/N (1000 N/mm to 1 N/mm)."""
+
+COMPLIANCE_GRID = 16
+"""Log-spaced values of ``C`` tried over :data:`COMPLIANCE_RANGE`."""
+
 
 @dataclass(frozen=True)
 class ProbeTrial:
@@ -57,6 +74,9 @@ class ProbeTrial:
         depths: (K,) travel along ``direction`` past ``start``, metres.
         force: (K, 3) true force on the probe, N.
         torque: (K, 3) true torque on the probe about ``torque_centre``, N m.
+        compliant: measured through the poking arm: the series compliance of the pokes acts
+            on the trial (the generated trials of ``cell generate`` are the object's clean
+            response: False).
 
     """
 
@@ -68,6 +88,7 @@ class ProbeTrial:
     depths: np.ndarray
     force: np.ndarray
     torque: np.ndarray
+    compliant: bool = False
 
     def poses(self) -> Tuple[Pose, ...]:
         """Return the probe pose at every depth."""
@@ -96,7 +117,8 @@ def trials_from_dicts(entries: Sequence[Dict]) -> List[ProbeTrial]:
                 torque_centre=np.asarray(e['torque_centre'], dtype=np.float64).reshape(3),
                 depths=depths,
                 force=np.asarray(e['force'], dtype=np.float64).reshape(len(depths), 3),
-                torque=np.asarray(e['torque'], dtype=np.float64).reshape(len(depths), 3))
+                torque=np.asarray(e['torque'], dtype=np.float64).reshape(len(depths), 3),
+                compliant=bool(e.get('compliant', False)))
         except (KeyError, ValueError, InvalidInput) as exc:
             raise DataError(f'probe trial {i}: {exc}') from exc
         trials.append(trial)
@@ -170,9 +192,9 @@ def learn_contact_model(records: Sequence[PokeRecord], surface: Surface,
         return load_model(status.model_path)
 
 
-def _server(model, spacing: float):
+def _server(model, spacing: float, series_compliance: bool = False):
     from pointforce_ros.serving import WrenchServer
-    server = WrenchServer(spacing, series_compliance=False, hold_time=0.0)
+    server = WrenchServer(spacing, series_compliance=series_compliance, hold_time=0.0)
     server.swap(model)
     return server
 
@@ -182,12 +204,15 @@ def trial_errors(model, trials: Sequence[ProbeTrial], spacing: float = 0.003
     """Force and torque errors (K, 3) of every trial step answered by ``model`` (predicted - true).
 
     The answers come from :class:`~pointforce_ros.serving.WrenchServer` (batch query per trial,
-    no series compliance added back, instantaneous viscoelastic force).
+    instantaneous viscoelastic force); a series compliance of the model is added back on
+    ``compliant`` trials only.
     """
     from pointforce_ros.types import ContactQuery
-    server = _server(model, spacing)
+    servers = {flag: _server(model, spacing, flag)
+               for flag in {bool(t.compliant) for t in trials}}
     force_err, torque_err = [], []
     for trial in trials:
+        server = servers[bool(trial.compliant)]
         query = ContactQuery(mesh=trial.mesh, poses=trial.poses(), approach=trial.direction,
                              torque_centre=trial.torque_centre)
         batch, _ = server.answer_batch(query)
@@ -212,14 +237,14 @@ def _pooled(errors: Sequence[np.ndarray]) -> float:
 
 @dataclass(frozen=True)
 class CouplingResult:
-    """The ``spatial_coupling`` effect tested on probe trials.
+    """An effect tested on probe trials: ``spatial_coupling`` or ``series_compliance``.
 
     Attributes:
-        assumed: the model's shape constant ``c``, metres.
-        fitted: ``c`` that fits all trials best, metres.
-        std: jackknife standard deviation of ``c`` over leave-one-trial-out fits, metres.
+        assumed: the model's value (shape constant ``c``, metres; compliance ``C``, m/N).
+        fitted: the value that fits all trials best.
+        std: jackknife standard deviation of the value over leave-one-trial-out fits.
         rmse_before: probe force RMSE with ``assumed``, N.
-        rmse_after: held-out probe force RMSE, each trial with the ``c`` fitted on the
+        rmse_after: held-out probe force RMSE, each trial with the value fitted on the
             others, N.
         improvement: ``1 - rmse_after / rmse_before``.
         p_value: one-sided Wilcoxon signed-rank p on the per-trial MSE.
@@ -229,6 +254,8 @@ class CouplingResult:
         rejected: why a candidate that passed the tests was refused ('' otherwise).
         trials: number of trials tested.
         alpha: significance level of the test.
+        name: ``spatial_coupling`` (parameter ``shape_constant``) or ``series_compliance``
+            (parameter ``compliance``).
 
     """
 
@@ -245,11 +272,18 @@ class CouplingResult:
     rejected: str = ''
     trials: int = 0
     alpha: float = 0.01
+    name: str = 'spatial_coupling'
 
     @property
     def underpowered(self) -> bool:
         """Whether so few trials can never reach ``p < alpha`` (one-sided Wilcoxon)."""
         return 0.5 ** self.trials >= self.alpha
+
+    @property
+    def params(self) -> Dict[str, float]:
+        """The effect's parameters as ``effects.json`` stores them."""
+        key = 'shape_constant' if self.name == 'spatial_coupling' else 'compliance'
+        return {key: float(self.fitted)}
 
     def describe(self) -> str:
         """Return one line for the console and the report."""
@@ -259,9 +293,16 @@ class CouplingResult:
             verdict += (f' (too few trials to test: {self.trials} cannot give p < '
                         f'{self.alpha:g}; at least '
                         f'{int(np.ceil(np.log(self.alpha) / np.log(0.5))) + 1} are needed)')
-        return (f'spatial_coupling (probe trials): shape constant c {self.fitted * 1e3:.2f} +- '
-                f'{self.std * 1e3:.2f} mm against the model\'s {self.assumed * 1e3:.2f} mm; '
-                f'held-out probe force RMSE {self.rmse_before:.4g} -> {self.rmse_after:.4g} N '
+        if self.name == 'spatial_coupling':
+            what = (f'shape constant c {self.fitted * 1e3:.2f} +- {self.std * 1e3:.2f} mm '
+                    f'against the model\'s {self.assumed * 1e3:.2f} mm')
+        else:
+            stiffness = 1e-3 / self.fitted if self.fitted > 0 else float('inf')
+            what = (f'compliance C {self.fitted * 1e3:.4g} +- {self.std * 1e3:.2g} mm/N '
+                    f'(stiffness {stiffness:.3g} N/mm) against the model\'s '
+                    f'{self.assumed * 1e3:.4g} mm/N, on trials measured through the arm')
+        return (f'{self.name} (probe trials): {what}; held-out probe force RMSE '
+                f'{self.rmse_before:.4g} -> {self.rmse_after:.4g} N '
                 f'(p = {self.p_value:.2g}, {self.improved} trials better): {verdict}')
 
 
@@ -277,28 +318,19 @@ def _refine(grid_log: np.ndarray, cost: np.ndarray) -> float:
     return float(grid_log[k])
 
 
-def fit_spatial_coupling(model, trials: Sequence[ProbeTrial], *, spacing: float = 0.003,
-                         alpha: float = 0.01, min_improvement: float = 0.03,
-                         c_range: Tuple[float, float] = COUPLING_RANGE,
-                         grid: int = COUPLING_GRID) -> CouplingResult:
-    """Test the shape constant of ``model`` on probe trials (module docstring).
+def _grid_test(name: str, assumed: float, grid_log: np.ndarray, sse: np.ndarray,
+               base_sse: np.ndarray, steps: np.ndarray, alpha: float,
+               min_improvement: float, unit: str, scale: float) -> CouplingResult:
+    """Leave-one-trial-out test of a one-parameter effect searched on a log grid.
 
-    Raises:
-        InvalidInput: fewer than 2 trials or a bad range.
+    Args:
+        sse: (G, T) per-trial force SSE at every grid value.
+        base_sse: (T,) per-trial SSE of the model as it is.
+        steps: (T,) steps per trial.
+        unit, scale: for the bound message (value * scale in unit).
 
     """
-    if len(trials) < 2:
-        raise InvalidInput('fit_spatial_coupling: need at least 2 probe trials')
-    lo, hi = float(c_range[0]), float(c_range[1])
-    if not 0 < lo < hi:
-        raise InvalidInput(f'fit_spatial_coupling: bad c range {c_range}')
-    assumed = float(model.shape_constant)
-    grid_log = np.linspace(np.log10(lo), np.log10(hi), int(grid))
-    sse = np.array([_sse(trial_errors(dataclasses.replace(model, shape_constant=10 ** g),
-                                      trials, spacing)[0]) for g in grid_log])   # (G, T)
-    base_sse = _sse(trial_errors(model, trials, spacing)[0])
-    steps = np.array([len(t.depths) for t in trials], dtype=np.float64)
-    n = len(trials)
+    n = sse.shape[1]
     held_sse = np.empty(n)
     c_loo = np.empty(n)
     for j in range(n):
@@ -324,14 +356,124 @@ def fit_spatial_coupling(model, trials: Sequence[ProbeTrial], *, spacing: float 
     rejected = ''
     k_all = int(np.argmin(total))
     if significant and k_all in (0, len(grid_log) - 1):
-        rejected = (f'fit on the end of the searched range (c = {fitted * 1e3:.3g} mm, range '
-                    f'{lo * 1e3:g}-{hi * 1e3:g} mm): not an interior optimum')
-    return CouplingResult(assumed=assumed, fitted=float(fitted), std=std,
+        rejected = (f'fit on the end of the searched range ({fitted * scale:.3g} {unit}, range '
+                    f'{10 ** grid_log[0] * scale:g}-{10 ** grid_log[-1] * scale:g} {unit}): '
+                    'not an interior optimum')
+    return CouplingResult(assumed=float(assumed), fitted=float(fitted), std=std,
                           rmse_before=rmse_before, rmse_after=rmse_after,
                           improvement=float(improvement), p_value=p_value,
                           delta_score=float(delta), improved=int(np.sum(mse_new < mse_old)),
                           accepted=bool(significant and not rejected), rejected=rejected,
-                          trials=n, alpha=float(alpha))
+                          trials=n, alpha=float(alpha), name=name)
+
+
+def _check_range(what: str, trials, value_range) -> Tuple[float, float]:
+    if len(trials) < 2:
+        raise InvalidInput(f'{what}: need at least 2 probe trials')
+    lo, hi = float(value_range[0]), float(value_range[1])
+    if not 0 < lo < hi:
+        raise InvalidInput(f'{what}: bad range {value_range}')
+    return lo, hi
+
+
+def fit_spatial_coupling(model, trials: Sequence[ProbeTrial], *, spacing: float = 0.003,
+                         alpha: float = 0.01, min_improvement: float = 0.03,
+                         c_range: Tuple[float, float] = COUPLING_RANGE,
+                         grid: int = COUPLING_GRID) -> CouplingResult:
+    """Test the shape constant of ``model`` on probe trials (module docstring).
+
+    Raises:
+        InvalidInput: fewer than 2 trials or a bad range.
+
+    """
+    lo, hi = _check_range('fit_spatial_coupling', trials, c_range)
+    grid_log = np.linspace(np.log10(lo), np.log10(hi), int(grid))
+    sse = np.array([_sse(trial_errors(dataclasses.replace(model, shape_constant=10 ** g),
+                                      trials, spacing)[0]) for g in grid_log])   # (G, T)
+    base_sse = _sse(trial_errors(model, trials, spacing)[0])
+    steps = np.array([len(t.depths) for t in trials], dtype=np.float64)
+    return _grid_test('spatial_coupling', float(model.shape_constant), grid_log, sse, base_sse,
+                      steps, alpha, min_improvement, 'mm', 1e3)
+
+
+def compliance_corrected(response, compliance: float):
+    """Return a baked table learned through a series compliance, with the compliance removed.
+
+    Each row's curve is moved by ``d -= compliance * f`` (what the learner does to the pokes)
+    and resampled on the same depth grid; beyond the moved last depth it is extrapolated with
+    the row's slope ``s / (1 - compliance s)`` (the denominator kept >= 0.05). A row whose
+    moved depths fold back (``compliance * s >= 1``: the compliance exceeds the point's own)
+    keeps its running maximum of depth.
+
+    Args:
+        response: :class:`~pointforce_ros.response.baked.BakedResponse` (N rows, K depths).
+        compliance: m/N, >= 0.
+
+    Raises:
+        InvalidInput: a negative or non-finite compliance.
+
+    """
+    compliance = float(compliance)
+    if not np.isfinite(compliance) or compliance < 0:
+        raise InvalidInput(f'compliance_corrected: compliance must be >= 0, got {compliance}')
+    if compliance == 0:
+        return response
+    depths, forces = response.depths, np.maximum(response.forces, 0.0)
+    n, k = forces.shape
+    moved = np.maximum.accumulate(depths[None, :] - compliance * forces, axis=1)
+    moved = moved + np.arange(k)[None, :] * 1e-12            # strictly increasing per row
+    span = float(depths[-1] - depths[0]) + float(np.max(depths[None, :] - moved)) + 1.0
+    offset = np.arange(n)[:, None] * 2.0 * span
+    flat_x = (moved + offset).ravel()
+    query = (depths[None, :] + offset).ravel()
+    j = np.clip(np.searchsorted(flat_x, query, side='right') - 1, 0, n * k - 2)
+    row = np.repeat(np.arange(n), k)
+    j = np.clip(j, row * k, row * k + k - 2)                 # stay inside each row
+    x0, x1 = flat_x[j], flat_x[j + 1]
+    f_flat = forces.ravel()
+    w = np.clip((query - x0) / np.maximum(x1 - x0, 1e-300), 0.0, 1.0)
+    resampled = (f_flat[j] + w * (f_flat[j + 1] - f_flat[j])).reshape(n, k)
+    slope = response.slopes / np.maximum(1.0 - compliance * response.slopes, 0.05)
+    last = moved[:, -1]
+    beyond = depths[None, :] > last[:, None]
+    resampled = np.where(beyond, forces[:, -1:] + slope[:, None] * (depths[None, :]
+                                                                    - last[:, None]),
+                         resampled)
+    return dataclasses.replace(response, forces=resampled, slopes=slope)
+
+
+def fit_series_compliance(model, trials: Sequence[ProbeTrial], *, spacing: float = 0.003,
+                          alpha: float = 0.01, min_improvement: float = 0.03,
+                          c_range: Tuple[float, float] = COMPLIANCE_RANGE,
+                          grid: int = COMPLIANCE_GRID) -> CouplingResult:
+    """Test a series compliance on probe trials measured through the arm (module docstring).
+
+    ``model`` was learned without a compliance correction; for each ``C`` of the grid its table
+    is corrected by ``C`` (:func:`compliance_corrected`) and served with the retreat on the total
+    force. Only ``compliant`` trials are used.
+
+    Raises:
+        InvalidInput: fewer than 2 compliant trials, a bad range, or a model that already
+            holds a series compliance.
+
+    """
+    from pointforce_ros.effects.correct import effects_from_dict
+    trials = [t for t in trials if t.compliant]
+    lo, hi = _check_range('fit_series_compliance', trials, c_range)
+    effects = effects_from_dict(model.effects)
+    if 'series_compliance' in effects:
+        raise InvalidInput('fit_series_compliance: the model already holds a series compliance')
+    grid_log = np.linspace(np.log10(lo), np.log10(hi), int(grid))
+    sse = []
+    for g in grid_log:
+        candidate = dataclasses.replace(
+            model, response=compliance_corrected(model.response, 10 ** g),
+            effects={**effects, 'series_compliance': {'compliance': float(10 ** g)}})
+        sse.append(_sse(trial_errors(candidate, trials, spacing)[0]))
+    base_sse = _sse(trial_errors(model, trials, spacing)[0])
+    steps = np.array([len(t.depths) for t in trials], dtype=np.float64)
+    return _grid_test('series_compliance', 0.0, grid_log, np.array(sse), base_sse, steps,
+                      alpha, min_improvement, 'mm/N', 1e3)
 
 
 # --------------------------------------------------------------------------- scoring
@@ -352,6 +494,9 @@ class ProbeScore:
         torque_rmse_before, torque_rmse_after: pooled over all steps, N m.
         peak_force: largest true force magnitude over the trials, N.
         coupling: the spatial-coupling test on the "after" model (None: not run).
+        compliance: the series-compliance test on the trials measured through the arm (None:
+            not run: no such trials, or the pokes' selection already accepted one). When it
+            is accepted, ``effects`` holds it and the "after" model was learned with it.
 
     """
 
@@ -369,6 +514,7 @@ class ProbeScore:
     torque_rmse_after: float
     peak_force: float
     coupling: Optional[CouplingResult] = None
+    compliance: Optional[CouplingResult] = None
 
     def describe(self) -> str:
         """Return the console lines."""
@@ -378,6 +524,8 @@ class ProbeScore:
                  f'{self.force_rmse_after:.4g} N, torque RMSE {self.torque_rmse_before:.4g} '
                  f'-> {self.torque_rmse_after:.4g} N m (model learned without -> with '
                  f'{label}, c = {self.shape_constant * 1e3:.2f} mm)']
+        if self.compliance is not None:
+            lines.append(self.compliance.describe())
         if self.coupling is not None:
             lines.append(self.coupling.describe())
         return '\n'.join(lines)
@@ -402,8 +550,11 @@ def score_probe_trials(records: Sequence[PokeRecord], trials: Sequence[ProbeTria
         effects: accepted effects ``{name: {param: value}}``.
         shape_constant: ``c`` of the served model, metres (the learner's parameter).
         spacing: rigid-mesh sampling of the simulator, metres.
-        coupling: also test ``spatial_coupling`` on the "after" model (needs >= 2 trials).
-        alpha, min_improvement: the coupling test's settings (as diagnose's).
+        coupling: also test ``spatial_coupling`` on the "after" model (needs >= 2 trials)
+            and, when ``effects`` has no series compliance and >= 2 trials are ``compliant``,
+            ``series_compliance`` first (:func:`fit_series_compliance`); an accepted one joins
+            the effects and the "after" model is learned again with it.
+        alpha, min_improvement: the probe tests' settings (as diagnose's).
 
     Raises:
         InvalidInput: no trials, bad effects or settings.
@@ -418,6 +569,14 @@ def score_probe_trials(records: Sequence[PokeRecord], trials: Sequence[ProbeTria
     after = learn_contact_model(records, surface, effects, shape_constant) if effects \
         else before
     fb, tb = trial_errors(before, trials, spacing)
+    compliance = None
+    if coupling and 'series_compliance' not in effects \
+            and sum(1 for t in trials if t.compliant) >= 2:
+        compliance = fit_series_compliance(after, trials, spacing=spacing, alpha=alpha,
+                                           min_improvement=min_improvement)
+        if compliance.accepted:
+            effects['series_compliance'] = compliance.params
+            after = learn_contact_model(records, surface, effects, shape_constant)
     fa, ta = trial_errors(after, trials, spacing) if effects else (fb, tb)
     result = fit_spatial_coupling(after, trials, spacing=spacing, alpha=alpha,
                                   min_improvement=min_improvement) \
@@ -430,4 +589,4 @@ def score_probe_trials(records: Sequence[PokeRecord], trials: Sequence[ProbeTria
         force_rmse_before=_pooled(fb), force_rmse_after=_pooled(fa),
         torque_rmse_before=_pooled(tb), torque_rmse_after=_pooled(ta),
         peak_force=float(max(np.linalg.norm(t.force, axis=1).max() for t in trials)),
-        coupling=result)
+        coupling=result, compliance=compliance)

@@ -9,7 +9,9 @@
 * ``worst_poke.png``: the poke with the largest residual before selection, measured and
   predicted force against depth, before and after;
 * ``probe_trials.png``: per-trial probe force RMSE before and after (when trials were scored);
-* ``effects.json``: the accepted effects as ``ContactModel.effects`` stores them.
+* ``effects.json``: the accepted effects as ``ContactModel.effects`` stores them;
+* ``summary.json``: the numbers of the report (:func:`summary_dict`): accepted effects with
+  uncertainty, held-out sample and model RMSE before and after, probe-trial errors.
 
 Matplotlib runs on the Agg backend (no display needed).
 """
@@ -20,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from pointforce_ros.effects.correct import effects_to_dict
-from pointforce_ros.effects.library import LIBRARY
+from pointforce_ros.effects.library import spec
 
 PHASE_COLOURS = {'d<0': '#999999', 'loading': '#1f77b4', 'hold': '#2ca02c',
                  'unloading': '#d62728'}
@@ -135,9 +137,11 @@ def _markdown(report) -> str:
              f'Pokes are split by poke into {s["folds"]} seeded groups (seed {s["seed"]}); '
              'each is held out once. A candidate effect is accepted when, on the held-out '
              f'pokes, a one-sided paired Wilcoxon signed-rank test on per-poke MSE gives '
-             f'p < {s["alpha"]}, the RMSE drops by at least {s["min_improvement"]:.0%} and by '
-             f'at least {s["resolution"]:.1%} of the median peak force, and '
-             'the penalised score `n ln(MSE) + k ln(n)` (n pokes, k parameters) drops; '
+             f'p < {s["alpha"]}, the {_rule_on(s)} drops by at least '
+             f'{s["min_improvement"]:.0%}, the sample RMSE by at least '
+             f'{s["resolution"]:.1%} of the median peak force, and '
+             f'the penalised score `n ln(MSE) + k ln(n)` (n pokes, k parameters, MSE of the '
+             f'{_rule_on(s)}) drops; '
              'greedy forward selection with a backward check. Parameter uncertainty: '
              f'bootstrap over pokes ({s["bootstrap"]} resamples).', '',
              '## Result', '']
@@ -147,7 +151,7 @@ def _markdown(report) -> str:
         lines.append('| effect | parameter | value | std | 95 % interval | unit |')
         lines.append('| --- | --- | --- | --- | --- | --- |')
         for a in report.accepted:
-            units = {p.name: p.unit for p in LIBRARY[a.name].params}
+            units = {p.name: p.unit for p in spec(a.name).params}
             for k, v in a.params.items():
                 interval = (f'{_fmt(a.low[k])} .. {_fmt(a.high[k])}' if k in a.low else
                             'fixed' if k not in units else '-')
@@ -163,13 +167,22 @@ def _markdown(report) -> str:
             lines += ['', f'**{caution[0].upper() + caution[1:]}.**']
     lines += ['', f'Contact-law exponent p = {report.exponent:.3f}.', '',
               '| held-out force error | before | after |', '| --- | --- | --- |',
-              f'| RMSE, point pokes (N) | {_fmt(report.rmse_before)} | '
+              f'| RMSE, point pokes, per sample (N) | {_fmt(report.rmse_before)} | '
               f'{_fmt(report.rmse_after)} |',
+              f'| model RMSE, point pokes (N): residual averaged over '
+              f'{_fmt(s.get("model_block", 0.25))} s blocks of one phase '
+              f'({report.model_coverage:.0%} of the samples) | '
+              f'{_fmt(report.model_rmse_before)} | {_fmt(report.model_rmse_after)} |',
               f'| systematic part (noise {_fmt(report.noise_rms)} N removed) | '
               f'{_fmt(report.systematic_before)} | {_fmt(report.systematic_after)} |',
               f'| median per-poke RMSE (N) | {_fmt(float(np.median(report.poke_rmse_before)))}'
               f' | {_fmt(float(np.median(report.poke_rmse_after)))} |',
-              ] + _probe_rows(report) + ['']
+              ] + _probe_rows(report) + [
+              '', 'The sample RMSE includes the F/T white noise, which no model can predict; '
+              'the model RMSE averages it out and keeps every structural error slower than a '
+              'block. Whether an effect halves the error is judged on the model RMSE: after / '
+              f'before = {report.model_rmse_after / max(report.model_rmse_before, 1e-300):.2f} '
+              f'({"halved" if report.halved else "not halved"}).', '']
     if report.unexplained:
         lines += ['## Unexplained residual', '',
                   f'The systematic residual after selection ({_fmt(report.systematic_after)} N) '
@@ -211,6 +224,45 @@ def _markdown(report) -> str:
     return '\n'.join(lines)
 
 
+def _rule_on(settings) -> str:
+    return 'model RMSE' if settings.get('improvement_on', 'model') == 'model' else 'sample RMSE'
+
+
+def summary_dict(report) -> dict:
+    """Return the report's numbers as a JSON-ready mapping (``summary.json``)."""
+    def num(x):
+        x = float(x)
+        return x if np.isfinite(x) else None
+
+    out = {
+        'source': report.source, 'pokes': len(report.ids), 'settings': dict(report.settings),
+        'accepted': [{'name': a.name, 'params': {k: num(v) for k, v in a.params.items()},
+                      'std': {k: num(v) for k, v in a.std.items()},
+                      'low': {k: num(v) for k, v in a.low.items()},
+                      'high': {k: num(v) for k, v in a.high.items()}} for a in report.accepted],
+        'rmse': {'sample_before': num(report.rmse_before),
+                 'sample_after': num(report.rmse_after),
+                 'model_before': num(report.model_rmse_before),
+                 'model_after': num(report.model_rmse_after),
+                 'model_coverage': num(report.model_coverage),
+                 'noise': num(report.noise_rms),
+                 'systematic_before': num(report.systematic_before),
+                 'systematic_after': num(report.systematic_after)},
+        'halved': report.halved, 'halving_judged_on': 'model RMSE',
+        'unexplained': bool(report.unexplained), 'exponent': num(report.exponent),
+        'notes': list(report.notes),
+    }
+    probe = report.probe
+    if probe is not None:
+        out['probe_trials'] = {
+            'trials': len(probe.kinds), 'effects': sorted(probe.effects),
+            'force_before': num(probe.force_rmse_before),
+            'force_after': num(probe.force_rmse_after),
+            'torque_before': num(probe.torque_rmse_before),
+            'torque_after': num(probe.torque_rmse_after)}
+    return out
+
+
 def _probe_rows(report) -> list:
     probe = report.probe
     if probe is None:
@@ -230,21 +282,27 @@ def _probe_section(report) -> list:
              f'{len(probe.kinds)} trial(s) with ground truth, answered by the contact service '
              f'from the point model (ours) learned on all point pokes, before (no effect) and '
              f'after ({label}); shape constant c = {_fmt(probe.shape_constant * 1e3)} mm. '
-             'The trials are the clean response of the object, so no series compliance is '
-             'added back and a viscoelastic effect answers the instantaneous force.', '',
+             'A series compliance is added back only on trials measured through the arm '
+             '(generated trials are the clean response of the object); a viscoelastic effect '
+             'answers the instantaneous force.', '',
              '| trial | probe | steps | force RMSE before (N) | after (N) | torque RMSE '
              'before (N m) | after (N m) |', '| --- | --- | --- | --- | --- | --- | --- |']
     for k, kind in enumerate(probe.kinds):
         lines.append(f'| {k} | {kind} | {probe.steps[k]} | {_fmt(probe.force_before[k])} | '
                      f'{_fmt(probe.force_after[k])} | {_fmt(probe.torque_before[k])} | '
                      f'{_fmt(probe.torque_after[k])} |')
+    if probe.compliance is not None:
+        lines += ['', f'Series compliance: {probe.compliance.describe()}. On point pokes alone '
+                  'a stiff arm only reparametrises each curve (`d_meas = d + C f`, the poke\'s '
+                  'own force); a wide probe bends it by the total force of all its contacts.']
     if probe.coupling is not None:
         c = probe.coupling
         lines += ['', f'Spatial coupling beyond the shape function: {c.describe()}.']
         if c.accepted:
-            lines += ['', f'To use it, set the learner\'s `shape_constant` to '
-                      f'{c.fitted:.4g} m (it is not part of `effects.json`: the shape constant '
-                      'is a model parameter, not a correction of the pokes).']
+            lines += ['', f'It is written to `effects.json` as `spatial_coupling.shape_constant'
+                      f' = {c.fitted:.4g}` m: a learner that reads the file must learn with '
+                      'this shape constant (the shape constant is a model parameter, not a '
+                      'correction of the pokes).']
     lines += ['', '![probe trials](probe_trials.png)', '']
     return lines
 
@@ -265,7 +323,7 @@ def _probe_figure(plt, report, path):
 
 
 def write_report(report, out_dir) -> Path:
-    """Write ``report.md``, the PNG plots and ``effects.json`` into ``out_dir``; return the .md.
+    """Write ``report.md``, the PNG plots, ``effects.json`` and ``summary.json``; return the .md.
 
     Raises:
         OSError: ``out_dir`` cannot be created or written.
@@ -289,6 +347,7 @@ def write_report(report, out_dir) -> Path:
     if report.probe is not None:
         _probe_figure(plt, report, out / 'probe_trials.png')
     (out / 'effects.json').write_text(json.dumps(effects_to_dict(report), indent=2))
+    (out / 'summary.json').write_text(json.dumps(summary_dict(report), indent=2))
     path = out / 'report.md'
     path.write_text(_markdown(report))
     return path

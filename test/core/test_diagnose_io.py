@@ -185,7 +185,7 @@ CORRECTABLE = ['surface_offset', 'ft_bias', 'ft_drift', 'time_offset', 'viscoela
 def _true_effects(name):
     effects = {}
     for effect, params in datasets.TRUTH[name].items():
-        full = dict(params)
+        full = dict(datasets.FULL_TRUTH.get(effect, params))
         if effect == 'plastic_set':
             full['radius'] = 0.004
         effects[effect] = full
@@ -297,6 +297,12 @@ def test_write_report_and_run_diagnose(tmp_path, capsys):
         assert data[:8] == b'\x89PNG\r\n\x1a\n' and len(data) > 5000
     stored = json.loads((tmp_path / 'out' / 'effects.json').read_text())
     assert stored == effects_to_dict(report)
+    summary = json.loads((tmp_path / 'out' / 'summary.json').read_text())
+    assert summary['rmse']['sample_before'] == pytest.approx(report.rmse_before)
+    assert summary['rmse']['model_after'] == pytest.approx(report.model_rmse_after)
+    assert summary['halved'] == report.halved and summary['halving_judged_on'] == 'model RMSE'
+    assert [a['name'] for a in summary['accepted']] == report.accepted_names
+    assert f'{report.model_rmse_before:.4g}' in text and 'model RMSE' in text
     table = write_poke_table(records('clean')[:5], tmp_path / 'clean.csv')
     assert run_diagnose(table, tmp_path / 'cli', seed=0, bootstrap=0,
                         candidates=['surface_offset']) == 0

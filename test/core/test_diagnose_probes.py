@@ -6,7 +6,9 @@ chosen true shape constant ``c_true``. The point model is learned from the pokes
 learn it and answered through the contact service.
 """
 
+import dataclasses
 import importlib.util
+import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +16,7 @@ import pytest
 
 from pointforce_ros.effects import diagnose
 from pointforce_ros.effects.probes import generated_files, score_probe_trials
+from pointforce_ros.errors import InvalidInput
 
 HERE = Path(__file__).resolve().parents[1] / 'data' / 'diagnose'
 _spec = importlib.util.spec_from_file_location('diagnose_probe_trials', HERE / 'probe_trials.py')
@@ -94,3 +97,80 @@ def test_generated_probe_file_round_trips_into_trials(tmp_path):
         poses_a, poses_b = a.poses(), b.poses()
         np.testing.assert_allclose([p.position for p in poses_a],
                                    [p.position for p in poses_b], atol=0)
+
+
+def test_stiff_arm_missed_on_pokes_is_found_on_probe_trials_through_the_arm(tmp_path):
+    # 20 N/mm: on point pokes it only reparametrises each curve (d_meas = d + C f) and is
+    # absorbed; a paddle or cylinder deflects the arm by the total force of all its contacts
+    from pointforce_ros.effects.report import write_report
+    trials = probe_data.make_trials(0.004, count=6, compliance=datasets.STIFF_ARM)
+    assert all(t.compliant for t in trials)
+    report = diagnose(datasets.make('stiff_arm'), seed=0, bootstrap=0, probes=trials,
+                      surface=probe_data.top_surface(), shape_constant=0.004,
+                      log=lambda line: None)
+    on_pokes = {c.name: c for c in report.rounds[0].candidates}['series_compliance']
+    assert not on_pokes.significant and report.rounds[0].chosen is None
+    probe = report.probe
+    found = probe.compliance
+    assert found.accepted and found.name == 'series_compliance'
+    assert found.fitted == pytest.approx(datasets.STIFF_ARM, rel=0.2)
+    assert 0 < found.std < 0.3 * found.fitted
+    assert found.rmse_after <= 0.5 * found.rmse_before and found.p_value < 0.01
+    # it joins the accepted effects, the model answering the trials and effects.json
+    assert report.accepted_names == ['series_compliance']
+    assert probe.effects == report.effects()
+    assert probe.force_rmse_after <= 0.5 * probe.force_rmse_before
+    # with the compliance in, the learner's shape constant is right and stays
+    assert not probe.coupling.accepted
+    assert probe.coupling.fitted == pytest.approx(0.004, rel=0.2)
+    write_report(report, tmp_path)
+    stored = json.loads((tmp_path / 'effects.json').read_text())
+    assert stored['series_compliance']['compliance'] == pytest.approx(found.fitted)
+    assert 'Series compliance:' in (tmp_path / 'report.md').read_text()
+
+
+def test_compliance_correction_of_a_baked_table_is_the_series_spring():
+    # a row learned through a compliance C has 1/k_m = 1/k + C; the correction returns k
+    from pointforce_ros.effects.probes import compliance_corrected
+    from pointforce_ros.response.baked import BakedResponse
+    depths = np.linspace(0.0, 0.01, 41)
+    k_true = np.array([500.0, 2000.0, 8000.0])
+    c = 1e-4
+    k_meas = 1.0 / (1.0 / k_true + c)
+    table = BakedResponse(depths=depths, forces=k_meas[:, None] * depths[None, :],
+                          slopes=k_meas)
+    fixed = compliance_corrected(table, c)
+    np.testing.assert_allclose(fixed.slopes, k_true, rtol=1e-9)
+    np.testing.assert_allclose(fixed.forces, k_true[:, None] * depths[None, :], rtol=1e-6,
+                               atol=1e-9)
+    assert compliance_corrected(table, 0.0) is table
+    with pytest.raises(InvalidInput):
+        compliance_corrected(table, -1e-5)
+
+
+def test_effects_accepted_on_probe_trials_are_written_for_the_learner():
+    # spatial_coupling's c goes into effects.json; the service says who applies it
+    from pointforce_ros.effects.correct import effects_from_dict, effects_to_dict
+    from pointforce_ros.effects.diagnose import _probe_accepted
+    from pointforce_ros.effects.forward import ForwardTerms
+    from pointforce_ros.effects.probes import CouplingResult, ProbeScore
+    coupling = CouplingResult(assumed=0.004, fitted=0.012, std=0.001, rmse_before=2.0,
+                              rmse_after=0.3, improvement=0.85, p_value=0.004,
+                              delta_score=-20.0, improved=8, accepted=True, trials=8)
+    refused = dataclasses.replace(coupling, name='series_compliance', fitted=5e-5,
+                                  accepted=False, rejected='on a bound')
+    score = ProbeScore(kinds=('line',), steps=np.array([5]), effects={}, shape_constant=0.004,
+                       force_before=np.ones(1), force_after=np.ones(1),
+                       torque_before=np.ones(1), torque_after=np.ones(1),
+                       force_rmse_before=1.0, force_rmse_after=1.0, torque_rmse_before=1.0,
+                       torque_rmse_after=1.0, peak_force=1.0, coupling=coupling,
+                       compliance=refused)
+    (accepted,) = _probe_accepted(score)
+    stored = json.loads(json.dumps(effects_to_dict([accepted])))
+    assert stored == {'spatial_coupling': {'shape_constant': 0.012}}
+    assert accepted.low['shape_constant'] == pytest.approx(0.010)
+    assert effects_from_dict(stored) == stored
+    terms = ForwardTerms.of(stored)
+    assert terms.identity and 'shape_constant' in dict(terms.skipped)['spatial_coupling']
+    with pytest.raises(InvalidInput, match='unknown parameter'):
+        effects_from_dict({'spatial_coupling': {'c': 0.01}})

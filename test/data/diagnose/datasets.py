@@ -9,9 +9,12 @@ fly instead of committing arrays; run this file to write them as CSV tables for 
     python test/data/diagnose/datasets.py OUT_DIR
 
 ``TRUTH`` maps a set to the effect the cell applied and the parameter values diagnose must
-recover (in the library's parameter names and units). ``below_resolution`` is noise-free with a
+recover (in the library's parameter names and units; for ``viscoelastic`` the total relaxing
+fraction ``g`` of the library's fixed-time Prony series). ``below_resolution`` is noise-free with a
 stiff table (20 N/mm): statistically detectable, but it moves the force by less than 0.1 % of
-the force range, so diagnose must not add a term for it.
+the force range, so diagnose must not add a term for it. ``stiff_arm`` is the same arm with
+noise: the pokes cannot name it; probe trials measured through it
+(``probe_trials.make_trials(..., compliance=STIFF_ARM)``) can.
 """
 
 import sys
@@ -45,6 +48,7 @@ SETS = {
                      ce.ViscoelasticRelaxation(g=(0.2,), tau=(1.0,))), {}),
     'periodic': ((), {}),
     'below_resolution': ((ce.SeriesCompliance(stiffness=20000.0),), {'noise': False}),
+    'stiff_arm': ((ce.SeriesCompliance(stiffness=20000.0),), {}),
 }
 
 TRUTH = {
@@ -52,14 +56,21 @@ TRUTH = {
     'ft_bias': {'ft_bias': {'fx': 0.3, 'fy': -0.2, 'fz': 0.5}},
     'ft_drift': {'ft_drift': {'rx': 0.01, 'ry': -0.008, 'rz': 0.02}},
     'time_offset': {'time_offset': {'offset': 0.02}},
-    'viscoelastic': {'viscoelastic': {'g': 0.2, 'tau': 1.0}},
+    'viscoelastic': {'viscoelastic': {'g': 0.2}},
     'hysteresis': {'hysteresis': {'eta': 0.15, 'transition': 0.0005}},
     'series_compliance': {'series_compliance': {'compliance': 1.0 / 2000.0}},
     'plastic_set': {'plastic_set': {'max_set': 0.0008, 'n0': 3.0}},
     'friction': {'friction': {'mu': 0.3}},
     'two_effects': {'surface_offset': {'offset': 0.0015},
-                    'viscoelastic': {'g': 0.2, 'tau': 1.0}},
+                    'viscoelastic': {'g': 0.2}},
 }
+
+FULL_TRUTH = {'viscoelastic': {'g': 0.2, 'tau': 1.0}}
+"""The cell's effect where ``TRUTH`` compares one derived value: the one-term Prony series as
+an effects mapping (for corrections with the true effect)."""
+
+STIFF_ARM = 1.0 / 20000.0
+"""Series compliance of ``stiff_arm`` (20 N/mm), m/N."""
 
 PERIODIC = (0.1, 0.8)
 """Foreign disturbance of the ``periodic`` set: amplitude (N, along z) and frequency (Hz)."""

@@ -12,6 +12,12 @@ contact patch (the spatial coupling the point pokes cannot see).
 
 Trials follow ``cell.generate.probe_trials``: the probe just touches the top at travel 0 and is
 pushed along a direction tilted up to ``max_tilt_deg`` from straight down, with a random roll.
+
+``compliance`` (m/N) makes the trials *measured through the arm*: the arm (or table) gives way
+by ``compliance`` times the probe's total push-back force along the push, so the probe sits
+short of its commanded travel (solved per step with ``effects.forward.solve_retreat``). The
+same compliance acting on point pokes only reparametrises each poke's curve; on a wide probe
+the total force of every contact point deflects it, which is what makes it identifiable.
 """
 
 import importlib.util
@@ -21,6 +27,7 @@ import numpy as np
 
 from pointforce_ros.cell.fem.probes import cylinder_probe, paddle_probe, pose_for_push
 from pointforce_ros.contact import ContactSimulator
+from pointforce_ros.effects.forward import solve_retreat
 from pointforce_ros.effects.probes import ProbeTrial
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
@@ -55,8 +62,13 @@ def true_response(surface: Surface) -> BakedResponse:
 
 
 def make_trials(c_true: float, count: int = 4, seed: int = 3, steps: int = 5,
-                max_depth: float = 0.003, max_tilt_deg: float = 10.0, spacing: float = 0.003):
-    """Return ``count`` paddle and ``count`` cylinder trials with ground truth at ``c_true``."""
+                max_depth: float = 0.003, max_tilt_deg: float = 10.0, spacing: float = 0.003,
+                compliance: float = 0.0):
+    """Return ``count`` paddle and ``count`` cylinder trials with ground truth at ``c_true``.
+
+    ``compliance`` > 0: measured through a compliant arm (module docstring); the trials are
+    marked ``compliant``.
+    """
     rng = np.random.default_rng([int(seed), 11])
     surface = top_surface()
     truth = ContactSimulator(surface, true_response(surface), c_true, spacing=spacing)
@@ -77,8 +89,22 @@ def make_trials(c_true: float, count: int = 4, seed: int = 3, steps: int = 5,
             depths = np.linspace(0.0, max_depth, steps + 1)[1:]
             poses = [pose_for_push(start.position + d * direction, direction, roll)
                      for d in depths]
+            if compliance > 0:
+                rows = np.array([np.concatenate([p.position, p.orientation]) for p in poses])
+
+                def push_back(index, shift, rows=rows, mesh=mesh, direction=direction,
+                              centre=start.position):
+                    moved = rows[index].copy()
+                    moved[:, :3] -= shift[:, None] * direction
+                    out = truth.query_batch(mesh, moved, direction, centre)
+                    return -(out.wrenches[:, :3] @ direction)
+
+                shift, _ = solve_retreat(push_back, float(compliance), len(poses))
+                poses = [pose_for_push(p.position - s * direction, direction, roll)
+                         for p, s in zip(poses, shift)]
             out = truth.query_batch(mesh, poses, direction, start.position)
             trials.append(ProbeTrial(kind=kind, mesh=mesh, start=start, direction=direction,
                                      torque_centre=start.position.copy(), depths=depths,
-                                     force=out.wrenches[:, :3], torque=out.wrenches[:, 3:]))
+                                     force=out.wrenches[:, :3], torque=out.wrenches[:, 3:],
+                                     compliant=compliance > 0))
     return trials

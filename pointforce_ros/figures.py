@@ -22,6 +22,12 @@ Three figures, each on held-out data only, medians over random training subsets,
    (:func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probe`), and the probe
    force RMSE of ours against ``c``.
 
+4. **Next-poke suggestion.** Held-out RMSE against the number of pokes when each next poke is
+   the pool location where ours is least certain (:func:`~pointforce_ros.response.suggest.
+   suggest_pokes`) or a random one, both from the same 2 random pokes (:func:`~pointforce_ros.
+   response.suggest.active_vs_random_curve`), and how many pokes the suggestion needs to
+   match random choice's error at :data:`ACTIVE_MAX` pokes.
+
 Ground truth is cached in ``test/data/figures/`` by ``make_figures_data.py`` there (the FEM is
 minutes per trial); ``python -m pointforce_ros.figures --out DIR`` then runs in minutes.
 All public quantities are SI (metres, newtons, newton-metres), frame ``base``.
@@ -698,6 +704,44 @@ def probe_goals(result: Mapping) -> Dict:
             'peak_met': bool(frac < 0.10)}
 
 
+# ------------------------------------------------------------- figure 4: next-poke suggestion
+ACTIVE_MAX = 12
+"""Pokes the active-vs-random comparison grows to (of the pool's 70 % candidates)."""
+
+
+def pokes_to_match(result: Mapping) -> Dict:
+    """Fewest pokes at which each strategy's median RMSE reaches random's at the last size.
+
+    Returns:
+        ``{'target': N, 'active': pokes or None, 'random': pokes, 'saved': random - active}``
+        (``None``: active never reaches it).
+
+    """
+    sizes = list(result['sizes'])
+    target = float(result['random']['median'][-1])
+
+    def first(strategy):
+        med = result[strategy]['median']
+        hit = [n for n, e in zip(sizes, med) if e <= target * (1 + 1e-9)]
+        return hit[0] if hit else None
+
+    active, random = first('active'), first('random')
+    return {'target': target, 'active': active, 'random': random,
+            'saved': None if active is None else random - active}
+
+
+def figure_active(curves: Sequence[PokeCurve], surface: Surface, repeats: int = 10,
+                  seed: int = 0, max_pokes: int = ACTIVE_MAX) -> Dict:
+    """Figure 4 for one object: :func:`active_vs_random_curve` with ours, and the savings."""
+    from pointforce_ros.response.ours import ContactGpModel
+    from pointforce_ros.response.suggest import active_vs_random_curve
+
+    res = active_vs_random_curve(list(curves), surface, ContactGpModel, start=2,
+                                 max_pokes=max_pokes, repeats=repeats, seed=seed)
+    res['match'] = pokes_to_match(res)
+    return res
+
+
 # ---------------------------------------------------------------------------- plots, table
 def _pyplot():
     import matplotlib
@@ -733,6 +777,30 @@ METHOD_LABELS = {'baseline': 'baseline (paper sim + ET, c = 4 mm)',
                  'et_our_sim': 'our sim + ET, c = 4 mm',
                  'ours_default_c': 'ours, c = 4 mm',
                  'ours': 'ours (identified c)', 'pure_learning': 'pure learning (LOO trials)'}
+
+
+def plot_active(per_object: Mapping[str, Mapping], path) -> None:
+    """Figure 4 PNG: one panel per object, active and random medians with quartile bands."""
+    plt = _pyplot()
+    names = list(per_object)
+    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.4 * max(len(names), 1), 3.2),
+                             dpi=110, squeeze=False)
+    for ax, name in zip(axes[0], names):
+        res = per_object[name]
+        for strategy in ('active', 'random'):
+            r = res[strategy]
+            ax.plot(res['sizes'], r['median'], marker='o', ms=3, label=strategy)
+            ax.fill_between(res['sizes'], r['q25'], r['q75'], alpha=0.2)
+        ax.axhline(res['match']['target'], color='grey', lw=0.8, ls=':')
+        ax.set_title(name)
+        ax.set_xlabel('pokes')
+        ax.grid(True, alpha=0.3)
+    axes[0][0].set_ylabel('held-out RMSE [N]')
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle('next poke: least certain location (active) vs random, ours')
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 def plot_probes(per_object: Mapping[str, Mapping], path) -> None:
@@ -871,6 +939,25 @@ def markdown_report(result: Mapping) -> str:
         lines.append(f"| {name} | {dent} | {probe} | "
                      f"{_fmt(res['rmse']['ours_default_c']['force'])} / "
                      f"{_fmt(res['rmse']['ours']['force'])} | {1e3 * best:.2f} |")
+    lines.append('')
+    if result.get('active'):
+        sizes = next(iter(result['active'].values()))['sizes']
+        show = [n for n in (2, 3, 5, 8, 10, ACTIVE_MAX) if n in sizes]
+        lines += ['## 4. Next poke: least certain location vs random (ours)', '',
+                  'Held-out RMSE [N], median over the repeats (30 % of the pool held out per '
+                  'repeat; both strategies start from the same 2 random pokes and choose among '
+                  'the remaining pool locations). `pokes to match`: fewest pokes whose median '
+                  f'reaches random choice\'s median at {ACTIVE_MAX} pokes.', '',
+                  '| object | strategy | ' + ' | '.join(str(n) for n in show)
+                  + ' | pokes to match |', '| --- | --- | ' + ' | '.join('---' for _ in show)
+                  + ' | --- |']
+        for name, res in result['active'].items():
+            for strategy in ('active', 'random'):
+                med = dict(zip(res['sizes'], res[strategy]['median']))
+                lines.append(f'| {name} | {strategy} | '
+                             + ' | '.join(_fmt(med.get(n)) for n in show)
+                             + f" | {res['match'][strategy] or '-'} |")
+        lines.append('')
     return '\n'.join(lines) + '\n'
 
 
@@ -925,7 +1012,8 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = {'objects': [], 'repeats': repeats, 'seed': int(seed), 'auto_budget': auto_budget,
-              'learning': {}, 'learning_goals': {}, 'error_budget': {}, 'probes': {},
+              'learning': {}, 'learning_goals': {}, 'error_budget': {}, 'active': {},
+              'probes': {},
               'probe_goals': {},
               'skipped': {}, 'stale': [], 'files': []}
     for k, name in enumerate(objects):
@@ -953,6 +1041,12 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         line = ', '.join(f"{r['model']}@{r['size']} {r['median']:.3f}" for r in rows
                          if r['size'] in (3, 5, 10))
         say(f'[figures]   learning curves ({time.monotonic() - t0:.0f} s): {line} N')
+        t0 = time.monotonic()
+        active = figure_active(curves, surface, repeats=repeats, seed=seed)
+        result['active'][name] = active
+        m = active['match']
+        say(f"[figures]   next poke ({time.monotonic() - t0:.0f} s): random reaches "
+            f"{m['target']:.3f} N at {m['random']} pokes, active at {m['active']}")
         try:
             trials, dent, fresh = load_probe_fixture(name, data_dir, say)
         except DataError as exc:
@@ -972,6 +1066,9 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
     if result['learning']:
         plot_learning(result['learning'], out / 'fig1_learning_curves.png')
         result['files'].append('fig1_learning_curves.png')
+    if result['active']:
+        plot_active(result['active'], out / 'fig4_active_vs_random.png')
+        result['files'].append('fig4_active_vs_random.png')
     if result['probes']:
         plot_probes(result['probes'], out / 'fig2_probe_rmse.png')
         plot_shape_constant(result['probes'], out / 'fig3_shape_constant.png')

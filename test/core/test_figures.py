@@ -198,3 +198,22 @@ def test_floors_on_the_fem_cell_and_the_noise_floor_of_the_law():
                                            c.d[keep]) - c.f[keep])
     neighbour = float(np.sqrt(np.mean(np.concatenate(err) ** 2)))
     assert 0.05 < floor < neighbour, (floor, neighbour)
+
+
+def test_pokes_to_match_and_the_active_section_of_the_report():
+    res = {'sizes': [2, 3, 4, 5, 6],
+           'active': {'median': [1.0, 0.7, 0.5, 0.45, 0.4]},
+           'random': {'median': [1.0, 0.9, 0.8, 0.6, 0.5]}}
+    m = figures.pokes_to_match(res)
+    assert m == {'target': 0.5, 'active': 4, 'random': 6, 'saved': 2}
+    res['active']['median'] = [1.0, 0.9, 0.8, 0.7, 0.6]
+    assert figures.pokes_to_match(res)['active'] is None
+    res['active']['median'] = [1.0, 0.7, 0.5, 0.45, 0.4]
+    res['match'] = figures.pokes_to_match(res)
+    for key in ('active', 'random'):
+        res[key].update(q25=res[key]['median'], q75=res[key]['median'])
+    result = {'objects': ['plush'], 'repeats': 3, 'seed': 0, 'seconds': 1.0, 'learning': {},
+              'learning_goals': {}, 'probes': {}, 'probe_goals': {}, 'active': {'plush': res}}
+    text = figures.markdown_report(result)
+    assert '| plush | active | 1.000 | 0.700 | 0.450 | 4 |' in text
+    assert '| plush | random | 1.000 | 0.900 | 0.600 | 6 |' in text

@@ -112,8 +112,10 @@ def make_poke_fixture(name: str, out=DATA_DIR, count: int = 30, seed: int = 0,
     surface = _scan_surface(spec, scen, seed)
     say(f'[figures-data] {name}: surface {len(surface)} points, '
         f'{time.monotonic() - started:.0f} s')
+    # the pokes aim at the scanned surface's points and normals, as the product's pokes do
     records = simulate_campaign(fem_cell_object(spec, live), scen, count=int(count), seed=seed,
-                                force_limit=spec.force_cap, depth_limit=spec.max_depth)
+                                force_limit=spec.force_cap, depth_limit=spec.max_depth,
+                                surface=surface)
     curves = []
     for record in records:
         try:
@@ -431,26 +433,27 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
 
 
 # ---------------------------------------------------------------- figure 2: probe trials
-def truth_floor(name: str, curves: Sequence[PokeCurve], scenario: str = 'realistic',
-                stride: int = 5) -> float:
+def truth_floor(name: str, curves: Sequence[PokeCurve], stride: int = 5) -> float:
     """Held-out RMSE (N) of the *true* physics that knows only the camera's mean bias.
 
     Every curve is predicted by the object's own FEM live path at its poked point, at depth
-    ``d + bias`` (``bias`` = the scenario's camera depth bias): a model that knew the stiffness
-    field exactly and the camera's bias, but not the camera noise at each poked point (which
-    shifts each poke's onset at random). No model learned from other pokes can beat it. Scored
-    like figure 1 (contact region), on every ``stride``-th sample.
+    ``d + bias`` (``bias``: the mean over ``curves`` of the true surface's height above the
+    poked point, along its normal): a model that knew the stiffness field exactly and the
+    camera's mean bias, but not the camera noise left at each poked point (which shifts each
+    poke's onset at random). No model learned from other pokes can beat it. Scored like figure
+    1 (contact region), on every ``stride``-th sample.
 
     Raises:
         DataError: the object's live cache is missing or stale.
 
     """
     from pointforce_ros.cell.fem.live import LiveContact
-    from pointforce_ros.cell.scenario import load_scenario
     from pointforce_ros.response.evaluate import CONTACT_MARGIN
 
     live = LiveContact.load(name, build=False)
-    bias = float(load_scenario(scenario).camera_kwargs()['depth_bias'])
+    pts = np.array([c.point for c in curves])
+    normal_z = np.array([c.normal[2] for c in curves])
+    bias = float(np.mean((live.spec.top_height(pts[:, 0], pts[:, 1]) - pts[:, 2]) * normal_z))
     err = []
     for c in curves:
         idx = np.flatnonzero(c.d >= c.onset_d - CONTACT_MARGIN)[::max(1, int(stride))]

@@ -255,7 +255,7 @@ def simulate_campaign(obj, scenario: Scenario, *, points: Optional[Sequence] = N
                       hold: float = 0.0, gap: float = 2.0, tare: bool = True,
                       normal_tilt_deg=0.0, camera_range: float = 0.5,
                       camera_averaging: int = 16, start_time: float = 0.0,
-                      id_prefix: str = 'poke-') -> List[PokeRecord]:
+                      id_prefix: str = 'poke-', surface=None) -> List[PokeRecord]:
     """Poke ``obj`` under ``scenario``: a deterministic list of records (same seed, same arrays).
 
     Locations are ``points``/``normals`` (true surface positions) or ``count`` positions drawn
@@ -264,6 +264,9 @@ def simulate_campaign(obj, scenario: Scenario, *, points: Optional[Sequence] = N
     where the scenario's camera sees the surface: ``depth_bias`` plus noise of standard
     deviation ``(a + b camera_range**2) / sqrt(camera_averaging)`` along ``-normal`` (a camera
     looking down the normal; the equilibrium surface averages ``camera_averaging`` pixels).
+    Given the ``surface`` the cell's camera scan produced, the commanded point and normal are
+    instead those of its point nearest to each location, as the product pokes: the camera's
+    bias, noise and the surface pipeline's smoothing and normal errors all come from the scan.
 
     Args:
         obj: a :class:`CellObject` or :class:`HalfSpaceContact`.
@@ -282,6 +285,8 @@ def simulate_campaign(obj, scenario: Scenario, *, points: Optional[Sequence] = N
         camera_averaging: pixels averaged per surface point (noise / sqrt of it).
         start_time: controller time of the first sample, seconds.
         id_prefix: ids are ``f'{id_prefix}{k:06d}'`` from 1.
+        surface: a scanned :class:`~pointforce_ros.types.Surface` (``base``) to take the
+            commanded points and normals from, or None for the camera model above.
 
     Raises:
         InvalidInput: neither or both of ``points`` and ``count``, bad shapes or limits.
@@ -320,8 +325,17 @@ def simulate_campaign(obj, scenario: Scenario, *, points: Optional[Sequence] = N
         max(int(camera_averaging), 1))
     observed = true_points - (cam['depth_bias'] + sigma * rng_cam.standard_normal(n_loc)
                               )[:, None] * true_normals
-    commanded_normals = (_tilted(true_normals, normal_tilt_deg, rng_loc)
-                         if np.any(np.asarray(normal_tilt_deg) != 0) else true_normals)
+    seen_normals = true_normals
+    if surface is not None:
+        from scipy.spatial import cKDTree
+        facing = np.flatnonzero(np.asarray(surface.normals)[:, 2] > 0.3)
+        if len(facing) == 0:
+            raise InvalidInput('simulate_campaign: the surface has no upward-facing point')
+        _, near = cKDTree(np.asarray(surface.points)[facing]).query(true_points)
+        observed = np.asarray(surface.points, dtype=np.float64)[facing[near]]
+        seen_normals = np.asarray(surface.normals, dtype=np.float64)[facing[near]]
+    commanded_normals = (_tilted(seen_normals, normal_tilt_deg, rng_loc)
+                         if np.any(np.asarray(normal_tilt_deg) != 0) else seen_normals)
     speeds = _speeds(speed, n_pokes, rng_loc)
     ft_kwargs = {}
     for eff in scenario.effects:

@@ -148,6 +148,31 @@ def test_campaign_geometry_timing_and_camera_bias():
         assert onset == pytest.approx(-0.001, abs=1e-4)
 
 
+def test_campaign_aims_at_the_scanned_surface_when_given_one():
+    # a scanned surface 1.3 mm low with a tilted normal at one spot: the commanded point and
+    # normal are the scan's nearest upward point, and the contact onset moves with it
+    from pointforce_ros.types import Surface
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-0.03, 0.03, (400, 2))
+    pts = np.column_stack([xy, np.full(400, Z0 - 0.0013)])
+    normals = np.tile([0.0, 0.0, 1.0], (400, 1))
+    normals[0] = [0.0, 0.1, 1.0] / np.linalg.norm([0.0, 0.1, 1.0])
+    side = Surface(points=np.vstack([pts, [[0.0, 0.0, Z0 - 0.01]]]),
+                   normals=np.vstack([normals, [[1.0, 0.0, 0.0]]]))
+    recs = _campaign(7, surface=side)
+    plain = _campaign(7)
+    for rec, ref in zip(recs[:4], plain[:4]):
+        near = np.argmin(np.linalg.norm(pts[:, :2] - ref.point[:2], axis=1))
+        np.testing.assert_array_equal(rec.point, pts[near])
+        np.testing.assert_array_equal(rec.normal, normals[near])
+        if near:
+            first = int(np.argmax(rec.normal_force() > 0.1))
+            w = 2 * np.pi / 0.05
+            k_local = K0 * (1 + 0.3 * np.sin(w * rec.point[0]) * np.sin(w * rec.point[1]))
+            onset = rec.displacement()[first] - (0.1 / k_local) ** (2 / 3)
+            assert onset == pytest.approx(-0.0013, abs=1e-4)
+
+
 def test_campaign_tilt_and_plastic_memory():
     recs = simulate_campaign(halfspace_object(HalfSpaceContact(z0=Z0, k0=K0)),
                              Scenario('p', effects=(PlasticSet(max_set=0.001, n0=1.0,

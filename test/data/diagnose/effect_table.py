@@ -14,7 +14,10 @@ uses the model RMSE, see ``DiagnoseReport``). Objects:
   that even with the 2 mm camera bias the true depth stays inside the live cache's range
   (beyond it the live path extrapolates linearly, which the curves would show as softening).
 
-Usage (a few minutes; prints a progress line per set)::
+With ``series_compliance`` on ``analytic`` a second row, ``series_compliance+probes``, adds
+12 probe trials measured through the same arm (a point poke cannot name a 20 N/mm arm).
+
+Usage (2-3 minutes on a loaded 2-core machine; prints a progress line per set)::
 
     nice -n 10 python test/data/diagnose/effect_table.py [--objects analytic,lamb]
         [--sets clean,camera_bias,...] [--pokes 16] [--seed 1]
@@ -35,6 +38,15 @@ HERE = Path(__file__).resolve().parent
 _spec = importlib.util.spec_from_file_location('diagnose_datasets_table', HERE / 'datasets.py')
 datasets = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(datasets)
+_spec = importlib.util.spec_from_file_location('diagnose_probe_trials_table',
+                                               HERE / 'probe_trials.py')
+probe_trials = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(probe_trials)
+
+PROBE_SET = 'series_compliance+probes'
+"""Extra row (analytic object only): the ``series_compliance`` pokes plus 12 probe trials
+measured through the same arm (``probe_trials.make_trials(..., compliance=...)``); the pokes
+alone cannot name a 20 N/mm arm, the trials can."""
 
 # scenario file -> (library effect, true parameters in library units, campaign extras)
 SETS = {
@@ -85,7 +97,7 @@ def records_for(obj, common: dict, set_name: str, pokes: int, seed: int):
 
 def row(object_name: str, set_name: str, report, seconds: float) -> str:
     """One Markdown table row."""
-    effect, truth, _ = SETS[set_name]
+    effect, truth, _ = SETS[set_name.split('+')[0]]
     accepted = report.accepted_names
     if effect is None:
         verdict = 'ok' if not accepted else 'FALSE POSITIVE'
@@ -115,6 +127,12 @@ def row(object_name: str, set_name: str, report, seconds: float) -> str:
                          + (f', refused: {tried.rejected}' if tried.rejected else ''))
     if report.unexplained:
         notes.append('unexplained residual')
+    if report.probe is not None:
+        notes.append(f'probe trials: force RMSE {report.probe.force_rmse_before:.3f} -> '
+                     f'{report.probe.force_rmse_after:.3f} N'
+                     + (f', stiffness {1e-3 / report.probe.compliance.fitted:.3g} N/mm, '
+                        f'p = {report.probe.compliance.p_value:.2g}'
+                        if report.probe.compliance is not None else ''))
     if report.onset is not None and set_name in ('clean', 'camera_bias'):
         notes.append(f'onset offset {report.onset.offset * 1e3:.2f} mm')
     return (f'| {object_name} | {set_name} | {verdict} | {", ".join(accepted) or "-"} | '
@@ -136,6 +154,8 @@ def main(argv=None) -> int:
     parser.add_argument('--pokes', type=int, default=16)
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--bootstrap', type=int, default=5)
+    parser.add_argument('--no-probes', dest='probes', action='store_false',
+                        help=f'leave out the {PROBE_SET} row')
     parser.add_argument('--improvement-on', default='model', choices=('sample', 'model'),
                         help="diagnose's improvement_on (the relative-improvement rule)")
     args = parser.parse_args(argv)
@@ -154,6 +174,14 @@ def main(argv=None) -> int:
                               improvement_on=args.improvement_on)
             seconds = time.monotonic() - t0
             rows.append(row(object_name, set_name, report, seconds))
+            if object_name == 'analytic' and set_name == 'series_compliance' and args.probes:
+                t0 = time.monotonic()
+                trials = probe_trials.make_trials(
+                    0.004, count=6, compliance=SETS['series_compliance'][1]['compliance'])
+                report = diagnose(records, seed=0, bootstrap=args.bootstrap,
+                                  improvement_on=args.improvement_on, probes=trials,
+                                  surface=probe_trials.top_surface(), shape_constant=0.004)
+                rows.append(row(object_name, PROBE_SET, report, time.monotonic() - t0))
             print(f'[effect_table] {object_name} {k + 1}/{len(sets)} {set_name}: '
                   f'{report.accepted_names or "nothing"} accepted, {seconds:.0f} s '
                   f'(total {time.monotonic() - started:.0f} s)', file=sys.stderr, flush=True)

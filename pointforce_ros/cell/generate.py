@@ -55,7 +55,9 @@ class Progress:
 def fem_cell_object(spec, live, margin: float = 0.25):
     """:class:`~pointforce_ros.cell.session.CellObject` of a FEM object and its live path.
 
-    Pokes are drawn over the footprint inset by ``margin`` (fraction of the half size).
+    Pokes are drawn over the footprint inset by ``margin`` (fraction of the half size); on a
+    dome, over the box inscribed in the footprint ellipse shrunk by ``margin`` (the bounding
+    box's corners lie on the steep rim, where a poke meets the side before the commanded point).
     """
     from pointforce_ros.cell.session import CellObject
 
@@ -67,6 +69,8 @@ def fem_cell_object(spec, live, margin: float = 0.25):
 
     cx, cy = spec.centre
     hx, hy = spec.size[0] / 2 * (1 - margin), spec.size[1] / 2 * (1 - margin)
+    if spec.kind == 'dome':
+        hx, hy = hx / np.sqrt(2.0), hy / np.sqrt(2.0)
     return CellObject(clean=live.point_probe_wrench, surface_at=surface_at,
                       region=((cx - hx, cx + hx), (cy - hy, cy + hy)), name=spec.name)
 

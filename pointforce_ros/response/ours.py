@@ -18,6 +18,14 @@ not use are built in here:
 
    (zero before the predicted onset; the ``d0`` term dominates just after it).
 
+4. **No extrapolation beyond the pokes.** Far from every poke (the object's sides, a corner
+   the pokes never reached) a process's mean follows its basis and hyperparameters, not data.
+   The predicted parameters are therefore kept within what the pokes showed: the onset within
+   the pokes' detected onsets +- :data:`ONSET_MARGIN`, ``log F`` within the fitted values +-
+   :data:`LOG_FORCE_MARGIN`, ``p`` within the fitted exponents. On lamb one stiffening curve
+   fitted ``d0`` 2 mm before its detected onset, and the onset process spread -5 mm onsets
+   over the sides: a line probe then touched them early and the predicted force tripled.
+
 A refit is: one bounded least-squares fit for the new poke (cached for the others), then three
 small GP fits on a fixed hyperparameter grid; baking 40 000 points is a handful of (N, K) numpy
 expressions (see :mod:`.bench` for timings).
@@ -40,6 +48,10 @@ from pointforce_ros.types import Surface
 KIND = 'pointforce.response.contact_gp'
 FORMAT = 1
 PARAMS = ('d0', 'log_force', 'exponent')
+ONSET_MARGIN = 0.0005
+"""How far (m) a predicted onset may lie outside the training pokes' detected onsets."""
+LOG_FORCE_MARGIN = 0.3
+"""How far a predicted ``log F`` may lie outside the training pokes' fitted values."""
 
 
 class ContactGpModel:
@@ -89,6 +101,7 @@ class ContactGpModel:
         self._ids: List[str] = []
         self._features = np.zeros((0, 9))
         self._theta = np.zeros((0, 3))
+        self._onsets = np.zeros(0)
         self._fit_rms = np.zeros(0)
         self._frame: Optional[FeatureFrame] = None
         self._gps: Optional[List[FeatureGp]] = None
@@ -141,6 +154,7 @@ class ContactGpModel:
         self._ids = [c.poke_id for c in curves]
         self._features = feats
         self._theta = np.stack([th for th, _ in fits])
+        self._onsets = np.array([c.onset_d for c in curves], dtype=float)
         self._fit_rms = np.array([rms for _, rms in fits])
         self._frame = FeatureFrame.of_surface(surface.points, surface.colors)
         self._surface = surface
@@ -168,6 +182,7 @@ class ContactGpModel:
         self._ids.append(curve.poke_id)
         self._features = np.vstack([self._features, feat])
         self._theta = np.vstack([self._theta, theta[None]])
+        self._onsets = np.append(self._onsets, float(curve.onset_d))
         self._fit_rms = np.append(self._fit_rms, rms)
         if self._frame is None or surface is not self._surface:
             self._frame = FeatureFrame.of_surface(surface.points, surface.colors)
@@ -191,6 +206,12 @@ class ContactGpModel:
                 gp.condition(self._features, self._theta[:, j], states[j])
             gps.append(gp)
         self._gps = gps
+        lo, hi = self._theta.min(axis=0), self._theta.max(axis=0)
+        self._param_bounds = (
+            np.array([self._onsets.min() - ONSET_MARGIN, lo[1] - LOG_FORCE_MARGIN,
+                      max(lo[2], self.exponent_bounds[0])]),
+            np.array([self._onsets.max() + ONSET_MARGIN, hi[1] + LOG_FORCE_MARGIN,
+                      min(hi[2], self.exponent_bounds[1])]))
         if states is None:
             self.version += 1
 
@@ -202,7 +223,8 @@ class ContactGpModel:
     def predict_params(self, features: np.ndarray, return_std: bool = False):
         """Mean (M, 3) and optionally std (M, 3) of ``(d0 [m], log F, p)`` at ``features``.
 
-        The exponent's mean is clipped to ``exponent_bounds``.
+        The means are kept within the training pokes' range (module docstring, point 4); the
+        std is the process's own (it still grows away from the pokes).
 
         Raises:
             ModelNotReady: before the first fit.
@@ -215,12 +237,9 @@ class ContactGpModel:
         with single_threaded_blas():
             out = [gp.predict(features, return_std=return_std, sq=sq) for gp in self._gps]
         if not return_std:
-            mean = np.stack(out, axis=1)
-            mean[:, 2] = np.clip(mean[:, 2], *self.exponent_bounds)
-            return mean
-        mean = np.stack([m for m, _ in out], axis=1)
+            return np.clip(np.stack(out, axis=1), *self._param_bounds)
+        mean = np.clip(np.stack([m for m, _ in out], axis=1), *self._param_bounds)
         std = np.stack([s for _, s in out], axis=1)
-        mean[:, 2] = np.clip(mean[:, 2], *self.exponent_bounds)
         return mean, std
 
     def _law(self, d0, log_f, p, d, dtype=np.float64):
@@ -354,9 +373,9 @@ class ContactGpModel:
                        'bases': list(self.bases), 'grid': _grid_to_dict(self.grid)},
             'frame': None if self._frame is None else self._frame.to_dict(),
             'pokes': [{'poke_id': i, 'features': f.tolist(), 'params': th.tolist(),
-                       'fit_rms': float(r)}
-                      for i, f, th, r in zip(self._ids, self._features, self._theta,
-                                             self._fit_rms)],
+                       'fit_rms': float(r), 'onset': float(o)}
+                      for i, f, th, r, o in zip(self._ids, self._features, self._theta,
+                                                self._fit_rms, self._onsets)],
             'processes': None if self._gps is None else [gp.state.to_dict() for gp in self._gps],
         }
 
@@ -386,6 +405,9 @@ class ContactGpModel:
                                        ).reshape(-1, 9)
             model._theta = np.array([p['params'] for p in pokes], dtype=float).reshape(-1, 3)
             model._fit_rms = np.array([p['fit_rms'] for p in pokes], dtype=float)
+            # models saved before onsets were kept: the law's own onset stands in
+            model._onsets = np.array([p.get('onset', p['params'][0]) for p in pokes],
+                                     dtype=float)
             if data['processes'] is not None:
                 states = [GpState.from_dict(s) for s in data['processes']]
                 model._fit_processes(states)

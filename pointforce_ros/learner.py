@@ -91,7 +91,8 @@ class OnlineLearner:
             instead of the built-in correction by ``effects``.
         effects: accepted effects ``{name: {param: value}}`` (``pointforce diagnose``'s
             ``effects.json``): removed from every poke, applied to the baked surface and
-            stored in each saved model.
+            stored in each saved model. Its ``spatial_coupling`` (``c`` fitted on probe
+            trials) replaces ``shape_constant``.
         min_peak_force: N; a poke whose force never exceeded this made no real contact (the
             point was off the object or the surface is wrong) and is not learned from.
 
@@ -116,6 +117,10 @@ class OnlineLearner:
         self.model_factory = model_factory
         self.corrections = corrections
         self.effects = effects_from_dict(effects)
+        coupling = self.effects.get('spatial_coupling')
+        if coupling is not None:
+            # c identified by diagnose on probe trials replaces the one given
+            self.shape_constant = float(coupling['shape_constant'])
         # every poke read (time, point, normal, peak normal force): plastic-set counts
         self._spots: List[tuple] = []
         self.min_peak_force = float(min_peak_force)

@@ -19,6 +19,7 @@ from pointforce_interfaces.srv import SuggestPoke
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
@@ -73,6 +74,17 @@ class StiffnessLearnerNode(Node):
                                'removed from every poke before learning and stored in each '
                                'model for the contact service; empty: none')
         self.effects = self._load_effects(effects_file)
+        coupling = self.effects.get('spatial_coupling')
+        if coupling is not None:
+            # c fitted by diagnose on probe trials: the learner uses it, the parameter says so
+            c = float(coupling['shape_constant'])
+            result = self.set_parameters([Parameter('shape_constant', Parameter.Type.DOUBLE,
+                                                    c)])[0]
+            self.shape_constant = c
+            self.get_logger().info(f'shape constant c = {1e3 * c:.3f} mm from {effects_file} '
+                                   f'(spatial_coupling)'
+                                   + ('' if result.successful else
+                                      f'; the parameter refused it: {result.reason}'))
         record = declare(self, 'record_topics', False,
                          'Rebuild pokes from the /poke_server/tcp_pose, wrench and poke_record '
                          'topics into store_dir (a learner away from the poke server, or a bag '

@@ -135,3 +135,13 @@ def test_rim_points_and_failed_locations_are_not_suggested(tmp_path):
     again, _ = learner.suggest(20, exclude_radius=0.004, edge_margin=0.008)
     gap = np.linalg.norm(surface.points[again] - miss.point, axis=1)
     assert np.all(gap >= 0.008 - 1e-9)
+
+
+def test_a_shape_constant_fitted_by_diagnose_replaces_the_given_one(tmp_path):
+    store, surface, _ = _stored_learner(tmp_path, 3, seed=1)
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
+                            shape_constant=0.004,
+                            effects={'spatial_coupling': {'shape_constant': 0.0021}})
+    status = learner.update()
+    assert learner.shape_constant == pytest.approx(0.0021)
+    assert load_model(status.model_path).shape_constant == pytest.approx(0.0021)

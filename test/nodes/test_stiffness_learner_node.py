@@ -133,9 +133,10 @@ def _learn(graph, tmp_path, effects_file):
         Parameter('poll_period', value=600.0)]))
     graph.wait_for(lambda: statuses and statuses[-1].version == 12, 60, 'model v12')
     status = statuses[-1]
+    shape_constant = node.get_parameter('shape_constant').value
     graph.remove(node)
     graph.remove(probe)
-    return status, load_model(status.model_path)
+    return status, load_model(status.model_path), shape_constant
 
 
 def _heldout_rmse(model, records):
@@ -171,7 +172,7 @@ def test_effects_file_corrects_the_pokes_and_lowers_the_heldout_error(ros_graph,
         elif effects:
             path = folder / 'effects.json'
             path.write_text(json.dumps(effects_to_dict(effects)))
-        status, model = _learn(ros_graph, folder, path)
+        status, model, _ = _learn(ros_graph, folder, path)
         results[name] = (status, model, _heldout_rmse(model, held))
     plain, corrected, broken = results['plain'], results['effects'], results['broken']
     assert list(corrected[0].effects) == ['plastic_set'] and list(plain[0].effects) == []
@@ -190,3 +191,13 @@ def test_effects_file_corrects_the_pokes_and_lowers_the_heldout_error(ros_graph,
     # a bad effects file: error logged, the node learns without effects (same as plain)
     assert list(broken[0].effects) == [] and broken[1].effects == {}
     assert broken[2] == pytest.approx(plain[2], rel=1e-6)
+
+
+def test_a_shape_constant_in_the_effects_file_sets_the_parameter_and_model(ros_graph, tmp_path):
+    import json
+    _plastic_setup(tmp_path)
+    path = tmp_path / 'effects.json'
+    path.write_text(json.dumps({'spatial_coupling': {'shape_constant': 0.0021}}))
+    status, model, shape_constant = _learn(ros_graph, tmp_path, path)
+    assert shape_constant == pytest.approx(0.0021)
+    assert model.shape_constant == pytest.approx(0.0021)

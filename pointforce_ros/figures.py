@@ -357,7 +357,10 @@ def load_probe_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] 
         DataError: the file is missing (the message says how to make it).
 
     """
+    from pointforce_ros.cell.objects import load_object
+
     data = _read_fixture(data_dir, name, 'probes')
+    cap = 1.5 * load_object(name).force_cap
     trials = []
     for i, kind in enumerate(data['trial_kinds']):
         t = {key: data[f'trial{i:02d}_{key}'] for key in (
@@ -365,6 +368,13 @@ def load_probe_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] 
             'torque_centre', 'depths', 'force', 'torque')}
         t['kind'] = str(kind)
         t['mesh'] = Mesh(t.pop('vertices'), t.pop('triangles'))
+        first = float(-(t['force'][0] @ t['direction']))
+        if first > cap:
+            # made before the generator checked clearance on dense samples: the probe
+            # started inside the object (a cylinder's side on a dome's apex)
+            say(f'[figures] {name}: trial {i} ({kind}) left out: it began inside the object '
+                f'({first:.1f} N at its first step, {1e3 * t["depths"][0]:.1f} mm)')
+            continue
         trials.append(t)
     dent = {k[5:]: data[k] for k in data if k.startswith('dent_')}
     return trials, dent, _check_hash(data, name, 'probe fixture', say)

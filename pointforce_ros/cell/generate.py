@@ -168,6 +168,7 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
     """
     from pointforce_ros.cell.fem.indentation import solve_indentation
     from pointforce_ros.cell.fem.probes import cylinder_probe, paddle_probe, pose_for_push
+    from pointforce_ros.contact.sampling import sample_mesh_surface
     rng = np.random.default_rng([int(seed), 7])
     makers = {'line': paddle_probe, 'cylinder': cylinder_probe}
     plan = [k for k in kinds if k in makers for _ in range(int(count))]
@@ -186,7 +187,9 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
         roll = rng.uniform(0.0, np.pi)
         top = np.asarray(spec.top_point(x, y))
         pose = pose_for_push(top, direction, roll)
-        world = pose.apply(mesh.vertices)
+        # dense samples, not vertices: a cylinder's side between its end rings can reach
+        # a dome's apex while every vertex is still above the surface
+        world = pose.apply(sample_mesh_surface(mesh, 0.001)[0])
         over = spec.footprint_mask(world[:, 0], world[:, 1])
         heights = np.asarray(spec.top_height(world[over, 0], world[over, 1]))
         clearance = float(np.max((heights - world[over, 2]) / np.cos(tilt))) if np.any(over) \

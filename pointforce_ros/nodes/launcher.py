@@ -64,12 +64,18 @@ class InProcessLauncher:
         return future.result()
 
     def close(self) -> None:
-        """Destroy every node and shut the context down."""
-        for node in list(self.nodes):
-            self.remove(node)
+        """Stop spinning, then destroy every node and shut the context down.
+
+        The executor stops (and its thread ends) before any node is destroyed: destroying a
+        node whose timer or subscription the spinning thread was still waiting on aborted
+        the process inside rcl once (a fresh-clone test run, poke server teardown).
+        """
         self.executor.shutdown(timeout_sec=5.0)
-        rclpy.try_shutdown(context=self.context)
         self._thread.join(timeout=5.0)
+        for node in list(self.nodes):
+            self.nodes.remove(node)
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
 
     def __enter__(self):
         return self

@@ -210,12 +210,15 @@ _TRIAL_KEYS = ('vertices', 'triangles', 'start_position', 'orientation', 'direct
 
 
 def _trial_arrays(prefix: str, trials: Sequence[Optional[Mapping]]) -> Dict[str, np.ndarray]:
-    """Trials as flat npz arrays ``<prefix>NN_<key>``; None (a skipped trial) keeps its index."""
+    """Trials as flat npz arrays ``<prefix>NN_<key>``, ``<prefix>_kinds``, ``<prefix>_seconds``.
+
+    None (a skipped trial) keeps its index, with kind ``skipped``.
+    """
     arrays = {f'{prefix}{i:02d}_{key}': np.asarray(trial[key])
               for i, trial in enumerate(trials) if trial is not None for key in _TRIAL_KEYS}
-    arrays[f'{prefix}kinds'] = np.array([t['kind'] if t is not None else 'skipped'
+    arrays[f'{prefix}_kinds'] = np.array([t['kind'] if t is not None else 'skipped'
                                          for t in trials])
-    arrays[f'{prefix}seconds'] = np.array([t['seconds'] if t is not None else 0.0
+    arrays[f'{prefix}_seconds'] = np.array([t['seconds'] if t is not None else 0.0
                                            for t in trials])
     return arrays
 
@@ -223,8 +226,8 @@ def _trial_arrays(prefix: str, trials: Sequence[Optional[Mapping]]) -> Dict[str,
 def _arrays_trials(prefix: str, data: Mapping) -> List[Optional[Dict]]:
     """Inverse of :func:`_trial_arrays` (raw arrays, no Mesh)."""
     out = []
-    for i, (kind, sec) in enumerate(zip(data.get(f'{prefix}kinds', []),
-                                        data.get(f'{prefix}seconds', []))):
+    for i, (kind, sec) in enumerate(zip(data.get(f'{prefix}_kinds', []),
+                                        data.get(f'{prefix}_seconds', []))):
         if str(kind) == 'skipped':
             out.append(None)
             continue
@@ -288,12 +291,9 @@ def make_probe_fixture(name: str, out=DATA_DIR, lines: int = 3, cylinders: int =
             spec, [kind], count, kind_seed, progress=say,
             done=_arrays_trials(prefix, saved)[:count],
             on_trial=lambda so_far, prefix=prefix: keep(**_trial_arrays(prefix, so_far)))
-    arrays = {f'trial{i:02d}_{key}': np.asarray(trial[key])
-              for i, trial in enumerate(trials) for key in _TRIAL_KEYS}
+    arrays = _trial_arrays('trial', trials)
     arrays.update({f'dent_{k}': np.asarray(v) for k, v in dent.items()})
-    arrays.update(trial_kinds=np.array([t['kind'] for t in trials]),
-                  trial_seconds=np.array([t['seconds'] for t in trials]),
-                  spec_hash=np.asarray(physics_hash(spec)), seed=np.asarray(int(seed)),
+    arrays.update(spec_hash=np.asarray(physics_hash(spec)), seed=np.asarray(int(seed)),
                   seconds=np.asarray(time.monotonic() - started))
     path = out / f'probes_{name}.npz'
     np.savez_compressed(path, **arrays)

@@ -181,12 +181,11 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
         # The first poke lands where the calibration sphere will push: the point model is then
         # conditioned there, and the push measures the contact coupling (c), not the point
         # model's error at an unpoked spot (which c would otherwise absorb).
-        site = np.array([spec.centre[0] + CALIBRATION_OFFSET[0],
-                         spec.centre[1] + CALIBRATION_OFFSET[1]])
-        first = 'calibration site' if (DATA / f'demo_calibration_{spec.name}.npz').exists() \
-            else 'object centre'
-        if first == 'object centre':
-            site = np.asarray(spec.centre, dtype=float)
+        if (DATA / f'demo_calibration_{spec.name}.npz').exists():
+            first = 'calibration site'
+            site = np.asarray(spec.centre, dtype=float) + CALIBRATION_OFFSET
+        else:
+            first, site = 'object centre', np.asarray(spec.centre, dtype=float)
         gap = np.linalg.norm(surface.points[:, :2] - site, axis=1)
         index = int(np.argmin(np.where(surface.normals[:, 2] > 0.7, gap, np.inf)))
         for k in range(pokes):

@@ -13,14 +13,15 @@ Three figures, each on held-out data only, medians over random training subsets,
    RMSE (vector error, every step of every evaluated trial) of the baseline (the paper's
    simulator :class:`~pointforce_ros.contact.paper.PaperContactSimulator` with the ET model and
    the default ``c``), ours (:class:`~pointforce_ros.contact.simulator.ContactSimulator` with our
-   baked model and ``c`` identified once per object from one calibration trial, which is not
-   scored) and the paper's "pure learning
+   baked model and, for each scored trial, ``c`` identified from the object's *other* trials,
+   leave one trial out) and the paper's "pure learning
    with the correct geometry" reference (Extra Trees on ``[p, rgb, n, d]`` of the probe's
    contact centre -> wrench, trained on the other trials of the same kind, leave one trial out).
 3. **Shape constant.** ``c`` identified from the dent of a full nonlinear point poke
-   (:func:`~pointforce_ros.contact.identify.identify_shape_constant`) and from one probe trial
-   (:func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probe`), and the probe
-   force RMSE of ours against ``c``.
+   (:func:`~pointforce_ros.contact.identify.identify_shape_constant`, dent depth at the tip =
+   the poke depth, as the shape function says) and from the other probe trials
+   (:func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probes`), and the
+   probe force RMSE of ours against ``c``.
 
 4. **Next-poke suggestion.** Held-out RMSE against the number of pokes when each next poke is
    the pool location where ours is least certain (:func:`~pointforce_ros.response.suggest.
@@ -490,6 +491,68 @@ def own_law_rmse(curves: Sequence[PokeCurve]) -> float:
     return float(np.sqrt(np.mean(err * err)))
 
 
+def spread_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 10,
+                  repeats: int = 10, seed: int = 0) -> Dict:
+    """Where ours' held-out error comes from: the law's shape spread over the object, or not.
+
+    Over ``repeats`` random training subsets of ``size`` pokes, each held-out poke is predicted
+    twice by the same fitted :class:`~pointforce_ros.response.ours.ContactGpModel`:
+
+    - ``ours``: every parameter ``(d0, log F, p)`` predicted at the poke's location;
+    - ``own_shape``: the onset ``d0`` predicted, but ``(log F, p)`` taken from the held-out
+      poke's *own* fit: what ours would score if it spread the curve's shape over the object
+      perfectly (it still has to place the onset, like every model).
+
+    The gap between them is the error of spreading a handful of pokes' stiffness over the
+    surface; ``own_shape`` above the true-physics floor is the onset (camera noise) and the
+    law's misfit.
+
+    Returns:
+        ``{'size', 'ours', 'own_shape'}``: medians over the subsets of the held-out RMSE, N.
+
+    Raises:
+        InvalidInput: ``size`` leaves no held-out poke, or ``repeats < 1``.
+
+    """
+    from pointforce_ros.response.common import curve_features
+    from pointforce_ros.response.evaluate import CONTACT_MARGIN
+    from pointforce_ros.response.ours import ContactGpModel
+
+    curves = list(curves)
+    if not 1 <= size < len(curves) or repeats < 1:
+        raise InvalidInput(f'spread_budget: need 1 <= size < {len(curves)} pokes and '
+                           f'repeats >= 1, got size {size}, repeats {repeats}')
+    own = {c.poke_id: ContactGpModel().fit_curve(c)[0] for c in curves}
+    rng = np.random.default_rng(seed)
+    scores = {'ours': [], 'own_shape': []}
+    for _ in range(repeats):
+        pick = set(rng.choice(len(curves), size=size, replace=False).tolist())
+        model = ContactGpModel().fit([curves[i] for i in sorted(pick)], surface)
+        test = [c for i, c in enumerate(curves) if i not in pick]
+        predicted = model.predict_params(curve_features(test, surface))
+        err = {k: [] for k in scores}
+        for c, theta in zip(test, predicted):
+            keep = c.d >= c.onset_d - CONTACT_MARGIN
+            mixed = np.concatenate([theta[:1], own[c.poke_id][1:]])
+            for key, params in (('ours', theta), ('own_shape', mixed)):
+                rows = np.repeat(params[None], int(keep.sum()), axis=0)
+                err[key].append(model.force_from_params(rows, c.d[keep]) - c.f[keep])
+        for key, e in err.items():
+            e = np.concatenate(e)
+            scores[key].append(float(np.sqrt(np.mean(e * e))))
+    return {'size': int(size), **{k: float(np.median(v)) for k, v in scores.items()}}
+
+
+def half_goal_reachable(goals: Mapping, truth: Optional[float]) -> Optional[bool]:
+    """Whether half the 10-poke baseline lies above the true-physics floor (else no model can
+    reach the goal, since the floor is the error of the object's own physics); ``None`` when
+    either number is missing."""
+    base = goals.get('baseline_10')
+    if base is None or truth is None:
+        return None
+    return bool(0.5 * base > truth)
+
+
 def wrench_rmse(pred_force, pred_torque, true_force, true_torque) -> Tuple[float, float]:
     """RMS of the force (N) and torque (N m) error vectors over all rows ((R, 3) each)."""
     ef = np.asarray(pred_force, float) - np.asarray(true_force, float)
@@ -582,14 +645,21 @@ def _score(preds, trials, pick) -> Tuple[float, float]:
 
 
 def identify_c_dent(dent: Mapping, r_min: float = 0.003):
-    """Shape constant from the dent of a point poke (``ShapeFit``), or the error text."""
+    """Shape constant from the dent of a point poke (``ShapeFit``), or the error text.
+
+    ``g(r) = c / (c + r)`` is the displacement at ``r`` per unit displacement at the poke, so
+    the dent is fitted with its depth at the poke fixed to the poke depth (``dent['depth']``
+    when given). With a free depth the FEM dents (which fall off faster than ``1 / r`` on a
+    finite object on a table) drive ``c`` to its lower bound.
+    """
     from pointforce_ros.contact.identify import dent_profile, identify_shape_constant
     from pointforce_ros.errors import PointforceError
 
     surf = Surface(points=dent['points'], normals=_unit(dent['normals']))
     r, u = dent_profile(surf, dent['displaced'], dent['poke_point'])
     try:
-        return identify_shape_constant(r, u, r_min=r_min, c_bounds=(1e-4, 0.5))
+        u0 = float(dent['depth']) if 'depth' in dent else None
+        return identify_shape_constant(r, u, u0=u0, r_min=r_min, c_bounds=(1e-4, 0.5))
     except PointforceError as exc:
         return str(exc)
 
@@ -600,11 +670,14 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
                   paper_draws: int = 3, say: Callable[[str], None] = print) -> Dict:
     """Figures 2 and 3 for one object (see the module docstring).
 
-    Trial 0 (a line trial) is the *calibration* trial that identifies ``c``, once per object,
-    with the point model trained on every poke of ``curves`` (c is one constant of the object;
-    identified with a 10-poke model it absorbed that model's error at the trial's spot and
-    scattered by 4x between draws). Every method is scored on the other trials only, which
-    no step has seen. Point models are trained on ``n_train`` pokes drawn at
+    Every trial is scored, each with ``c`` identified from the object's *other* trials
+    (leave one trial out, :func:`~pointforce_ros.contact.identify.
+    identify_shape_constant_from_probes`) with the point model trained on every poke of
+    ``curves``: ``c`` is one constant of the object, so no step sees the trial it scores.
+    (One calibration trial was not enough: where the point model is wrong under that probe,
+    ``c`` absorbs the error; plush's first line trial alone asked for 40 mm against 2 mm from
+    the others. Identified with a 10-poke model it also scattered 4x between draws.) Point
+    models are trained on ``n_train`` pokes drawn at
     random from ``curves``, ``repeats`` times; the RMSEs are medians over those draws. The
     paper's simulator (dense ``G`` inverted per round, seconds per query) runs on the first
     ``paper_draws`` draws only; where its LCP scheme fails (singular ``G``: duplicate contact
@@ -612,7 +685,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     ``failed_paper_queries``; ``et_our_sim`` is that combination on every query).
 
     Returns:
-        dict with ``c`` (identified values and the one used), ``rmse`` ({method: {force,
+        dict with ``c`` (``dent``, ``probe``: median of ``per_trial``, the leave-one-out
+        values, ``default``), ``rmse`` ({method: {force,
         torque, force_line, force_cylinder}} medians), ``peak_force`` (N), ``c_curve``
         ({c: [force RMSE per draw]}), ``failed_paper_queries``, ``eval_trials``.
 
@@ -620,7 +694,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         InvalidInput: fewer than 2 trials or fewer than ``n_train + 1`` curves.
 
     """
-    from pointforce_ros.contact.identify import identify_shape_constant_from_probe
+    from pointforce_ros.contact.identify import identify_shape_constant_from_probes
     from pointforce_ros.contact.paper import PaperContactSimulator
     from pointforce_ros.contact.simulator import ContactSimulator
     from pointforce_ros.errors import PointforceError
@@ -629,12 +703,12 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
 
     trials = list(trials)
     if len(trials) < 2:
-        raise InvalidInput('figure_probes: need >= 2 trials (one identifies c)')
+        raise InvalidInput('figure_probes: need >= 2 trials (the others identify c)')
     if len(curves) < n_train:
         raise InvalidInput(f'figure_probes: need >= {n_train} curves, got {len(curves)}')
     c_grid = np.asarray(c_grid if c_grid is not None else
                         np.geomspace(2.5e-4, 0.064, 9), dtype=float)
-    evaluate = list(range(1, len(trials)))
+    evaluate = list(range(len(trials)))
     kinds = {k: [i for i in evaluate if trials[i]['kind'] == k] for k in ('line', 'cylinder')}
     rng = np.random.default_rng([int(seed), 2])
     depths = _bake_depths(curves)
@@ -645,17 +719,20 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
            for m in ('baseline', 'et_our_sim', 'ours', 'ours_default_c')}
     paper_repeats = min(int(repeats), int(paper_draws))
     c_curve, failed = {float(c): [] for c in c_grid}, 0
-    t0 = trials[0]
-    calibration = ContactGpModel().fit(list(curves), surface)
-    try:
-        fit = identify_shape_constant_from_probe(
-            ContactSimulator(surface, calibration.bake(surface, depths), DEFAULT_C), t0['mesh'],
-            trial_poses(t0), t0['direction'], t0['force'], c_bounds=(1e-4, 0.1))
-        c_probe = float(fit.c)
-    except PointforceError as exc:
-        say(f'[figures]   c from trial 0 not identified ({exc}); using {DEFAULT_C} m')
-        c_probe = float('nan')
-    c_run = c_probe if np.isfinite(c_probe) else DEFAULT_C
+    calibration = ContactSimulator(
+        surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C)
+    c_trial = []
+    for j in evaluate:
+        others = [(t['mesh'], trial_poses(t), t['direction'], t['force'])
+                  for i, t in enumerate(trials) if i != j]
+        try:
+            c_trial.append(float(identify_shape_constant_from_probes(
+                calibration, others, c_bounds=(1e-4, 0.1)).c))
+        except PointforceError as exc:
+            say(f'[figures]   c for trial {j} not identified ({exc}); using {DEFAULT_C} m')
+            c_trial.append(DEFAULT_C)
+    say('[figures]   c from the other trials [mm]: '
+        + ', '.join(f'{1e3 * c:.2f}' for c in c_trial))
     for rep in range(int(repeats)):
         pick = rng.choice(len(curves), size=n_train, replace=False)
         train = [curves[i] for i in pick]
@@ -663,7 +740,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         sim = ContactSimulator(surface, ours.bake(surface, depths), DEFAULT_C)
         et = EtBaseline().fit(train, surface)
         et_sim = ContactSimulator(surface, et.bake(surface, depths), DEFAULT_C)
-        preds = {'ours': _simulate_ours(sim.with_shape_constant(c_run), trials),
+        preds = {'ours': [_simulate_ours(sim.with_shape_constant(c), [t])[0]
+                          for c, t in zip(c_trial, trials)],
                  'ours_default_c': _simulate_ours(sim, trials),
                  'et_our_sim': _simulate_ours(et_sim, trials)}
         if rep < paper_repeats:
@@ -680,7 +758,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         for c in c_grid:
             c_curve[float(c)].append(_score(_simulate_ours(sim.with_shape_constant(c), trials),
                                             trials, evaluate)[0])
-        say(f'[figures]   draw {rep + 1}/{repeats}: c = {c_run * 1e3:.2f} mm, force RMSE '
+        say(f'[figures]   draw {rep + 1}/{repeats}: force RMSE '
             f'ours {per["ours"]["force"][-1]:.3f} N, our sim + ET '
             f'{per["et_our_sim"]["force"][-1]:.3f} N'
             + (f', paper sim + ET {per["baseline"]["force"][-1]:.3f} N' if 'baseline' in preds
@@ -698,8 +776,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     return {'c': {'dent': c_dent.c if not isinstance(c_dent, str) else None,
                   'dent_note': c_dent if isinstance(c_dent, str) else
                   f'rmse {c_dent.rmse * 1e3:.3f} mm over {c_dent.n_points} nodes',
-                  'probe': float(c_probe) if np.isfinite(c_probe) else None,
-                  'used': float(c_run), 'default': DEFAULT_C},
+                  'probe': float(np.median(c_trial)), 'per_trial': c_trial,
+                  'default': DEFAULT_C},
             'rmse': rmse, 'peak_force': peak, 'c_curve': c_curve,
             'failed_paper_queries': int(failed),
             'paper_queries': int(paper_repeats * sum(len(t['depths']) for t in trials)),
@@ -856,7 +934,8 @@ def plot_shape_constant(per_object: Mapping[str, Mapping], path) -> None:
             ax.axvline(res['c']['dent'] * 1e3, color=line.get_color(), ls=':', lw=0.8)
     ax.axvline(DEFAULT_C * 1e3, color='k', lw=0.6, alpha=0.5)
     ax.set_xscale('log')
-    ax.set_xlabel('shape constant c [mm]  (-- from probe trial 0, : from dent, grey: 4 mm)')
+    ax.set_xlabel('shape constant c [mm]  (-- from other trials, median; : from dent; '
+                  'grey: 4 mm)')
     ax.set_ylabel('ours: probe force RMSE [N]')
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
@@ -909,14 +988,23 @@ def markdown_report(result: Mapping) -> str:
                   'moves each poke\'s contact onset at random). No model learned from other '
                   'pokes can go below it. `own law`: each curve against its own contact-law fit '
                   '(the F/T noise floor).', '',
-                  '| object | true physics | own law |', '| --- | --- | --- |']
+                  '`ours, own shape @10`: ours with the held-out poke\'s own `(log F, p)` and '
+                  'the predicted onset (spreading the stiffness over the object made perfect); '
+                  '`ours @10` on the same subsets. `half reachable`: half the 10-poke baseline '
+                  'lies above the true-physics floor.', '',
+                  '| object | true physics | own law | ours, own shape @10 | ours @10 | '
+                  'half reachable |', '| --- | --- | --- | --- | --- | --- |']
         for name, b in result['error_budget'].items():
-            lines.append(f"| {name} | {_fmt(b.get('truth'))} | {_fmt(b['own_law'])} |")
+            spread = b.get('spread') or {}
+            reach = {None: '-', True: 'yes', False: 'no'}[b.get('half_reachable')]
+            lines.append(f"| {name} | {_fmt(b.get('truth'))} | {_fmt(b['own_law'])} | "
+                         f"{_fmt(spread.get('own_shape'))} | {_fmt(spread.get('ours'))} | "
+                         f"{reach} |")
         lines.append('')
     lines += [
               '## 2. Line and cylinder probes: wrench RMSE on held-out trials', '',
               'RMS of the force / torque error vector over every step of every evaluated trial '
-              '(trial 0 identifies c and is not scored); point models trained on '
+              '(each scored with c identified from the other trials); point models trained on '
               f'{PROBE_TRAIN_POKES} pokes, median over the training draws.', '',
               '| object | method | force [N] | torque [mN m] | line force [N] | '
               'cylinder force [N] |', '| --- | --- | --- | --- | --- | --- |']
@@ -939,7 +1027,8 @@ def markdown_report(result: Mapping) -> str:
                      f"{100 * g['peak_fraction']:.1f} % | {_fmt(g['peak_met'])} | "
                      f"{res['failed_paper_queries']}/{res['paper_queries']} |")
     lines += ['', '## 3. Shape constant c', '',
-              '| object | c from dent [mm] | c from probe trial 0, all-poke model [mm] | '
+              '| object | c from dent [mm] | c from the other trials, all-poke model, per '
+              'trial [mm] | '
               'ours force RMSE at 4 mm / identified c [N] | best c on the grid [mm] |',
               '| --- | --- | --- | --- | --- |']
     for name, res in result['probes'].items():
@@ -948,7 +1037,8 @@ def markdown_report(result: Mapping) -> str:
         med = [float(np.median(res['c_curve'][k])) for k in cs]
         best = cs[int(np.argmin(med))]
         dent = _fmt(None if c['dent'] is None else 1e3 * c['dent'], 2)
-        probe = _fmt(None if c['probe'] is None else 1e3 * c['probe'], 2)
+        per = c.get('per_trial') or ([] if c['probe'] is None else [c['probe']])
+        probe = ', '.join(f'{1e3 * v:.2f}' for v in per) or '-'
         lines.append(f"| {name} | {dent} | {probe} | "
                      f"{_fmt(res['rmse']['ours_default_c']['force'])} / "
                      f"{_fmt(res['rmse']['ours']['force'])} | {1e3 * best:.2f} |")
@@ -1046,11 +1136,16 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         result['learning'][name] = [{k2: r[k2] for k2 in ('model', 'size', 'median', 'q25',
                                                           'q75', 'fit_s')} for r in rows]
         result['learning_goals'][name] = learning_goals(rows)
-        result['error_budget'][name] = {'own_law': own_law_rmse(curves)}
+        budget = {'own_law': own_law_rmse(curves)}
         try:
-            result['error_budget'][name]['truth'] = truth_floor(name, curves)
+            budget['truth'] = truth_floor(name, curves)
         except DataError as exc:
             say(f'[figures]   no truth floor: {exc}')
+        if 10 < len(curves):
+            budget['spread'] = spread_budget(curves, surface, 10, repeats, seed)
+        budget['half_reachable'] = half_goal_reachable(result['learning_goals'][name],
+                                                       budget.get('truth'))
+        result['error_budget'][name] = budget
         line = ', '.join(f"{r['model']}@{r['size']} {r['median']:.3f}" for r in rows
                          if r['size'] in (3, 5, 10))
         say(f'[figures]   learning curves ({time.monotonic() - t0:.0f} s): {line} N')

@@ -5,7 +5,8 @@ import pytest
 
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.identify import (dent_profile, identify_shape_constant,
-                                             identify_shape_constant_from_probe)
+                                             identify_shape_constant_from_probe,
+                                             identify_shape_constant_from_probes)
 from pointforce_ros.contact.synthetic import grid_surface, linear_response
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.shapes import box, cylinder
@@ -65,6 +66,29 @@ def test_second_probe_pokes_recover_c(mesh):
     assert fit.c == pytest.approx(c_true, rel=0.1)
     exact = identify_shape_constant_from_probe(sim, mesh, poses, DOWN, measured)
     assert exact.c == pytest.approx(c_true, rel=1e-3)
+
+
+def test_a_joint_fit_over_several_probe_pokes_resists_a_local_model_error():
+    c_true = 0.004
+    surface = grid_surface(half=0.03, step=0.001)
+    sim = ContactSimulator(surface, linear_response(800.0, len(surface)), c=c_true)
+    stiffer = ContactSimulator(surface, linear_response(1200.0, len(surface)), c=c_true)
+    depths = np.linspace(0.0005, 0.004, 6)
+    pokes = []
+    for k, (mesh, truth) in enumerate([(box((0.012, 0.012, 0.004)), stiffer),
+                                       (cylinder(0.005, 0.02, 16), sim),
+                                       (box((0.02, 0.006, 0.004)), sim)]):
+        poses = [Pose(position=[0.008 * (k - 1), 0.0003, -d]) for d in depths]
+        measured = -truth.query_batch(mesh, poses, DOWN, np.zeros(3)).wrenches[:, :3] @ DOWN
+        pokes.append((mesh, poses, DOWN, measured))
+    # the first poke alone: the model is 1.5x too soft there, so c shrinks to add force
+    alone = identify_shape_constant_from_probe(sim, *pokes[0])
+    joint = identify_shape_constant_from_probes(sim, pokes)
+    assert abs(np.log(joint.c / c_true)) < 0.5 * abs(np.log(alone.c / c_true)), (alone.c,
+                                                                                 joint.c)
+    assert joint.n_points == 3 * len(depths)
+    with pytest.raises(InvalidInput, match='no pokes'):
+        identify_shape_constant_from_probes(sim, [])
 
 
 def test_undetermined_and_bad_input():

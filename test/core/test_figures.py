@@ -217,3 +217,38 @@ def test_pokes_to_match_and_the_active_section_of_the_report():
     text = figures.markdown_report(result)
     assert '| plush | active | 1.000 | 0.700 | 0.450 | 4 |' in text
     assert '| plush | random | 1.000 | 0.900 | 0.600 | 6 |' in text
+
+
+def test_spread_budget_separates_the_spread_of_stiffness_from_the_onset():
+    # plush: a firm muzzle among soft stuffing; a handful of pokes spreads its stiffness badly
+    surface, curves, _ = figures.load_poke_fixture('plush', say=lambda m: None)
+    b = figures.spread_budget(curves, surface, size=6, repeats=2, seed=1)
+    assert b['size'] == 6
+    # knowing each held-out poke's own shape removes most of the error
+    assert b['own_shape'] < 0.5 * b['ours'], b
+    with pytest.raises(InvalidInput, match='spread_budget'):
+        figures.spread_budget(curves, surface, size=len(curves))
+
+
+def test_half_goal_is_unreachable_when_the_floor_is_above_it():
+    assert figures.half_goal_reachable({'baseline_10': 0.4}, 0.1) is True
+    assert figures.half_goal_reachable({'baseline_10': 0.4}, 0.25) is False
+    assert figures.half_goal_reachable({'baseline_10': None}, 0.25) is None
+    assert figures.half_goal_reachable({'baseline_10': 0.4}, None) is None
+
+
+def test_probe_figure_scores_each_trial_with_c_from_the_other_trials_only():
+    surface, curves, _ = figures.load_poke_fixture('dome', say=lambda m: None)
+    trials, _, _ = figures.load_probe_fixture('dome', say=lambda m: None)
+    assert len(trials) == 2
+    kw = dict(repeats=1, paper_draws=0, c_grid=[0.001], say=lambda m: None)
+    res = figures.figure_probes(curves, surface, trials, **kw)
+    per = res['c']['per_trial']
+    assert len(per) == 2 and res['eval_trials'] == 2
+    # a trial's own measurement never moves the c it is scored with: changing trial 0's forces
+    # changes only the c of trial 1
+    changed = [dict(t) for t in trials]
+    changed[0]['force'] = 0.5 * changed[0]['force']
+    again = figures.figure_probes(curves, surface, changed, **kw)['c']['per_trial']
+    assert again[0] == pytest.approx(per[0], rel=1e-9)
+    assert abs(np.log(again[1] / per[1])) > 0.05, (per, again)

@@ -505,7 +505,9 @@ def spread_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 10,
 
     The gap between them is the error of spreading a handful of pokes' stiffness over the
     surface; ``own_shape`` above the true-physics floor is the onset (camera noise) and the
-    law's misfit.
+    law's misfit. Where the law's fitted onset trades against its exponent (a stiffening
+    curve fitted with an early onset and a large exponent), the own shape at another onset is
+    no oracle: on lamb it scores worse than ours.
 
     Returns:
         ``{'size', 'ours', 'own_shape'}``: medians over the subsets of the held-out RMSE, N.
@@ -990,7 +992,10 @@ def markdown_report(result: Mapping) -> str:
                   '(the F/T noise floor).', '',
                   '`ours, own shape @10`: ours with the held-out poke\'s own `(log F, p)` and '
                   'the predicted onset (spreading the stiffness over the object made perfect); '
-                  '`ours @10` on the same subsets. `half reachable`: half the 10-poke baseline '
+                  '`ours @10` on the same subsets. Where a poke\'s law trades its fitted onset '
+                  'against its exponent (lamb\'s stiffening curves), its own shape at another '
+                  'onset is no oracle and can score worse than ours. '
+                  '`half reachable`: half the 10-poke baseline '
                   'lies above the true-physics floor.', '',
                   '| object | true physics | own law | ours, own shape @10 | ours @10 | '
                   'half reachable |', '| --- | --- | --- | --- | --- | --- |']

@@ -35,16 +35,17 @@ def test_cache_reproduces_its_grid_pokes(live):
 
 def test_held_out_full_solves_are_matched(live):
     if live.spec.name == 'dome':
-        pytest.xfail('dome: the full solves at 3 mm elements have irregular force increments '
-                     '(+-15 % between 5 and 8 mm), so the grid cannot match them (open issue)')
+        pytest.xfail('dome: a 3 mm full solve itself moves 5-12 % at 2-5 mm depth when its '
+                     'mesh is refined 1 mm off the poke, so no table can match it to 3 % '
+                     '(open issue)')
     rows = np.load(_path(live), allow_pickle=False)['holdout']
     x, y, depth, full, _ = rows.T
     pred = np.array([live.normal_force(a, b, d) for a, b, d in zip(x, y, depth)])
     use = depth >= 0.002
     rel = np.abs(pred[use] - full[use]) / full[use]
-    # target 3 %; reached next to smooth fields, not next to narrow stiff features at this
-    # grid spacing (per-object figures: bench_cell and the cache script's log)
-    assert np.median(rel) < 0.08 and rel.max() < 0.15, rel
+    # target 3 % mean: plush 2.1, lamb 2.3, vest 1.8 (7 x 7 grid), thin_layer 3.5 % (its 3 mm
+    # full solves move 5-9 % when the mesh shifts by 1 mm); per-object figures: bench_cell
+    assert np.mean(rel) < 0.04 and rel.max() < 0.10, rel
 
 
 def _path(live):

@@ -179,3 +179,18 @@ def test_sliding_support_balances_and_is_softer_than_bonded():
         np.testing.assert_allclose(res.table_force, res.force, atol=1e-6)
         forces.append(res.force[-1, 2])
     assert forces[1] < forces[0]
+
+
+def test_mesh_shift_case_solves_the_live_path_poke_on_shifted_meshes():
+    from pointforce_ros.cell.fem.live import nonlinear_point_poke
+
+    spec = load_object('plush')
+    x, y = 0.49, 0.005
+    r = validation.mesh_shift_case(spec, x, y, shifts=(0.0, 0.0025), h=0.005)
+    depths, f, n, _ = nonlinear_point_poke(spec, x, y, h=0.005)
+    np.testing.assert_allclose(r['depths'], depths)
+    # no shift: exactly the live path's own poke
+    np.testing.assert_allclose(r['force'][0], f @ n, rtol=1e-9)
+    # a shifted mesh answers the same physics, differently discretised
+    assert np.all(r['force'][1] > 0) and not np.allclose(r['force'][1], r['force'][0])
+    np.testing.assert_allclose(r['spread'], np.ptp(r['force'], axis=0) / r['force'].min(axis=0))

@@ -116,8 +116,10 @@ def nonlinear_point_poke(spec: ObjectSpec, x: float, y: float, depths=None,
         x, y: poke location over the footprint, metres, ``base``.
         depths: (K,) depths, metres (default :data:`LIVE_DEPTHS` up to ``spec.max_depth``).
         h: element size near the probe (default ``spec.mesh_live``).
-        force_stop: stop early once the normal force exceeds this (N); the remaining rows are
-            NaN.
+        force_stop: with it, a solve that fails at its deepest steps is retried without them
+            (their rows NaN) down to 3 depths, as long as the force of the last solved depth
+            exceeds this (N; the cache passes the object's force cap: the dropped depths lie
+            past it, where the arm has stopped).
 
     Returns:
         ``(depths (K,), force (K, 3) N on the probe, base; normal (3,), point (3,))``.
@@ -134,16 +136,23 @@ def nonlinear_point_poke(spec: ObjectSpec, x: float, y: float, depths=None,
     n = spec.top_normal(x, y)
     probe = point_probe(**POINT_PROBE)
     forces = np.full((len(depths), 3), np.nan)
-    done = 0
-    chunk = 2
-    while done < len(depths):
-        part = depths[:min(done + chunk, len(depths))]
-        res = model.indent(probe, pose_for_push(q, -n), -n, part, torque_centre=q)
-        forces[:len(part)] = res.force
-        done = len(part)
-        if force_stop is not None and res.force[-1] @ n > force_stop:
+    count = len(depths)
+    while True:
+        try:
+            res = model.indent(probe, pose_for_push(q, -n), -n, depths[:count],
+                               torque_centre=q)
             break
-        chunk = len(depths)
+        except NotConverged:
+            # Near a stiff insert the deepest steps, far past the force cap, may not
+            # converge; the caller extrapolates NaN rows, so drop them (checked below).
+            if force_stop is None or count <= 3:
+                raise
+            count -= 1
+    forces[:len(res.depths)] = res.force
+    if count < len(depths) and not forces[count - 1] @ n > force_stop:
+        raise NotConverged(f'point poke at ({x:.4f}, {y:.4f}) m failed at '
+                           f'{depths[count] * 1e3:.1f} mm, below the force stop '
+                           f'{force_stop:.1f} N')
     return depths, forces, n, q
 
 
@@ -254,7 +263,7 @@ class LiveContact:
             for j in range(ny):
                 x, y = uv_to_xy(spec, u[i], v[j])
                 _, f, n, _ = nonlinear_point_poke(spec, float(x), float(y), depths,
-                                                  force_stop=1.5 * spec.force_cap)
+                                                  force_stop=spec.force_cap)
                 forces[i, j] = _fill_tail(depths, f)
                 k = i * ny + j + 1
                 say(f'{spec.name}: grid poke {k}/{nx * ny} at ({x:.4f}, {y:.4f}) m: '

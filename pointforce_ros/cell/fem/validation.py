@@ -151,6 +151,35 @@ def refine_case(h: float, nonlinear: bool = True):
                 seconds=time.time() - t0)
 
 
+def mesh_shift_case(spec, x: float, y: float, shifts=(0.0, 0.001, 0.002), h=None):
+    """The same live-path poke at (x, y) on meshes refined at points shifted along x.
+
+    The physics is unchanged, only where the graded mesh is centred moves (by ``shifts``,
+    metres), so the spread of the forces is the full solve's own discretisation noise at
+    element size ``h`` (default ``spec.mesh_live``): the floor of any comparison with it.
+
+    Returns:
+        dict with ``depths`` (K,), ``force`` (S, K) normal force on the probe, N,
+        ``shifts`` (S,), ``spread`` (K,) ``(max - min) / min`` over the shifts.
+
+    """
+    from pointforce_ros.cell.fem.live import _live_depths, POINT_PROBE
+
+    depths = _live_depths(spec)
+    q = np.asarray(spec.top_point(x, y), dtype=float)
+    n = np.asarray(spec.top_normal(x, y), dtype=float)
+    rows = []
+    for dx in shifts:
+        mesh = spec.build_mesh(h or spec.mesh_live, refine_at=(x + dx, y), growth=1.5)
+        model = FemModel(mesh, spec.gauss_young(mesh), spec.poisson, support=spec.support)
+        res = model.indent(point_probe(**POINT_PROBE), pose_for_push(q, -n), -n, depths,
+                           torque_centre=q)
+        rows.append(res.force @ n)
+    force = np.array(rows)
+    return dict(depths=depths, force=force, shifts=np.asarray(shifts, dtype=float),
+                spread=(force.max(axis=0) - force.min(axis=0)) / force.min(axis=0))
+
+
 REFINE_H = (0.003, 0.0015, 0.001)
 """Element sizes of the cached refinement runs, metres: the live caches' 3 mm, then 1.5 mm (the
 validation size) and 1 mm. The refinement check is 1.5 -> 1 mm; 3 mm is the coarse twin that

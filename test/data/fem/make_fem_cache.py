@@ -20,11 +20,13 @@ Scenario of each file:
   at 0.7 / 0.5 / 0.35 mm elements at the contact, plus nu = 0.3 at 0.35 mm
   (:data:`pointforce_ros.cell.fem.validation.HERTZ`, ``HERTZ_H_FINE``); about 17 min.
 - ``refine_fine.npz``: point probe on a homogeneous 60 x 60 x 40 mm block (E = 100 kPa,
-  nu = 0.45), neo-Hookean, to 2 and 5 mm at 3 / 1.5 / 1 mm elements (``REFINE_H``).
+  nu = 0.45), neo-Hookean, to 2 and 5 mm at 3 / 1.5 / 1 / 0.75 mm elements (``REFINE_H``).
 
 Measured on the shared 2-core machine (heavily loaded, times are wall clock): lamb (4 x 5 grid)
-2199 s, plush (5 x 4) 414 s, thin_layer 1295 s, vest 1144 s, dome 1640 s; validation: Hertz
-669 s (0.35 mm runs 266-282 s), refinement about 19 min (the 1 mm run 1032 s).
+2199 s, plush (5 x 4) 414 s, thin_layer 1295 s (4 x 3; 7 x 3 with 4 held-out solves: 276 s
+on a quieter machine), vest 1144 s (4 x 3; 7 x 7 with 4 held-out solves: 525 s), dome 1640 s;
+validation: Hertz 669 s (0.35 mm runs 266-282 s), refinement about 95 min (the 1 mm run
+1032 s, the 0.75 mm run 4488 s).
 
 Runs with ``nice`` friendliness in mind: one process, progress on stdout, timings at the end.
 """

@@ -546,9 +546,11 @@ def spread_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 10,
 
 
 def half_goal_reachable(goals: Mapping, truth: Optional[float]) -> Optional[bool]:
-    """Whether half the 10-poke baseline lies above the true-physics floor (else no model can
-    reach the goal, since the floor is the error of the object's own physics); ``None`` when
-    either number is missing."""
+    """Return whether half the 10-poke baseline lies above the true-physics floor.
+
+    If not, no model can reach the "half" goal: the floor is the error of the object's own
+    physics. ``None`` when either number is missing.
+    """
     base = goals.get('baseline_10')
     if base is None or truth is None:
         return None

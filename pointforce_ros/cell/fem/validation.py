@@ -152,7 +152,7 @@ def refine_case(h: float, nonlinear: bool = True):
 
 
 def mesh_shift_case(spec, x: float, y: float, shifts=(0.0, 0.001, 0.002), h=None):
-    """The same live-path poke at (x, y) on meshes refined at points shifted along x.
+    """Solve the live-path poke at (x, y) on meshes refined at points shifted along x.
 
     The physics is unchanged, only where the graded mesh is centred moves (by ``shifts``,
     metres), so the spread of the forces is the full solve's own discretisation noise at

@@ -5,7 +5,8 @@ Usage::
 
     python test/data/fem/make_fem_cache.py                 # everything (about an hour)
     python test/data/fem/make_fem_cache.py --object lamb   # one object's live cache
-    python test/data/fem/make_fem_cache.py --object vest --holdout 4   # as committed
+    python test/data/fem/make_fem_cache.py --object vest --holdout 4   # vest, lamb, thin_layer
+                                        # as committed (dome, plush: the default 2)
     python test/data/fem/make_fem_cache.py --mesh-noise --object dome  # FE noise, no files
     python test/data/fem/make_fem_cache.py --validation    # Hertz + refinement fixtures only
     python test/data/fem/make_fem_cache.py --validation --part hertz   # one of the two
@@ -23,8 +24,9 @@ Scenario of each file:
   nu = 0.45), neo-Hookean, to 2 and 5 mm at 3 / 1.5 / 1 / 0.75 mm elements (``REFINE_H``).
 
 Measured on the shared 2-core machine (heavily loaded, times are wall clock): lamb (4 x 5 grid)
-2199 s, plush (5 x 4) 414 s, thin_layer 1295 s (4 x 3; 7 x 3 with 4 held-out solves: 276 s
-on a quieter machine), vest 1144 s (4 x 3; 7 x 7 with 4 held-out solves: 525 s), dome 1640 s;
+2199 s (4 x 5; 7 x 7 with 4 held-out solves: 614 s on a quieter machine), plush (5 x 4)
+414 s, thin_layer 1295 s (4 x 3; 7 x 7 with 4 held-out solves: 367 s), vest 1144 s (4 x 3;
+7 x 7 with 4 held-out solves: 525 s), dome 1640 s;
 validation: Hertz 669 s (0.35 mm runs 266-282 s), refinement about 95 min (the 1 mm run
 1032 s, the 0.75 mm run 4488 s).
 

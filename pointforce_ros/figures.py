@@ -1044,8 +1044,7 @@ def markdown_report(result: Mapping) -> str:
         med = [float(np.median(res['c_curve'][k])) for k in cs]
         best = cs[int(np.argmin(med))]
         dent = _fmt(None if c['dent'] is None else 1e3 * c['dent'], 2)
-        per = c.get('per_trial') or ([] if c['probe'] is None else [c['probe']])
-        probe = ', '.join(f'{1e3 * v:.2f}' for v in per) or '-'
+        probe = ', '.join(f'{1e3 * v:.2f}' for v in c['per_trial'])
         lines.append(f"| {name} | {dent} | {probe} | "
                      f"{_fmt(res['rmse']['ours_default_c']['force'])} / "
                      f"{_fmt(res['rmse']['ours']['force'])} | {1e3 * best:.2f} |")

@@ -108,7 +108,8 @@ def field_factor(spec: ObjectSpec, points: np.ndarray, normals: np.ndarray,
 
 
 def nonlinear_point_poke(spec: ObjectSpec, x: float, y: float, depths=None,
-                         h: Optional[float] = None, force_stop: Optional[float] = None):
+                         h: Optional[float] = None, force_stop: Optional[float] = None,
+                         refine_at=None):
     """Full nonlinear FEM poke with the point probe along the surface normal at (x, y).
 
     Args:
@@ -116,10 +117,11 @@ def nonlinear_point_poke(spec: ObjectSpec, x: float, y: float, depths=None,
         x, y: poke location over the footprint, metres, ``base``.
         depths: (K,) depths, metres (default :data:`LIVE_DEPTHS` up to ``spec.max_depth``).
         h: element size near the probe (default ``spec.mesh_live``).
-        force_stop: with it, a solve that fails at its deepest steps is retried without them
-            (their rows NaN) down to 3 depths, as long as the force of the last solved depth
-            exceeds this (N; the cache passes the object's force cap: the dropped depths lie
-            past it, where the arm has stopped).
+        force_stop: with it, depths after a step that fails to converge are NaN rather than
+            an error, as long as at least 3 depths were solved and the last of them pushed
+            harder than this (N; the cache passes the object's force cap: the dropped depths
+            lie past it, where the arm has stopped).
+        refine_at: (x, y) the mesh is graded around (default the poke location).
 
     Returns:
         ``(depths (K,), force (K, 3) N on the probe, base; normal (3,), point (3,))``.
@@ -130,28 +132,21 @@ def nonlinear_point_poke(spec: ObjectSpec, x: float, y: float, depths=None,
     """
     depths = _live_depths(spec) if depths is None else np.asarray(depths, dtype=float)
     h = h or spec.mesh_live
-    mesh = spec.build_mesh(h, refine_at=(x, y), growth=1.5)
+    mesh = spec.build_mesh(h, refine_at=(x, y) if refine_at is None else tuple(refine_at),
+                           growth=1.5)
     model = FemModel(mesh, spec.gauss_young(mesh), spec.poisson, support=spec.support)
     q = spec.top_point(x, y)
     n = spec.top_normal(x, y)
-    probe = point_probe(**POINT_PROBE)
+    # Near a stiff insert the deepest steps, far past the force cap, may not converge; the
+    # caller extrapolates NaN rows, so those are dropped (checked below).
+    res = model.indent(point_probe(**POINT_PROBE), pose_for_push(q, -n), -n, depths,
+                       torque_centre=q, keep_solved=force_stop is not None)
+    solved = len(res.depths)
     forces = np.full((len(depths), 3), np.nan)
-    count = len(depths)
-    while True:
-        try:
-            res = model.indent(probe, pose_for_push(q, -n), -n, depths[:count],
-                               torque_centre=q)
-            break
-        except NotConverged:
-            # Near a stiff insert the deepest steps, far past the force cap, may not
-            # converge; the caller extrapolates NaN rows, so drop them (checked below).
-            if force_stop is None or count <= 3:
-                raise
-            count -= 1
-    forces[:len(res.depths)] = res.force
-    if count < len(depths) and not forces[count - 1] @ n > force_stop:
+    forces[:solved] = res.force
+    if solved < len(depths) and (solved < 3 or not res.force[-1] @ n > force_stop):
         raise NotConverged(f'point poke at ({x:.4f}, {y:.4f}) m failed at '
-                           f'{depths[count] * 1e3:.1f} mm, below the force stop '
+                           f'{depths[solved] * 1e3:.1f} mm, below the force stop '
                            f'{force_stop:.1f} N')
     return depths, forces, n, q
 

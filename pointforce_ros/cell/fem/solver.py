@@ -303,7 +303,8 @@ class FemModel:
 
     def indent(self, probe_mesh: Mesh, start_pose: Pose, direction, depths,
                torque_centre=None, max_bisections: int = 5,
-               stop_force: Optional[float] = None) -> IndentationResult:
+               stop_force: Optional[float] = None,
+               keep_solved: bool = False) -> IndentationResult:
         """Push ``probe_mesh`` from ``start_pose`` along ``direction`` through ``depths``.
 
         Args:
@@ -316,6 +317,8 @@ class FemModel:
             max_bisections: how often a failing step may be halved.
             stop_force: stop after the first depth whose force along ``-direction`` exceeds
                 this (N); the result then holds the depths solved so far (None: all).
+            keep_solved: when a step fails after the first one, return the depths solved so
+                far instead of raising.
 
         Raises:
             InvalidInput: bad shapes, non-increasing depths, zero direction.
@@ -341,6 +344,7 @@ class FemModel:
         top = self.mesh.top_nodes.ravel()
         rows = []
         d_done = 0.0
+        failed = False
         for k, d_target in enumerate(depths):
             iters = 0
             d_from = d_done
@@ -361,6 +365,9 @@ class FemModel:
                 except NotConverged as exc:
                     bis += 1
                     if bis > max_bisections:
+                        if keep_solved and rows:
+                            failed = True
+                            break
                         raise NotConverged(f'step {k} (depth {d_try * 1e3:.3f} mm) failed '
                                            f'after {max_bisections} bisections: {exc}')
                     step *= 0.5
@@ -369,6 +376,8 @@ class FemModel:
                 step *= 2.0
                 u_prev, d_prev2, d_prev = u, d_prev, d_try
                 u, lam, d_done = u_new, lam_new, d_try
+            if failed:
+                break
             pose = Pose(start_pose.position + d_target * direction, start_pose.orientation)
             cs = self._contact(u, probe, pose, lam)
             fint, _ = self._internal(u, tangent=False)

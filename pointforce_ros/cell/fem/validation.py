@@ -163,18 +163,12 @@ def mesh_shift_case(spec, x: float, y: float, shifts=(0.0, 0.001, 0.002), h=None
         ``shifts`` (S,), ``spread`` (K,) ``(max - min) / min`` over the shifts.
 
     """
-    from pointforce_ros.cell.fem.live import _live_depths, POINT_PROBE
+    from pointforce_ros.cell.fem.live import nonlinear_point_poke
 
-    depths = _live_depths(spec)
-    q = np.asarray(spec.top_point(x, y), dtype=float)
-    n = np.asarray(spec.top_normal(x, y), dtype=float)
     rows = []
     for dx in shifts:
-        mesh = spec.build_mesh(h or spec.mesh_live, refine_at=(x + dx, y), growth=1.5)
-        model = FemModel(mesh, spec.gauss_young(mesh), spec.poisson, support=spec.support)
-        res = model.indent(point_probe(**POINT_PROBE), pose_for_push(q, -n), -n, depths,
-                           torque_centre=q)
-        rows.append(res.force @ n)
+        depths, f, n, _ = nonlinear_point_poke(spec, x, y, h=h, refine_at=(x + dx, y))
+        rows.append(f @ n)
     force = np.array(rows)
     return dict(depths=depths, force=force, shifts=np.asarray(shifts, dtype=float),
                 spread=(force.max(axis=0) - force.min(axis=0)) / force.min(axis=0))

@@ -59,18 +59,25 @@ def say(msg):
     print(msg, flush=True)
 
 
+def holdout_locations(live, count, seed=7):
+    """(x, y) of ``count`` held-out pokes, uniform in the grid's reference coordinates."""
+    rng = np.random.default_rng(seed)
+    tb = live.table
+    out = []
+    for _ in range(count):
+        u = rng.uniform(tb.u[0], tb.u[-1])
+        v = rng.uniform(tb.v[0], tb.v[-1])
+        out.append(tuple(float(a) for a in uv_to_xy(live.spec, u, v)))
+    return out
+
+
 def build_object(name, holdout=2, seed=7):
     """Build the live cache of ``name`` and measure its error on held-out full solves."""
     t0 = time.time()
     spec = load_object(name)
     live = LiveContact.build(spec, progress=say)
-    rng = np.random.default_rng(seed)
-    tb = live.table
     errs, rows = [], []
-    for k in range(holdout):
-        u = rng.uniform(tb.u[0], tb.u[-1])
-        v = rng.uniform(tb.v[0], tb.v[-1])
-        x, y = (float(a) for a in uv_to_xy(spec, u, v))
+    for k, (x, y) in enumerate(holdout_locations(live, holdout, seed)):
         depths, f, n, _ = nonlinear_point_poke(spec, x, y, force_stop=spec.force_cap)
         solved = np.isfinite(f[:, 0])  # steps past the force cap may fail: left out
         depths, full = depths[solved], f[solved] @ n
@@ -103,10 +110,7 @@ def build_object(name, holdout=2, seed=7):
 def mesh_noise(name, seed=7):
     """Print the full solve's spread over mesh shifts at the first held-out location."""
     live = LiveContact.load(name, build=False)
-    rng = np.random.default_rng(seed)
-    u = rng.uniform(live.table.u[0], live.table.u[-1])
-    v = rng.uniform(live.table.v[0], live.table.v[-1])
-    x, y = (float(a) for a in uv_to_xy(live.spec, u, v))
+    (x, y), = holdout_locations(live, 1, seed)
     t0 = time.time()
     r = validation.mesh_shift_case(live.spec, x, y)
     for dx, f in zip(r['shifts'], r['force']):

@@ -431,13 +431,19 @@ def learning_goals(rows: Sequence[Mapping]) -> Dict:
 
 def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
                     repeats: int = 10, seed: int = 0, auto_budget: float = 1.0) -> List[Dict]:
-    """Figure 1 rows for one object: ours, its shape-free candidate, ET, Auto-ET (same subsets)."""
+    """Figure 1 rows for one object (same subsets for every model).
+
+    Models: ours, ours with independent parameter processes (before decorrelation), its
+    shape-free candidate, ET and Auto-ET.
+    """
     from pointforce_ros.response.baseline import AutoEtBaseline, EtBaseline
     from pointforce_ros.response.evaluate import learning_curve
     from pointforce_ros.response.ours import ContactGpModel
     from pointforce_ros.response.shapefree import ShapeFreeGpModel
 
-    factories = {'ours': ContactGpModel, 'ours_shape_free': ShapeFreeGpModel, 'et': EtBaseline,
+    factories = {'ours': ContactGpModel,
+                 'ours_independent': lambda: ContactGpModel(decorrelate=False),
+                 'ours_shape_free': ShapeFreeGpModel, 'et': EtBaseline,
                  'auto_et': lambda: AutoEtBaseline(budget_s=auto_budget)}
     sizes = [s for s in sizes if s < len(curves)]
     return learning_curve(curves, surface, factories, sizes=sizes, repeats=repeats, seed=seed)

@@ -61,10 +61,12 @@ def test_ours_is_monotone_and_zero_before_contact(world):
 def test_ours_beats_the_et_baseline_on_heldout_pokes(world):
     _, surface, curves = world
     rows = learning_curve(curves, surface, {'ours': ContactGpModel, 'et': EtBaseline},
-                          sizes=(5, 10), repeats=4, seed=7)
+                          sizes=(5, 10), repeats=10, seed=7)
     med = {(r['model'], r['size']): r['median'] for r in rows}
-    for size in (5, 10):
-        assert med[('ours', size)] < 0.8 * med[('et', size)], med
+    # over 40 draws (seeds 0, 1, 2, 7) ours / ET was 0.76 at 5 pokes and 0.71 at 10; a median
+    # over 10 draws scatters by a few hundredths around that
+    for size, most in ((5, 0.85), (10, 0.8)):
+        assert med[('ours', size)] < most * med[('et', size)], med
 
 
 def test_std_is_larger_far_from_pokes(world):
@@ -240,3 +242,23 @@ def test_bad_queries_and_inputs_raise(world):
         model_from_dict({'kind': 'nope'})
     with pytest.raises(InvalidInput, match='not a'):
         ContactGpModel.from_dict({'kind': 'pointforce.response.et_baseline', 'format': 1})
+
+
+def test_decorrelated_processes_beat_independent_ones_where_the_parameters_trade_off():
+    """Lamb's per-poke (d0, log F, p) correlate 0.98-0.99; spreading them independently mixes
+    sets off the curve family. Held-out pokes of its committed poke fixture, 10 training pokes,
+    the same draws for both."""
+    from pointforce_ros.figures import load_poke_fixture
+    surface, curves, _ = load_poke_fixture('lamb', say=lambda m: None)
+    theta = np.array([ContactGpModel().fit_curve(c)[0] for c in curves])
+    corr = np.corrcoef(theta.T)
+    assert np.min(np.abs(corr[np.triu_indices(3, 1)])) > 0.9, corr
+    rows = learning_curve(curves, surface,
+                          {'dec': ContactGpModel,
+                           'indep': lambda: ContactGpModel(decorrelate=False)},
+                          sizes=(10,), repeats=10, seed=0)
+    res = {r['model']: r for r in rows}
+    # the independent processes fail badly on some draws (its mean), and are no better at the
+    # median
+    assert res['dec']['mean'] < 0.9 * res['indep']['mean'], res
+    assert res['dec']['median'] < res['indep']['median'], res

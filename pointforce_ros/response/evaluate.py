@@ -9,7 +9,7 @@ Error: root-mean-square of ``predict - f`` over the held-out samples in the ``co
 would otherwise dilute the error) or over ``all`` loading samples.
 """
 
-from typing import Callable, Dict, List, Mapping, Sequence, Union
+from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -56,7 +56,8 @@ def rmse(model, curves: Sequence[PokeCurve], surface: Surface, region: str = 'co
 def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
                    model_factory: Union[Callable, Mapping[str, Callable]],
                    sizes: Sequence[int] = (2, 3, 5, 10, 20), repeats: int = 10, seed: int = 0,
-                   region: str = 'contact') -> List[Dict]:
+                   region: str = 'contact', truth: Optional[Mapping[str, Tuple]] = None
+                   ) -> List[Dict]:
     """Held-out RMSE against the number of training pokes.
 
     Args:
@@ -68,13 +69,18 @@ def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
         repeats: random subsets per size.
         seed: seed of the subset draws.
         region: ``contact`` or ``all`` (see the module docstring).
+        truth: optional ``{poke_id: (d (K,), f (K,))}``: true forces at the poked points, also
+            at depths the pokes did not reach (a simulated cell knows them); each held-out
+            poke is then also scored against them.
 
     Returns:
         One row per (model, size): ``model``, ``size``, ``median``, ``q25``, ``q75``, ``mean``
-        (RMSE in newtons over the repeats), ``rmse`` (the list), ``fit_s`` (median fit time).
+        (RMSE in newtons over the repeats), ``rmse`` (the list), ``fit_s`` (median fit time);
+        with ``truth`` also ``truth_median`` and ``truth_rmse`` (the list).
 
     Raises:
-        InvalidInput: fewer than 2 curves, ``repeats < 1``, or an unknown region.
+        InvalidInput: fewer than 2 curves, ``repeats < 1``, an unknown region, or ``truth``
+            without a poke of ``curves``.
 
     """
     curves = list(curves)
@@ -87,6 +93,12 @@ def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
     rng = np.random.default_rng(seed)
     rows = []
     results = {(name, s): ([], []) for name in factories for s in sizes}
+    truth_errs = {key: [] for key in results}
+    if truth is not None:
+        missing = [c.poke_id for c in curves if c.poke_id not in truth]
+        if missing:
+            raise InvalidInput(f'learning_curve: no true forces for pokes {missing[:3]}')
+        truth_x = dict(zip((c.poke_id for c in curves), curve_features(curves, surface)))
     for size in sizes:
         if not 1 <= size < len(curves):
             continue
@@ -101,6 +113,8 @@ def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
                 errs, times = results[(name, size)]
                 errs.append(rmse(model, test, surface, region))
                 times.append(float(getattr(model, 'fit_seconds', np.nan)))
+                if truth is not None:
+                    truth_errs[(name, size)].append(_truth_rmse(model, test, truth, truth_x))
     for name in factories:
         for size in sizes:
             errs, times = results[(name, size)]
@@ -111,7 +125,21 @@ def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
                          'q25': float(np.percentile(e, 25)), 'q75': float(np.percentile(e, 75)),
                          'mean': float(e.mean()), 'rmse': e.tolist(),
                          'fit_s': float(np.median(times))})
+            if truth is not None:
+                rows[-1]['truth_rmse'] = truth_errs[(name, size)]
+                rows[-1]['truth_median'] = float(np.median(truth_errs[(name, size)]))
     return rows
+
+
+def _truth_rmse(model, test: Sequence[PokeCurve], truth: Mapping[str, Tuple],
+                features: Mapping[str, np.ndarray]) -> float:
+    """RMSE (N) of ``model`` against the true forces of the held-out pokes ``test``."""
+    err = []
+    for c in test:
+        d, f = (np.asarray(v, dtype=float) for v in truth[c.poke_id])
+        err.append(model.predict(np.repeat(features[c.poke_id][None], len(d), axis=0), d) - f)
+    err = np.concatenate(err)
+    return float(np.sqrt(np.mean(err * err)))
 
 
 def draw_learning_rows(ax, rows: Sequence[Mapping]) -> None:

@@ -252,3 +252,40 @@ def test_probe_figure_scores_each_trial_with_c_from_the_other_trials_only():
     again = figures.figure_probes(curves, surface, changed, **kw)['c']['per_trial']
     assert again[0] == pytest.approx(per[0], rel=1e-9)
     assert abs(np.log(again[1] / per[1])) > 0.05, (per, again)
+
+
+def test_full_depth_truth_matches_the_measured_pokes_and_goes_past_the_force_cap():
+    # vest: its grid pokes converged past the 12 N cap (the dome's stopped near it)
+    _, curves, _ = figures.load_poke_fixture('vest', say=lambda m: None)
+    cap = load_object('vest').force_cap
+    capped = [c for c in curves if c.f.max() > 0.95 * cap][:3]
+    assert len(capped) == 3
+    truth = figures.full_depth_truth('vest', capped)
+    for c in capped:
+        d, f = truth[c.poke_id]
+        # at the poke's own depths the FEM force is the measured curve up to F/T noise and
+        # the live path's interpolation: the depth coordinates agree
+        inside = (d > c.onset_d + 0.0005) & (d < c.d.max())
+        measured = np.interp(d[inside], c.d, c.f)
+        assert np.median(np.abs(f[inside] - measured)) < 0.05 * cap, c.poke_id
+        assert f.max() > 1.2 * cap and d.max() > c.d.max() + 0.0005, c.poke_id
+        assert np.all(np.diff(d) > 0) and f[0] == pytest.approx(0.0, abs=0.05)
+
+
+def test_learning_curve_scores_the_truth_like_the_measured_samples():
+    from pointforce_ros.response.baseline import EtBaseline
+    from pointforce_ros.response.evaluate import CONTACT_MARGIN, learning_curve
+    surface, curves, _ = figures.load_poke_fixture('dome', say=lambda m: None)
+    curves = curves[:12]
+    # the measured contact samples as "truth": both scores agree draw by draw
+    truth = {c.poke_id: (c.d[c.d >= c.onset_d - CONTACT_MARGIN],
+                         c.f[c.d >= c.onset_d - CONTACT_MARGIN]) for c in curves}
+    factory = {'et': lambda: EtBaseline(params={'n_estimators': 5})}
+    (row,) = learning_curve(curves, surface, factory, sizes=(4,), repeats=2, truth=truth)
+    assert row['truth_rmse'] == pytest.approx(row['rmse'], rel=1e-9)
+    shifted = {k: (d, f + 1.0) for k, (d, f) in truth.items()}
+    (row2,) = learning_curve(curves, surface, factory, sizes=(4,), repeats=2, truth=shifted)
+    assert all(b > a + 0.3 for a, b in zip(row['truth_rmse'], row2['truth_rmse']))
+    with pytest.raises(InvalidInput, match='no true forces'):
+        learning_curve(curves, surface, factory, sizes=(4,), repeats=1,
+                       truth={curves[0].poke_id: truth[curves[0].poke_id]})

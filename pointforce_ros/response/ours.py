@@ -31,15 +31,15 @@ not use are built in here:
    over an object they move together: on the simulated cell's lamb and dome their pairwise
    correlations are 0.94-1.00. Spread by three independent processes, each parameter misses
    by its own error and the combination falls off the curve family the pokes showed (lamb, 10
-   pokes: a held-out poke's own fit with only its ``log F`` predicted scores 4.2 N RMSE,
-   against 0.56 N with all three predicted). So the processes spread ``y = L^-1 z``: ``z``
+   pokes: a held-out poke's own ``log F`` with a predicted onset and exponent scores 4.2 N
+   RMSE, worse than all three predicted, 0.56 N). So the processes spread ``y = L^-1 z``: ``z``
    the parameters standardised over the training pokes, ``L`` the Cholesky factor of their
    covariance in the order ``(d0, log F, p)``, shrunk towards the identity by
    :data:`DECORRELATE_PRIOR_POKES` pseudo-pokes (a covariance from five pokes alone gave rare
    but large misses). ``y_0`` is the onset, ``y_1`` the part of ``log F`` the onset does not
    explain, ``y_2`` the rest of ``p``. A prediction maps back with ``L``; the parameters'
    standard deviations combine the components'. With fewer than
-   :data:`DECORRELATE_MIN_POKES` pokes ``L = I`` and the prior scales are as given. Measured
+   :data:`DECORRELATE_MIN_POKES` pokes the processes are independent, as before. Measured
    by :mod:`pointforce_ros.figures`, figure 1 (``ours`` against ``ours_independent``).
 
 A refit is: one bounded least-squares fit for the new poke (cached for the others), then three
@@ -224,28 +224,31 @@ class ContactGpModel:
         with single_threaded_blas():
             self._fit_processes_inner(states)
 
-    def _decorrelation(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(mu, scale, L)``: ``theta = mu + scale * (L @ y)`` (module docstring, point 5).
+    def _decorrelation(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Tuple[float, ...]]:
+        """``(mu, scale, L, priors)``: ``theta = mu + scale * (L @ y)`` (module docstring, 5).
 
-        A function of the training parameters only, so a loaded model recomputes it.
+        ``priors``: the prior scale of each process of ``y``. A function of the training
+        parameters only, so a loaded model recomputes it. Independent processes (``L = I``)
+        keep ``theta`` itself as the targets (``mu = 0``, ``scale = 1``, the configured prior
+        scales), as models saved before decorrelation expect.
         """
         theta = self._theta
-        mu = theta.mean(axis=0)
         if not self.decorrelate or len(theta) < DECORRELATE_MIN_POKES:
-            return mu, np.array(self.prior_scales), np.eye(3)
+            return np.zeros(3), np.ones(3), np.eye(3), self.prior_scales
+        mu = theta.mean(axis=0)
         scale = np.maximum(theta.std(axis=0), SCALE_FLOOR)
         z = (theta - mu) / scale
         n = len(z)
         cov = (z.T @ z + DECORRELATE_PRIOR_POKES * np.eye(3)) / (n + DECORRELATE_PRIOR_POKES)
         cov += DECORRELATE_RIDGE * np.eye(3)
-        return mu, scale, np.linalg.cholesky(cov)
+        return mu, scale, np.linalg.cholesky(cov), (1.0, 1.0, 1.0)
 
     def _fit_processes_inner(self, states: Optional[Sequence[GpState]]) -> None:
-        mu, scale, chol = self._decorrelation()
+        mu, scale, chol, priors = self._decorrelation()
         y = np.linalg.solve(chol, ((self._theta - mu) / scale).T).T
         gps = []
         for j in range(3):
-            gp = FeatureGp(self._frame, 1.0, basis=self.bases[j], grid=self.grid)
+            gp = FeatureGp(self._frame, priors[j], basis=self.bases[j], grid=self.grid)
             if states is None:
                 gp.fit(self._features, y[:, j])
             else:

@@ -1,6 +1,7 @@
 """Force-response models on a synthetic heterogeneous object: ours against the seed's ET."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from pointforce_ros.response.store import (load_response_model, model_from_dict,
 from pointforce_ros.response.synthetic import spread_indices, SyntheticObject
 
 DEPTHS = np.linspace(-0.008, 0.014, 45)
+OLD_MODEL = Path(__file__).resolve().parents[1] / 'data' / 'models' / 'contact_gp_independent.json'
 
 
 @pytest.fixture(scope='module')
@@ -160,9 +162,10 @@ def test_save_load_round_trip_predicts_identically(world, tmp_path):
     _, surface, curves = world
     x = surface.features[::5]
     d = np.linspace(-0.005, 0.012, len(x))
-    for model in (ContactGpModel().fit(curves[:7], surface),
-                  EtBaseline(params={'n_estimators': 20}).fit(curves[:7], surface)):
-        path = save_response_model(model, tmp_path / f'{model.kind}.json')
+    for k, model in enumerate((ContactGpModel().fit(curves[:7], surface),
+                               ContactGpModel(decorrelate=False).fit(curves[:7], surface),
+                               EtBaseline(params={'n_estimators': 20}).fit(curves[:7], surface))):
+        path = save_response_model(model, tmp_path / f'{k}{model.kind}.json')
         loaded = load_response_model(path)
         assert type(loaded) is type(model) and loaded.version == model.version
         np.testing.assert_array_equal(loaded.predict(x, d), model.predict(x, d))
@@ -170,6 +173,16 @@ def test_save_load_round_trip_predicts_identically(world, tmp_path):
         again = model_from_dict(json.loads(json.dumps(model.to_dict())))
         np.testing.assert_array_equal(again.bake(surface, DEPTHS).forces,
                                       model.bake(surface, DEPTHS).forces)
+    # a model saved before decorrelation existed (test/data/models/make_old_model.py) loads
+    # with independent processes, as it was fitted, and predicts what they predict now
+    old = load_response_model(OLD_MODEL)
+    assert not old.decorrelate and old.poke_ids == [c.poke_id for c in curves[:7]]
+    independent = ContactGpModel(decorrelate=False).fit(curves[:7], surface)
+    np.testing.assert_allclose(old.predict(x, d), independent.predict(x, d), rtol=1e-9,
+                               atol=1e-12)
+    # (which the decorrelated default does not: the fixture tells the two apart)
+    decorrelated = ContactGpModel().fit(curves[:7], surface)
+    assert np.max(np.abs(old.predict(x, d) - decorrelated.predict(x, d))) > 0.01
     (tmp_path / 'bad.json').write_text('{"format": "something-else"}')
     with pytest.raises(DataError, match='format'):
         load_response_model(tmp_path / 'bad.json')

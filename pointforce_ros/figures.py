@@ -238,6 +238,34 @@ def _arrays_trials(prefix: str, data: Mapping) -> List[Optional[Dict]]:
     return out
 
 
+def read_partial(path: Path, settings: str, say: Callable[[str], None] = print
+                 ) -> Dict[str, np.ndarray]:
+    """Arrays of a partial probe fixture written with ``settings``, else ``{}``.
+
+    Trials depend on the physics and the seed only (``settings``), so a rerun may ask for
+    more or fewer of them. The stored settings themselves are not among the arrays returned.
+    """
+    if not Path(path).is_file():
+        return {}
+    with np.load(path, allow_pickle=False) as z:
+        saved = {k: z[k] for k in z.files if k != 'settings'}
+        stored = str(z['settings']) if 'settings' in z.files else ''
+    if stored.split(' lines=')[0] != settings:
+        say(f'[figures-data] {path} is for other settings: starting over')
+        return {}
+    say(f'[figures-data] resuming from {path}')
+    return saved
+
+
+def write_partial(path: Path, settings: str, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write a partial probe fixture atomically (``arrays`` plus ``settings``)."""
+    path = Path(path)
+    tmp = path.with_name(path.name.replace('.partial.npz', '.tmp.partial.npz'))
+    np.savez_compressed(tmp, **{k: v for k, v in arrays.items() if k != 'settings'},
+                        settings=np.asarray(settings))
+    os.replace(tmp, path)
+
+
 def make_probe_fixture(name: str, out=DATA_DIR, lines: int = 3, cylinders: int = 2,
                        seed: int = 0, say: Callable[[str], None] = print) -> Path:
     """Write ``probes_<name>.npz``: line/cylinder trials and a point-poke dent (see module).
@@ -258,23 +286,12 @@ def make_probe_fixture(name: str, out=DATA_DIR, lines: int = 3, cylinders: int =
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     partial = out / f'probes_{name}.partial.npz'
-    settings = np.asarray(f'{physics_hash(spec)} seed={seed}')
-    saved: Dict[str, np.ndarray] = {}
-    if partial.is_file():
-        with np.load(partial, allow_pickle=False) as z:
-            saved = {k: z[k] for k in z.files}
-        # trials depend on the physics and the seed only: a rerun may ask for more or fewer
-        if str(saved.get('settings')).split(' lines=')[0] != str(settings):
-            say(f'[figures-data] {partial} is for other settings: starting over')
-            saved = {}
-        else:
-            say(f'[figures-data] resuming from {partial}')
+    settings = f'{physics_hash(spec)} seed={seed}'
+    saved = read_partial(partial, settings, say)
 
     def keep(**parts):
         saved.update(parts)
-        tmp = out / f'probes_{name}.tmp.partial.npz'
-        np.savez_compressed(tmp, settings=settings, **saved)
-        os.replace(tmp, partial)
+        write_partial(partial, settings, saved)
 
     if 'dent_depth' in saved:
         dent = {k[5:]: saved[k] for k in saved if k.startswith('dent_')}

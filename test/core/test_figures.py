@@ -289,3 +289,21 @@ def test_learning_curve_scores_the_truth_like_the_measured_samples():
     with pytest.raises(InvalidInput, match='no true forces'):
         learning_curve(curves, surface, factory, sizes=(4,), repeats=1,
                        truth={curves[0].poke_id: truth[curves[0].poke_id]})
+
+
+def test_a_partial_probe_fixture_resumes_and_keeps_saving(tmp_path):
+    # a resumed run used to crash at its first save: the settings read back from the file
+    # were passed to numpy twice
+    path = tmp_path / 'probes_x.partial.npz'
+    said = []
+    assert figures.read_partial(path, 'abc seed=0', said.append) == {}
+    figures.write_partial(path, 'abc seed=0', {'dent_depth': np.asarray(0.003)})
+    saved = figures.read_partial(path, 'abc seed=0', said.append)
+    assert set(saved) == {'dent_depth'} and 'resuming' in said[-1]
+    saved['line_trial_kinds'] = np.array(['skipped'])
+    figures.write_partial(path, 'abc seed=0', saved)
+    again = figures.read_partial(path, 'abc seed=0', said.append)
+    assert set(again) == {'dent_depth', 'line_trial_kinds'}
+    assert float(again['dent_depth']) == pytest.approx(0.003)
+    assert figures.read_partial(path, 'abd seed=0', said.append) == {}
+    assert 'other settings' in said[-1]

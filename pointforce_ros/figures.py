@@ -258,11 +258,13 @@ def read_partial(path: Path, settings: str, say: Callable[[str], None] = print
 
 
 def write_partial(path: Path, settings: str, arrays: Mapping[str, np.ndarray]) -> None:
-    """Write a partial probe fixture atomically (``arrays`` plus ``settings``)."""
+    """Write a partial probe fixture atomically: ``arrays`` plus ``settings``.
+
+    ``arrays`` as :func:`read_partial` returns them, without the settings.
+    """
     path = Path(path)
     tmp = path.with_name(path.name.replace('.partial.npz', '.tmp.partial.npz'))
-    np.savez_compressed(tmp, **{k: v for k, v in arrays.items() if k != 'settings'},
-                        settings=np.asarray(settings))
+    np.savez_compressed(tmp, settings=np.asarray(settings), **arrays)
     os.replace(tmp, path)
 
 
@@ -1017,6 +1019,23 @@ def _fmt(v, digits=3) -> str:
     return f'{v:.{digits}f}'
 
 
+def _learning_table(learning: Mapping, key: str, extra: Optional[Tuple[str, Mapping]] = None
+                    ) -> List[str]:
+    """Markdown rows of figure 1: per object and model, ``key`` at each of :data:`SIZES`.
+
+    ``extra``: ``(title, {object: value})``, a column after the object's name.
+    """
+    head = ['object'] + ([extra[0]] if extra else []) + ['model'] + [str(s) for s in SIZES]
+    lines = ['| ' + ' | '.join(head) + ' |', '| ' + ' | '.join('---' for _ in head) + ' |']
+    for name, rows in learning.items():
+        first = [name] + ([_fmt(extra[1].get(name), 2)] if extra else [])
+        for model in dict.fromkeys(r['model'] for r in rows if key in r):
+            value = {r['size']: r[key] for r in rows if r['model'] == model}
+            lines.append('| ' + ' | '.join(first + [model] + [_fmt(value.get(s))
+                                                              for s in SIZES]) + ' |')
+    return lines
+
+
 def markdown_report(result: Mapping) -> str:
     """Markdown tables of figures 1-3 and the goals (the body of ``figures.md``)."""
     lines = ['# Seed-method figures on the simulated cell', '',
@@ -1031,13 +1050,7 @@ def markdown_report(result: Mapping) -> str:
               'estimated contact onset to its deepest point, against the measured (tared, '
               'noisy) normal force; median over random training subsets of the 30-poke pool '
               '(realistic scenario, FEM live path).', '',
-              '| object | model | ' + ' | '.join(str(s) for s in SIZES) + ' |',
-              '| --- | --- | ' + ' | '.join('---' for _ in SIZES) + ' |']
-    for name, rows in result['learning'].items():
-        for model in dict.fromkeys(r['model'] for r in rows):
-            med = {r['size']: r['median'] for r in rows if r['model'] == model}
-            lines.append(f'| {name} | {model} | ' + ' | '.join(_fmt(med.get(s))
-                                                               for s in SIZES) + ' |')
+              *_learning_table(result['learning'], 'median')]
     if any('truth_median' in r for rows in result['learning'].values() for r in rows):
         lines += ['', '### 1b. The same subsets, against the true force [N]', '',
                   'Held-out poke points scored against the object\'s FEM force from 0.5 mm '
@@ -1045,14 +1058,8 @@ def markdown_report(result: Mapping) -> str:
                   'where the poke stopped (`full_depth_truth`; where the FEM converged there): '
                   'what a planner\'s deep query meets. `past cap`: share of those samples above '
                   'the force cap. The goals are judged on the measured table above.', '',
-                  '| object | past cap | model | ' + ' | '.join(str(s) for s in SIZES) + ' |',
-                  '| --- | --- | --- | ' + ' | '.join('---' for _ in SIZES) + ' |']
-        for name, rows in result['learning'].items():
-            share = _fmt(result.get('past_cap', {}).get(name), 2)
-            for model in dict.fromkeys(r['model'] for r in rows if 'truth_median' in r):
-                med = {r['size']: r['truth_median'] for r in rows if r['model'] == model}
-                lines.append(f'| {name} | {share} | {model} | '
-                             + ' | '.join(_fmt(med.get(s)) for s in SIZES) + ' |')
+                  *_learning_table(result['learning'], 'truth_median',
+                                   ('past cap', result.get('past_cap', {})))]
     lines += ['', '| object | ours/base @5 | goal <= 0.5 | ours/base @10 | goal <= 0.5 | '
               'ours@3 vs base@10 [N] | goal |', '| --- | --- | --- | --- | --- | --- | --- |']
     for name, g in result['learning_goals'].items():
@@ -1182,7 +1189,7 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         InvalidInput: an unknown object name or ``repeats < 1``.
 
     """
-    from pointforce_ros.cell.objects import list_objects
+    from pointforce_ros.cell.objects import list_objects, load_object
 
     started = time.monotonic()
     objects = list(objects)[:2] if quick else list(objects)
@@ -1216,7 +1223,6 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         t0 = time.monotonic()
         try:
             truth = full_depth_truth(name, curves)
-            from pointforce_ros.cell.objects import load_object
             cap = load_object(name).force_cap
             forces = np.concatenate([f for _, f in truth.values()])
             result['past_cap'][name] = float(np.mean(forces > cap))

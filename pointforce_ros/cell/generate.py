@@ -28,6 +28,8 @@ from pointforce_ros.pokes.store import PokeStore, TYPESTORE
 from pointforce_ros.transforms import matrix_to_quaternion
 
 PROBE_KINDS = ('point', 'line', 'cylinder')
+MIN_PROBE_STEPS = 3
+"""Fewest solved steps a probe trial keeps when a deeper step does not converge."""
 SCAN_TOPIC = '/camera/camera/depth/color/points'
 CAMERA_POSE_TOPIC = '/camera/pose'
 
@@ -157,8 +159,9 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
     down, with a random roll about it, from just touching the undeformed top to
     ``spec.max_depth`` in ``steps`` steps (full nonlinear solve at ``spec.mesh_live``); the
     push ends at the first step past 1.5 x the object's force cap, and that step is dropped. A
-    trial whose full solve does not converge is skipped with a progress line (the others are
-    kept).
+    step whose full solve does not converge ends the push there: the steps before it are kept
+    (with a progress line), and a trial with fewer than :data:`MIN_PROBE_STEPS` solved steps
+    is skipped (the other trials are kept).
 
     Resuming: ``done`` holds trials an interrupted run already solved (in order, as this
     passed them to ``on_trial``, None for a skipped one); their poses are drawn again, so the
@@ -202,9 +205,12 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
             continue
         began = time.monotonic()
         try:
+            # a step that fails deep in the push keeps the steps solved before it
             result = solve_indentation(spec, mesh, start, direction, depths,
                                        torque_centre=start.position, h=spec.mesh_live,
-                                       stop_force=1.5 * spec.force_cap)
+                                       stop_force=1.5 * spec.force_cap, keep_solved=True)
+            if len(result.depths) < min(MIN_PROBE_STEPS, len(depths)):
+                raise NotConverged(f'only {len(result.depths)} of {len(depths)} steps solved')
         except NotConverged as exc:
             # one hard pose must not cost the trials already solved (minutes each)
             bar.step(f'{kind}: skipped, the full solve did not converge ({exc})')
@@ -213,6 +219,10 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
                 on_trial(trials)
             continue
         normal_force = -(result.force @ direction)
+        if len(result.depths) < len(depths) and normal_force[-1] <= 1.5 * spec.force_cap:
+            progress(f'[probes] {kind}: the full solve did not converge past '
+                     f'{1e3 * result.depths[-1]:.1f} mm; kept the {len(result.depths)} '
+                     f'steps before it')
         keep = normal_force <= 1.5 * spec.force_cap
         keep[0] = True
         depths = result.depths

@@ -37,8 +37,8 @@ def _contact_zone(probe_mesh: Mesh, pose: Pose, direction: np.ndarray, reach: fl
 
 def solve_indentation(spec: ObjectSpec, probe_mesh: Mesh, start_pose: Pose, direction,
                       depths, torque_centre=None, nonlinear: bool = True,
-                      h: Optional[float] = None, stop_force: Optional[float] = None
-                      ) -> IndentationResult:
+                      h: Optional[float] = None, stop_force: Optional[float] = None,
+                      keep_solved: bool = False) -> IndentationResult:
     """Quasi-static indentation of object ``spec`` by a rigid probe (full FE solve).
 
     Args:
@@ -52,6 +52,8 @@ def solve_indentation(spec: ObjectSpec, probe_mesh: Mesh, start_pose: Pose, dire
         h: element size near the probe (default ``spec.mesh_validation``).
         stop_force: end the push after the first depth whose force along ``-direction``
             exceeds this (N); the result holds the depths solved so far.
+        keep_solved: when a step after the first fails, return the depths solved so far
+            (fewer than ``depths``) instead of raising.
 
     Returns:
         :class:`IndentationResult` (depths (K,), force (K, 3), torque (K, 3), surface (K, P, 3)).
@@ -70,7 +72,7 @@ def solve_indentation(spec: ObjectSpec, probe_mesh: Mesh, start_pose: Pose, dire
     fine = tuple(np.maximum(half + 0.004 + float(depths[-1]), 0.006))
     model = object_model(spec, centre, h=h, fine_radius=fine, nonlinear=nonlinear)
     return model.indent(probe_mesh, start_pose, direction, depths, torque_centre,
-                        stop_force=stop_force)
+                        stop_force=stop_force, keep_solved=keep_solved)
 
 
 def probe_wrench_full(spec: ObjectSpec, probe_mesh: Mesh, pose: Pose, torque_centre=None,

@@ -307,3 +307,22 @@ def test_a_partial_probe_fixture_resumes_and_keeps_saving(tmp_path):
     assert float(again['dent_depth']) == pytest.approx(0.003)
     assert figures.read_partial(path, 'abd seed=0', said.append) == {}
     assert 'other settings' in said[-1]
+
+
+def test_the_capped_diagnostic_caps_at_the_largest_training_force_and_nowhere_else():
+    from pointforce_ros.response.common import curve_features
+    from pointforce_ros.response.ours import ContactGpModel
+    surface, curves, _ = figures.load_poke_fixture('plush', say=lambda m: None)
+    train, test = curves[:6], curves[6:12]
+    capped = figures.CappedAtTraining(ContactGpModel()).fit(train, surface)
+    plain = ContactGpModel().fit(train, surface)
+    assert capped.poke_ids == plain.poke_ids
+    assert capped.cap == pytest.approx(max(c.f.max() for c in train))
+    feats = curve_features(test, surface)
+    x = np.repeat(feats, 40, axis=0)
+    d = np.tile(np.linspace(-0.004, 0.016, 40), len(test))     # past the pokes' depth range
+    raw, cut = plain.predict(x, d), capped.predict(x, d)
+    over = raw > capped.cap
+    assert over.any() and not over.all()
+    np.testing.assert_allclose(cut[~over], raw[~over])
+    np.testing.assert_allclose(cut[over], capped.cap)

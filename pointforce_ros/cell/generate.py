@@ -221,8 +221,8 @@ def probe_trials(spec, kinds: Sequence[str], count: int, seed: int,
         normal_force = -(result.force @ direction)
         if len(result.depths) < len(depths) and normal_force[-1] <= 1.5 * spec.force_cap:
             progress(f'[probes] {kind}: the full solve did not converge past '
-                     f'{1e3 * result.depths[-1]:.1f} mm; kept the {len(result.depths)} '
-                     f'steps before it')
+                     f'{1e3 * result.depths[-1]:.1f} mm; kept its {len(result.depths)} '
+                     f'steps to there')
         keep = normal_force <= 1.5 * spec.force_cap
         keep[0] = True
         depths = result.depths

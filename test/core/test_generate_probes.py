@@ -84,6 +84,6 @@ def test_a_push_that_fails_deep_keeps_its_solved_steps_and_a_shallow_failure_is_
     lines = []
     trials = generate.probe_trials(spec, ['line'], 3, seed=1, progress=lines.append, steps=8)
     assert [len(t['depths']) for t in trials] == [5, 8]
-    cut = [line for line in lines if 'kept the 5 steps' in line]
+    cut = [line for line in lines if 'kept its 5 steps' in line]
     assert len(cut) == 1 and 'did not converge past' in cut[0]
     assert any('skipped' in line and 'only 2 of 8 steps' in line for line in lines)

@@ -36,21 +36,28 @@ def heldout_errors(model, curves: Sequence[PokeCurve], surface: Surface,
     leak = [c.poke_id for c in curves if c.poke_id in trained]
     if leak:
         raise InvalidInput(f'held-out evaluation on training pokes {leak[:3]}: refused')
-    feats = curve_features(curves, surface)
-    xs, ds, fs = [], [], []
-    for c, x in zip(curves, feats):
+    samples = []
+    for c, x in zip(curves, curve_features(curves, surface)):
         keep = c.d >= c.onset_d - CONTACT_MARGIN if region == 'contact' else np.ones(len(c), bool)
-        xs.append(np.repeat(x[None], int(keep.sum()), axis=0))
-        ds.append(c.d[keep])
-        fs.append(c.f[keep])
-    x, d, f = np.vstack(xs), np.concatenate(ds), np.concatenate(fs)
+        samples.append((x, c.d[keep], c.f[keep]))
+    return _errors(model, samples)
+
+
+def _errors(model, samples: Sequence[Tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Residuals ``predict - f`` over ``(features (9,), d (K,), f (K,))`` per point, one query."""
+    x = np.vstack([np.repeat(feat[None], len(d), axis=0) for feat, d, _ in samples])
+    d = np.concatenate([d for _, d, _ in samples])
+    f = np.concatenate([f for _, _, f in samples])
     return model.predict(x, d) - f
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e * e)))
 
 
 def rmse(model, curves: Sequence[PokeCurve], surface: Surface, region: str = 'contact') -> float:
     """Held-out RMSE in newtons (see :func:`heldout_errors`)."""
-    e = heldout_errors(model, curves, surface, region)
-    return float(np.sqrt(np.mean(e * e)))
+    return _rms(heldout_errors(model, curves, surface, region))
 
 
 def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
@@ -134,12 +141,9 @@ def learning_curve(curves: Sequence[PokeCurve], surface: Surface,
 def _truth_rmse(model, test: Sequence[PokeCurve], truth: Mapping[str, Tuple],
                 features: Mapping[str, np.ndarray]) -> float:
     """RMSE (N) of ``model`` against the true forces of the held-out pokes ``test``."""
-    err = []
-    for c in test:
-        d, f = (np.asarray(v, dtype=float) for v in truth[c.poke_id])
-        err.append(model.predict(np.repeat(features[c.poke_id][None], len(d), axis=0), d) - f)
-    err = np.concatenate(err)
-    return float(np.sqrt(np.mean(err * err)))
+    return _rms(_errors(model, [(features[c.poke_id],
+                                 *(np.asarray(v, dtype=float) for v in truth[c.poke_id]))
+                                for c in test]))
 
 
 def draw_learning_rows(ax, rows: Sequence[Mapping]) -> None:

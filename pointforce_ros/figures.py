@@ -956,6 +956,7 @@ def plot_learning(per_object: Mapping[str, Sequence[Mapping]], path) -> None:
         ax.set_xscale('log')
         ax.set_xticks(list(SIZES))
         ax.set_xticklabels([str(s) for s in SIZES])
+        ax.set_xticks([], minor=True)  # a log axis labels its minor ticks over so short a range
         ax.set_title(name)
         ax.set_xlabel('training pokes')
         ax.grid(True, alpha=0.3)
@@ -1036,8 +1037,9 @@ def plot_shape_constant(per_object: Mapping[str, Mapping], path) -> None:
             ax.axvline(res['c']['dent'] * 1e3, color=line.get_color(), ls=':', lw=0.8)
     ax.axvline(DEFAULT_C * 1e3, color='k', lw=0.6, alpha=0.5)
     ax.set_xscale('log')
-    ax.set_xlabel('shape constant c [mm]  (-- from other trials, median; : from dent; '
-                  'grey: 4 mm)')
+    ax.set_xlabel('shape constant c [mm]\n(dashed: from other trials, median; dotted: from the '
+                  'dent; grey: 4 mm)')
+    ax.set_yscale('log')  # vest's small-c errors (tens of N) would flatten every other curve
     ax.set_ylabel('ours: probe force RMSE [N]')
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)

@@ -786,9 +786,14 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     points) that query is answered by our simulator with the same ET model (counted in
     ``failed_paper_queries``; ``et_our_sim`` is that combination on every query).
 
+    ``ours`` identifies ``c`` together with the decay length of the shape function's tail
+    (:data:`~pointforce_ros.contact.identify.DECAY_GRID`); ``ours_no_decay`` is ``c`` alone,
+    the paper's ``g`` (the error before that effect was added).
+
     Returns:
         dict with ``c`` (``dent``, ``probe``: median of ``per_trial``, the leave-one-out
-        values, ``default``), ``rmse`` ({method: {force,
+        values, ``with_decay``: the leave-one-out ``(c, decay)`` pairs, ``default``),
+        ``rmse`` ({method: {force,
         torque, force_line, force_cylinder}} medians), ``peak_force`` (N), ``c_curve``
         ({c: [force RMSE per draw]}), ``failed_paper_queries``, ``eval_trials``.
 
@@ -796,7 +801,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         InvalidInput: fewer than 2 trials or fewer than ``n_train + 1`` curves.
 
     """
-    from pointforce_ros.contact.identify import identify_shape_constant_from_probes
+    from pointforce_ros.contact.identify import (DECAY_GRID,
+                                                 identify_shape_constant_from_probes)
     from pointforce_ros.contact.paper import PaperContactSimulator
     from pointforce_ros.contact.simulator import ContactSimulator
     from pointforce_ros.errors import PointforceError
@@ -818,23 +824,27 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     reference = pure_learning(trials, surface, seed)
     ref_pick = [i for i in evaluate if reference[i] is not None]
     per = {m: {'force': [], 'torque': [], 'force_line': [], 'force_cylinder': []}
-           for m in ('baseline', 'et_our_sim', 'ours', 'ours_default_c')}
+           for m in ('baseline', 'et_our_sim', 'ours', 'ours_no_decay', 'ours_default_c')}
     paper_repeats = min(int(repeats), int(paper_draws))
     c_curve, failed = {float(c): [] for c in c_grid}, 0
     calibration = ContactSimulator(
         surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C)
-    c_trial = []
+    c_trial, shape_trial = [], []
     for j in evaluate:
         others = [(t['mesh'], trial_poses(t), t['direction'], t['force'])
                   for i, t in enumerate(trials) if i != j]
-        try:
-            c_trial.append(float(identify_shape_constant_from_probes(
-                calibration, others, c_bounds=(1e-4, 0.1)).c))
-        except PointforceError as exc:
-            say(f'[figures]   c for trial {j} not identified ({exc}); using {DEFAULT_C} m')
-            c_trial.append(DEFAULT_C)
+        for decays, out in (((np.inf,), c_trial), (DECAY_GRID, shape_trial)):
+            try:
+                fit = identify_shape_constant_from_probes(calibration, others,
+                                                          c_bounds=(1e-4, 0.1), decays=decays)
+                out.append((float(fit.c), float(fit.decay)))
+            except PointforceError as exc:
+                say(f'[figures]   c for trial {j} not identified ({exc}); using {DEFAULT_C} m')
+                out.append((DEFAULT_C, np.inf))
+    c_trial = [c for c, _ in c_trial]
     say('[figures]   c from the other trials [mm]: '
-        + ', '.join(f'{1e3 * c:.2f}' for c in c_trial))
+        + ', '.join(f'{1e3 * c:.2f}' for c in c_trial) + '; with the tail\'s decay length: '
+        + ', '.join(f'{1e3 * c:.2f} / {1e3 * L:.0f}' for c, L in shape_trial))
     for rep in range(int(repeats)):
         pick = rng.choice(len(curves), size=n_train, replace=False)
         train = [curves[i] for i in pick]
@@ -842,8 +852,10 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         sim = ContactSimulator(surface, ours.bake(surface, depths), DEFAULT_C)
         et = EtBaseline().fit(train, surface)
         et_sim = ContactSimulator(surface, et.bake(surface, depths), DEFAULT_C)
-        preds = {'ours': [_simulate_ours(sim.with_shape_constant(c), [t])[0]
-                          for c, t in zip(c_trial, trials)],
+        preds = {'ours': [_simulate_ours(sim.with_shape_constant(c, decay), [t])[0]
+                          for (c, decay), t in zip(shape_trial, trials)],
+                 'ours_no_decay': [_simulate_ours(sim.with_shape_constant(c), [t])[0]
+                                   for c, t in zip(c_trial, trials)],
                  'ours_default_c': _simulate_ours(sim, trials),
                  'et_our_sim': _simulate_ours(et_sim, trials)}
         if rep < paper_repeats:
@@ -879,6 +891,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
                   'dent_note': c_dent if isinstance(c_dent, str) else
                   f'rmse {c_dent.rmse * 1e3:.3f} mm over {c_dent.n_points} nodes',
                   'probe': float(np.median(c_trial)), 'per_trial': c_trial,
+                  'with_decay': [list(v) for v in shape_trial],
                   'default': DEFAULT_C},
             'rmse': rmse, 'peak_force': peak, 'c_curve': c_curve,
             'failed_paper_queries': int(failed),
@@ -970,7 +983,9 @@ def plot_learning(per_object: Mapping[str, Sequence[Mapping]], path) -> None:
 METHOD_LABELS = {'baseline': 'baseline (paper sim + ET, c = 4 mm)',
                  'et_our_sim': 'our sim + ET, c = 4 mm',
                  'ours_default_c': 'ours, c = 4 mm',
-                 'ours': 'ours (identified c)', 'pure_learning': 'pure learning (LOO trials)'}
+                 'ours_no_decay': 'ours (identified c, paper\'s g)',
+                 'ours': 'ours (identified c and tail decay)',
+                 'pure_learning': 'pure learning (LOO trials)'}
 
 
 def plot_active(per_object: Mapping[str, Mapping], path) -> None:
@@ -1160,9 +1175,10 @@ def markdown_report(result: Mapping) -> str:
                      f"{res['failed_paper_queries']}/{res['paper_queries']} |")
     lines += ['', '## 3. Shape constant c', '',
               '| object | c from dent [mm] | c from the other trials, all-poke model, per '
-              'trial [mm] | '
-              'ours force RMSE at 4 mm / identified c [N] | best c on the grid [mm] |',
-              '| --- | --- | --- | --- | --- |']
+              'trial [mm] | c / decay length identified together, per trial [mm] | '
+              'ours force RMSE at 4 mm / identified c / c and decay [N] | best c on the grid '
+              '[mm] |',
+              '| --- | --- | --- | --- | --- | --- |']
     for name, res in result['probes'].items():
         c = res['c']
         cs = sorted(res['c_curve'])
@@ -1170,8 +1186,11 @@ def markdown_report(result: Mapping) -> str:
         best = cs[int(np.argmin(med))]
         dent = _fmt(None if c['dent'] is None else 1e3 * c['dent'], 2)
         probe = ', '.join(f'{1e3 * v:.2f}' for v in c['per_trial'])
-        lines.append(f"| {name} | {dent} | {probe} | "
-                     f"{_fmt(res['rmse']['ours_default_c']['force'])} / "
+        pairs = ', '.join(f'{1e3 * v:.2f} / ' + (f'{1e3 * L:.0f}' if np.isfinite(L) else 'inf')
+                          for v, L in c.get('with_decay', []))
+        no_decay = res['rmse'].get('ours_no_decay', {}).get('force')
+        lines.append(f"| {name} | {dent} | {probe} | {pairs or '-'} | "
+                     f"{_fmt(res['rmse']['ours_default_c']['force'])} / {_fmt(no_decay)} / "
                      f"{_fmt(res['rmse']['ours']['force'])} | {1e3 * best:.2f} |")
     lines.append('')
     if result.get('active'):

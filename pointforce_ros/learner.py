@@ -85,6 +85,8 @@ class OnlineLearner:
         model_dir: where versioned contact models are saved.
         surface: equilibrium surface the model is baked on.
         shape_constant: ``c`` of the shape function, metres.
+        shape_decay: decay length of the shape function's tail, metres (``inf``: the paper's
+            ``g``).
         depths: (K,) bake grid, metres.
         model_factory: makes an empty force-response model (ours by default).
         corrections: optional callable ``records -> records`` applied before curve extraction
@@ -97,7 +99,7 @@ class OnlineLearner:
             point was off the object or the surface is wrong) and is not learned from.
 
     Raises:
-        InvalidInput: a non-positive shape constant or malformed effects.
+        InvalidInput: a non-positive shape constant or decay length, or malformed effects.
 
     """
 
@@ -105,10 +107,13 @@ class OnlineLearner:
                  depths: np.ndarray = DEFAULT_DEPTHS,
                  model_factory: Callable[[], object] = ContactGpModel,
                  corrections: Optional[Callable] = None, effects: Optional[dict] = None,
-                 min_peak_force: float = 0.3):
+                 min_peak_force: float = 0.3, shape_decay: float = np.inf):
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
+        if not shape_decay > 0:
+            raise InvalidInput(f'shape_decay: must be > 0 m or inf, got {shape_decay}')
+        self.shape_decay = float(shape_decay)
         self.store = PokeStore(store_dir)
         self.model_dir = Path(model_dir)
         self.surface = surface
@@ -220,20 +225,28 @@ class OnlineLearner:
             return None
         return self._save(start)
 
-    def set_shape_constant(self, c: float) -> Optional[LearnerStatus]:
+    def set_shape_constant(self, c: float, decay: Optional[float] = None
+                           ) -> Optional[LearnerStatus]:
         """Use shape constant ``c`` (m) from now on; save a new model version if there is one.
+
+        ``decay`` (m, or ``inf`` for the paper's ``g``) replaces the tail's decay length too
+        unless it is ``None``.
 
         For a ``c`` identified from data (``identify_shape_constant_from_probe`` or a dent):
         the response is unchanged, the saved model's simulator uses the new ``c``.
 
         Raises:
-            InvalidInput: ``c`` not finite and positive.
+            InvalidInput: ``c`` not finite and positive, ``decay`` not positive.
 
         """
         if not (np.isfinite(c) and c > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {c}')
+        if decay is not None and not decay > 0:
+            raise InvalidInput(f'shape_decay: must be > 0 m or inf, got {decay}')
         with self._lock:
             self.shape_constant = float(c)
+            if decay is not None:
+                self.shape_decay = float(decay)
             if self.model is None:
                 return None
             self._c_updates += 1
@@ -245,6 +258,7 @@ class OnlineLearner:
         corrected = [k for k in ('surface_offset', 'plastic_set') if k in self.effects]
         contact = ContactModel(surface=self.model_surface(), response=baked,
                                shape_constant=self.shape_constant, version=version,
+                               shape_decay=self.shape_decay,
                                effects=self.effects,
                                meta={'kind': getattr(self.model, 'kind', 'unknown'),
                                      'pokes': [c.poke_id for c in self.curves],

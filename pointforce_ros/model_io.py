@@ -32,12 +32,15 @@ class ContactModel:
         surface: equilibrium surface (``base``), N points.
         response: baked force table for the same N points.
         shape_constant: ``c`` of the shape function ``g(r) = c / (c + r)``, metres.
+        shape_decay: decay length of the shape function's tail, metres (``inf``: the paper's
+            ``g``; see :func:`~pointforce_ros.contact.lcp.shape_function`).
         version: model version (monotone over refits).
         effects: accepted model effects from ``pointforce diagnose`` (name -> parameters).
         meta: free-form JSON description (training pokes, errors, model kind).
 
     Raises:
-        InvalidInput: surface and table of different sizes, or ``c <= 0``.
+        InvalidInput: surface and table of different sizes, ``c <= 0`` or ``shape_decay``
+            neither a positive length nor ``inf``.
 
     """
 
@@ -45,6 +48,7 @@ class ContactModel:
     response: BakedResponse
     shape_constant: float
     version: int = 0
+    shape_decay: float = float('inf')
     effects: Mapping = field(default_factory=dict)
     meta: Mapping = field(default_factory=dict)
 
@@ -55,6 +59,9 @@ class ContactModel:
         if not np.isfinite(self.shape_constant) or self.shape_constant <= 0:
             raise InvalidInput(f'ContactModel.shape_constant: must be > 0 m, got '
                                f'{self.shape_constant}')
+        if not (self.shape_decay > 0):  # also refuses nan; inf is the paper's g
+            raise InvalidInput(f'ContactModel.shape_decay: must be > 0 m or inf, got '
+                               f'{self.shape_decay}')
 
 
 def atomic_write(path, write: Callable, binary: bool = True) -> Path:
@@ -91,6 +98,7 @@ def save_model(model: ContactModel, directory) -> Path:
     header = {
         'format': FORMAT, 'version': int(model.version),
         'shape_constant': float(model.shape_constant), 'frame': model.surface.frame,
+        'shape_decay': float(model.shape_decay) if np.isfinite(model.shape_decay) else None,
         'effects': dict(model.effects), 'meta': dict(model.meta),
         'response_version': int(model.response.version), 'response_meta': model.response.meta,
     }
@@ -133,6 +141,7 @@ def load_model(path) -> ContactModel:
         raise DataError(f'{path}: corrupt or unreadable model file: {exc}') from exc
     return ContactModel(surface=surface, response=response,
                         shape_constant=header['shape_constant'], version=header['version'],
+                        shape_decay=float(header.get('shape_decay') or float('inf')),
                         effects=header.get('effects', {}), meta=header.get('meta', {}))
 
 

@@ -63,7 +63,7 @@ class WrenchServer:
         terms = ForwardTerms.of(model.effects, series_compliance=self._series,
                                 hold_time=self._hold_time)
         simulator = ContactSimulator(model_surface(model), model.response, model.shape_constant,
-                                     spacing=self._spacing)
+                                     spacing=self._spacing, decay=model.shape_decay)
         with self._swap_lock:
             if self._current is None or model.version >= self._current[0].version:
                 self._current = (model, simulator, terms)

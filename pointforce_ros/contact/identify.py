@@ -27,6 +27,10 @@ from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.types import as_array, Mesh, Pose, Surface
 
 
+DECAY_GRID = (np.inf, 0.064, 0.032, 0.016, 0.008, 0.004, 0.002)
+"""Decay lengths (metres) :func:`identify_shape_constant_from_probes` tries when asked to."""
+
+
 @dataclass(frozen=True)
 class ShapeFit:
     """Result of a shape-constant fit.
@@ -37,6 +41,8 @@ class ShapeFit:
         rmse: root-mean-square residual, metres (dent) or newtons (probe).
         n_points: number of samples fitted.
         method: ``'dent'`` or ``'probe'``.
+        decay: fitted decay length of the shape function's tail, metres (``inf``: the paper's
+            ``g``, or not fitted).
 
     """
 
@@ -45,6 +51,7 @@ class ShapeFit:
     rmse: float
     n_points: int
     method: str
+    decay: float = float('inf')
 
 
 def _scan_then_refine(cost: Callable[[float], float], bounds: Tuple[float, float],
@@ -192,9 +199,15 @@ def identify_shape_constant_from_probe(simulator, mesh: Mesh, poses: Sequence[Po
 
 
 def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
-                                        c_bounds: Tuple[float, float] = (1e-4, 0.1)
-                                        ) -> ShapeFit:
-    """Fit one ``c`` to several second-probe pokes at once (summed squared force error).
+                                        c_bounds: Tuple[float, float] = (1e-4, 0.1),
+                                        decays: Sequence[float] = (np.inf,)) -> ShapeFit:
+    """Fit one ``c`` (and a tail ``decay``) to several second-probe pokes at once.
+
+    The fit minimises the summed squared force error. With ``decays`` of more than one value
+    (for example :data:`DECAY_GRID`) ``c`` is fitted at each decay length and the pair with
+    the smallest error wins: on a layer over a rigid support the paper's ``1 / r`` tail makes
+    a wide probe share too much displacement, and no single ``c`` then fits both a line and a
+    cylinder (see :func:`~pointforce_ros.contact.lcp.shape_function`).
 
     One poke of a line or cylinder can pull ``c`` far off: where the point model is wrong
     under that probe, ``c`` absorbs the error (a point model 30 % too stiff at the spot asks
@@ -206,14 +219,17 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
         pokes: ``(mesh, poses, approach, measured_force)`` per poke, each as
             :func:`identify_shape_constant_from_probe` takes them.
         c_bounds: search interval for ``c``, metres.
+        decays: decay lengths to try, metres (``inf``: the paper's ``g``); the default fits
+            ``c`` alone.
 
     Returns:
         :class:`ShapeFit` with ``method='probe'``; ``rmse`` over every pose of every poke, N;
-        ``n_points`` the number of poses.
+        ``n_points`` the number of poses; ``decay`` the chosen decay length.
 
     Raises:
-        InvalidInput: no pokes, mismatched lengths or non-finite forces.
-        NotConverged: the optimum lies on a search bound.
+        InvalidInput: no pokes, mismatched lengths, non-finite forces, or a decay that is not
+            a positive length or ``inf``.
+        NotConverged: at every decay length the optimum of ``c`` lies on a search bound.
 
     """
     lo, hi = _check_bounds(c_bounds)
@@ -230,8 +246,12 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
                                f'{measured.shape}')
         prepared.append((mesh, poses, a, as_array(measured, 'measured_force', measured.shape)))
 
-    def cost(c):
-        sim = simulator.with_shape_constant(c)
+    decays = [float(v) for v in decays]
+    if not decays or not all(v > 0 for v in decays):
+        raise InvalidInput(f'decays: need positive lengths (metres) or inf, got {decays}')
+
+    def cost(c, decay):
+        sim = simulator.with_shape_constant(c, decay)
         total = 0.0
         for mesh, poses, a, measured in prepared:
             force = sim.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3]
@@ -239,7 +259,19 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
             total += float(np.sum((pred - measured) ** 2))
         return total
 
-    c = _scan_then_refine(cost, (lo, hi), 'identify_shape_constant_from_probe')
+    best, failure = None, None
+    for decay in decays:
+        try:
+            c = _scan_then_refine(lambda v: cost(v, decay), (lo, hi),
+                                  'identify_shape_constant_from_probe')
+        except NotConverged as exc:
+            failure = exc
+            continue
+        value = cost(c, decay)
+        if best is None or value < best[0]:
+            best = (value, c, decay)
+    if best is None:
+        raise failure
     count = sum(len(p[1]) for p in prepared)
-    return ShapeFit(c=c, u0=float('nan'), rmse=float(np.sqrt(cost(c) / count)),
-                    n_points=count, method='probe')
+    return ShapeFit(c=best[1], u0=float('nan'), rmse=float(np.sqrt(best[0] / count)),
+                    n_points=count, method='probe', decay=best[2])

@@ -39,19 +39,29 @@ from scipy.linalg import lapack
 from pointforce_ros.errors import InvalidInput, NotConverged
 
 
-def shape_function(r: np.ndarray, c: float) -> np.ndarray:
-    """Return ``g(r) = c / (c + r)`` (eq. 2) for distances ``r`` >= 0 and constant ``c`` > 0.
+def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray:
+    """Return ``g(r) = c / (c + r) * exp(-r / decay)`` for distances ``r`` >= 0.
 
-    ``r`` and ``c`` share one length unit (metres at every public interface); ``g(0) = 1``.
+    With ``decay = inf`` (the default) this is the paper's ``g(r) = c / (c + r)`` (eq. 2). A
+    finite ``decay`` (metres, > 0) cuts the ``1 / r`` tail off: on an object of finite
+    thickness on a rigid support the dent of a poke dies out within a few thicknesses, and
+    the paper's tail makes wide contacts (a cylinder) share too much displacement, so their
+    force comes out too low. ``g`` stays a positive mixture of exponential kernels
+    (``c exp(-t c) exp(-(t + 1 / decay) r)`` over ``t``), so ``G`` stays positive definite.
+    ``r``, ``c`` and ``decay`` share one length unit (metres at every public interface);
+    ``g(0) = 1``.
     """
-    return c / (c + np.asarray(r, dtype=np.float64))
+    g = c / (c + np.asarray(r, dtype=np.float64))
+    if np.isfinite(decay):
+        g *= np.exp(np.asarray(r, dtype=np.float64) * (-1.0 / decay))
+    return g
 
 
-def shape_matrix(points: np.ndarray, c: float) -> np.ndarray:
+def shape_matrix(points: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray:
     """(m, m) matrix ``G_ij = g(|q_i - q_j|)`` of candidate points ``points`` (m, 3), metres."""
     points = np.asarray(points, dtype=np.float64)
     diff = points[:, None, :] - points[None, :, :]
-    return shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), c)
+    return shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), c, decay)
 
 
 @dataclass(frozen=True)

@@ -241,6 +241,8 @@ class ContactSimulator:
             over the surface's indices (a :class:`BakedResponse`), newtons at displacement
             ``d`` metres.
         c: shape-function constant of ``g(r) = c / (c + r)``, metres (> 0).
+        decay: decay length of the shape function's tail, metres (> 0; ``inf``, the default,
+            is the paper's ``g``; see :func:`~pointforce_ros.contact.lcp.shape_function`).
         spacing: rigid-mesh sampling step, metres (the paper uses 3 mm).
         max_gap: largest in-plane distance, metres, from a rigid sample to its third-nearest
             surface point for the sample to count as over the surface; default three times the
@@ -249,12 +251,12 @@ class ContactSimulator:
 
     Raises:
         InvalidInput: a response whose length differs from the surface's, a non-positive
-            ``c``/``spacing``/``max_gap``, or a surface with fewer than 3 points.
+            ``c``/``spacing``/``max_gap``/``decay``, or a surface with fewer than 3 points.
 
     """
 
     def __init__(self, surface: Surface, response, c: float, spacing: float = 0.003,
-                 max_gap: Optional[float] = None, workers: int = 1):
+                 max_gap: Optional[float] = None, workers: int = 1, decay: float = np.inf):
         if not isinstance(surface, Surface):
             raise InvalidInput(f'ContactSimulator: surface must be a types.Surface, got '
                                f'{type(surface).__name__}')
@@ -268,6 +270,7 @@ class ContactSimulator:
         self.surface = surface
         self.response = response
         self.c = _positive('c', c)
+        self.decay = _decay(decay)
         self.spacing = _positive('spacing', spacing)
         self.max_gap = None if max_gap is None else _positive('max_gap', max_gap)
         self.workers = int(workers)
@@ -285,10 +288,16 @@ class ContactSimulator:
         self._projections: Dict[Tuple[float, ...], _Projection] = {}
         self._meshes: Dict[Tuple[int, float], Tuple[Mesh, np.ndarray]] = {}
 
-    def with_shape_constant(self, c: float) -> 'ContactSimulator':
-        """Return a simulator identical but for ``c``, sharing the cached spatial structures."""
+    def with_shape_constant(self, c: float, decay: Optional[float] = None
+                            ) -> 'ContactSimulator':
+        """Return a simulator identical but for ``c`` (and ``decay`` unless ``None``).
+
+        The copy shares the cached spatial structures.
+        """
         other = copy.copy(self)
         other.c = _positive('c', c)
+        if decay is not None:
+            other.decay = _decay(decay)
         return other
 
     # ----------------------------------------------------------------------------- public API
@@ -382,7 +391,7 @@ class ContactSimulator:
         out = np.zeros(len(self._points))
         for s in range(0, len(contact_points), 256):
             r = cdist(self._points, contact_points[s:s + 256])
-            out += shape_function(r, self.c) @ actual[s:s + 256]
+            out += shape_function(r, self.c, self.decay) @ actual[s:s + 256]
         return out
 
     # ------------------------------------------------------------------------------ internals
@@ -491,7 +500,8 @@ class ContactSimulator:
         # 4. LCP per pose, padded stacks of similar size (one pose: a plain dense solve).
         if B == 1:
             diff = q[:, None, :] - q[None, :, :]
-            G = shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), self.c)
+            G = shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), self.c,
+                               self.decay)
             with single_threaded_blas() if len(e) > 64 else contextlib.nullcontext():
                 x, _ = bpp_dense(G, e)
             u = G @ x
@@ -565,7 +575,7 @@ class ContactSimulator:
             r2 = sq[:, :, None] + sq[:, None, :] - 2.0 * (qp @ qp.transpose(0, 2, 1))
             diag = np.arange(m)
             r2[:, diag, diag] = 0.0  # exact: rounding there would put 1 - 3e-8 on the diagonal
-            G = shape_function(np.sqrt(np.maximum(r2, 0.0)), self.c)
+            G = shape_function(np.sqrt(np.maximum(r2, 0.0)), self.c, self.decay)
             xp, res, _ = solve_lcp_batch(G, dp, valid)
             up = (G @ xp[:, :, None])[:, :, 0]
             x[rows], u[rows] = xp[gi, si], up[gi, si]
@@ -654,6 +664,16 @@ def _positive(name: str, value) -> float:
     if not (np.isfinite(value) and value > 0.0):
         raise InvalidInput(f'{name}: must be a positive finite length in metres, got {value}')
     return value
+
+
+def _decay(value) -> float:
+    """``decay``: a positive length in metres, or ``inf`` (no cut-off)."""
+    try:
+        if np.isposinf(float(value)):
+            return float('inf')
+    except (TypeError, ValueError):
+        pass
+    return _positive('decay', value)
 
 
 __all__: List[str] = ['APPROACH_TOLERANCE', 'BatchContactResult', 'ContactResult',

@@ -42,6 +42,11 @@ RECORDER = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def _decay_length(value: float) -> float:
+    """Return the simulator's decay length for a ``shape_decay`` parameter (0: none, ``inf``)."""
+    return float(value) if value > 0 else float('inf')
+
+
 class StiffnessLearnerNode(Node):
     """Online learner: store in, versioned models and suggestions out."""
 
@@ -58,6 +63,10 @@ class StiffnessLearnerNode(Node):
         self.shape_constant = declare(self, 'shape_constant', 0.004,
                                       'Shape-function constant c of g(r) = c/(c+r), m',
                                       bounds=(1e-4, 0.1))
+        self.shape_decay = declare(self, 'shape_decay', 0.0,
+                                   'Decay length of the shape function\'s tail, '
+                                   'g(r) = c/(c+r) exp(-r/L), m; 0: none (the paper\'s g)',
+                                   bounds=(0.0, 1.0))
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
                        bounds=(0.1, 600.0))
         self.exclude_radius = declare(self, 'suggest_exclude_radius', 0.01,
@@ -118,22 +127,29 @@ class StiffnessLearnerNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
     def _on_set_parameters(self, params):
-        """``shape_constant`` may change at run time (a ``c`` identified from data).
+        """``shape_constant`` and ``shape_decay`` may change at run time (identified from data).
 
         rclpy has already refused values outside the declared bounds; an accepted value is,
         once a model exists, saved as a new model version the contact service hot-swaps to.
         """
         for param in params:
-            if param.name != 'shape_constant':
+            if param.name not in ('shape_constant', 'shape_decay'):
                 continue
-            c = float(param.value)     # within the declared bounds: rclpy checked them
-            self.shape_constant = c
+            value = float(param.value)     # within the declared bounds: rclpy checked them
+            if param.name == 'shape_constant':
+                self.shape_constant = value
+            else:
+                self.shape_decay = value
             learner = self.learner
             if learner is not None:
-                status = learner.set_shape_constant(c)
+                status = learner.set_shape_constant(self.shape_constant,
+                                                    _decay_length(self.shape_decay))
                 if status is not None:
                     self._publish(status, learner)
-            self.get_logger().info(f'shape constant c = {1e3 * c:.3f} mm')
+            self.get_logger().info(f'shape constant c = {1e3 * self.shape_constant:.3f} mm, '
+                                   f'tail decay length '
+                                   + (f'{1e3 * self.shape_decay:.1f} mm' if self.shape_decay
+                                      else 'none'))
         return SetParametersResult(successful=True)
 
     def _load_effects(self, path: str) -> dict:
@@ -152,6 +168,7 @@ class StiffnessLearnerNode(Node):
         with self._lock:
             self.learner = OnlineLearner(self.store_dir, self.model_dir, surface,
                                          shape_constant=self.shape_constant,
+                                         shape_decay=_decay_length(self.shape_decay),
                                          min_peak_force=self.min_peak_force,
                                          effects=self.effects)
         self.get_logger().info(f'surface of {len(surface)} points; learning from '

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pointforce_ros.contact import ContactSimulator
-from pointforce_ros.contact.identify import (dent_profile, identify_shape_constant,
+from pointforce_ros.contact.identify import (DECAY_GRID, dent_profile, identify_shape_constant,
                                              identify_shape_constant_from_probe,
                                              identify_shape_constant_from_probes)
 from pointforce_ros.contact.synthetic import grid_surface, linear_response
@@ -89,6 +89,32 @@ def test_a_joint_fit_over_several_probe_pokes_resists_a_local_model_error():
     assert joint.n_points == 3 * len(depths)
     with pytest.raises(InvalidInput, match='no pokes'):
         identify_shape_constant_from_probes(sim, [])
+
+
+def test_probes_on_a_layer_with_a_short_dent_recover_c_and_the_tail_decay():
+    """A line and a cylinder on a response whose dent dies out (decay 6 mm, as a thin layer's):
+    the paper's ``g`` fits no single ``c`` to both, the joint fit finds the pair."""
+    c_true, decay_true = 0.004, 0.006
+    surface = grid_surface(half=0.03, step=0.001)
+    truth = ContactSimulator(surface, linear_response(800.0, len(surface)), c=c_true,
+                             decay=decay_true)
+    depths = np.linspace(0.0005, 0.004, 6)
+    pokes = []
+    for k, mesh in enumerate([box((0.03, 0.004, 0.004)), cylinder(0.008, 0.03, 24)]):
+        poses = [Pose(position=[0.006 * (2 * k - 1), 0.0003, -d]) for d in depths]
+        measured = -truth.query_batch(mesh, poses, DOWN, np.zeros(3)).wrenches[:, :3] @ DOWN
+        pokes.append((mesh, poses, DOWN, measured))
+    start = truth.with_shape_constant(0.05, np.inf)
+    paper = identify_shape_constant_from_probes(start, pokes)
+    joint = identify_shape_constant_from_probes(start, pokes, decays=DECAY_GRID + (0.006,))
+    assert np.isinf(paper.decay)
+    assert joint.decay == pytest.approx(decay_true)
+    assert joint.c == pytest.approx(c_true, rel=1e-3)
+    assert joint.rmse < 1e-3 * paper.rmse, (paper.rmse, joint.rmse)
+    with pytest.raises(InvalidInput, match='decays'):
+        identify_shape_constant_from_probes(start, pokes, decays=(0.0,))
+    with pytest.raises(InvalidInput, match='decay'):
+        ContactSimulator(surface, linear_response(800.0, len(surface)), c=c_true, decay=-1.0)
 
 
 def test_undetermined_and_bad_input():

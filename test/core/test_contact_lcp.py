@@ -36,6 +36,18 @@ def test_shape_function_closed_form():
     np.testing.assert_allclose(G, [[1.0, 0.5], [0.5, 1.0]])
 
 
+def test_shape_function_tail_decay_closed_form_and_positive_definite():
+    r = np.array([0.0, C, 3 * C])
+    L = 2 * C
+    np.testing.assert_allclose(shape_function(r, C, L), [1.0, 0.5 * np.exp(-0.5),
+                                                         0.25 * np.exp(-1.5)])
+    np.testing.assert_allclose(shape_function(r, C, np.inf), shape_function(r, C))
+    # the cut-off keeps G positive definite (a positive mixture of exponential kernels)
+    pts = np.random.default_rng(3).uniform(-0.02, 0.02, (60, 3))
+    for decay in (0.5 * C, 4 * C, np.inf):
+        assert np.linalg.eigvalsh(shape_matrix(pts, C, decay)).min() > 0
+
+
 def test_single_point_actual_equals_nominal():
     sol = solve_lcp(np.ones((1, 1)), np.array([2.5e-3]))
     np.testing.assert_allclose(sol.x, [2.5e-3], rtol=1e-15)

@@ -130,6 +130,31 @@ def test_two_far_points_decouple(flat):
     np.testing.assert_allclose(res.wrench.force[2], K * (d1 + d2), rtol=0.01)
 
 
+def test_a_tail_decay_cuts_the_coupling_in_every_path(flat):
+    """``g(r) = c / (c + r) exp(-r / L)``: one pose, a batch and the displacement field."""
+    d1, d2, L = 0.002, 0.001, 0.004
+    pts = np.array([[-0.005 + 0.00025, 0.00025, -d1], [0.005 + 0.00025, 0.00025, -d2]])
+    sim = flat.with_shape_constant(C, L)
+    res = sim.query_points(pts, DOWN, np.zeros(3), return_displacements=True)
+    g = C / (C + 0.01) * np.exp(-0.01 / L)
+    exact = np.linalg.solve([[1, g], [g, 1]], [d1, d2])
+    np.testing.assert_allclose(res.actual_displacements, exact, rtol=1e-9)
+    r = np.linalg.norm(flat.surface.points[:, None] - res.contact_points[None], axis=2)
+    np.testing.assert_allclose(res.displacements, (C / (C + r) * np.exp(-r / L)) @ exact,
+                               rtol=1e-9, atol=1e-15)
+    # the paper's g couples them more, so together they carry less
+    paper = flat.query_points(pts, DOWN, np.zeros(3))
+    assert paper.wrench.force[2] < res.wrench.force[2]
+    mesh = box((0.012, 0.012, 0.004))
+    poses = [Pose(position=[0.00023, 0.00041, -d]) for d in (0.001, 0.002, 0.003)]
+    batch = sim.query_batch(mesh, poses, DOWN, np.zeros(3)).wrenches
+    single = np.array([np.r_[w.force, w.torque] for w in
+                       (sim.query(mesh, p, DOWN, np.zeros(3)).wrench for p in poses)])
+    np.testing.assert_allclose(batch, single, rtol=1e-9, atol=1e-12)
+    assert sim.with_shape_constant(C).decay == L  # the decay is kept unless given
+    assert np.isinf(flat.decay)
+
+
 def test_nonlinear_law_force_per_point_follows_eq_4():
     surface = grid_surface(half=0.02, step=0.001)
     sim = ContactSimulator(surface, power_response(2e4, 1.5, len(surface)), c=C)

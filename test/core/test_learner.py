@@ -5,7 +5,7 @@ import pytest
 
 from pointforce_ros.cell.scenario import HalfSpaceContact, load_scenario
 from pointforce_ros.cell.session import halfspace_object, simulate_campaign
-from pointforce_ros.errors import ModelNotReady
+from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.learner import OnlineLearner
 from pointforce_ros.model_io import load_model
 from pointforce_ros.pokes.store import PokeStore
@@ -145,3 +145,23 @@ def test_a_shape_constant_fitted_by_diagnose_replaces_the_given_one(tmp_path):
     status = learner.update()
     assert learner.shape_constant == pytest.approx(0.0021)
     assert load_model(status.model_path).shape_constant == pytest.approx(0.0021)
+
+
+def test_the_tail_decay_length_reaches_the_saved_model_and_the_wrench_server(tmp_path):
+    from pointforce_ros.serving import WrenchServer
+
+    _, surface, _ = _stored_learner(tmp_path, 3, seed=1)
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
+                            shape_constant=0.004, shape_decay=0.008)
+    model = load_model(learner.update().model_path)
+    assert (model.shape_constant, model.shape_decay) == pytest.approx((0.004, 0.008))
+    server = WrenchServer()
+    server.swap(model)
+    assert server.simulator().decay == pytest.approx(0.008)
+    paper = load_model(learner.set_shape_constant(0.004, np.inf).model_path)
+    assert np.isinf(paper.shape_decay) and paper.version == model.version + 1
+    with pytest.raises(InvalidInput, match='shape_decay'):
+        learner.set_shape_constant(0.004, 0.0)
+    with pytest.raises(InvalidInput, match='shape_decay'):
+        OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface, shape_constant=0.004,
+                      shape_decay=float('nan'))

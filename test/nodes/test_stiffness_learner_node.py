@@ -81,9 +81,9 @@ def test_shape_constant_set_at_run_time_saves_a_new_model(ros_graph, tmp_path):
     client = probe.create_client(SetParameters, '/stiffness_learner/set_parameters')
     assert client.wait_for_service(timeout_sec=10)
 
-    def set_c(value):
+    def set_c(value, name='shape_constant'):
         request = SetParameters.Request(
-            parameters=[Parameter('shape_constant', value=value).to_parameter_msg()])
+            parameters=[Parameter(name, value=value).to_parameter_msg()])
         return ros_graph.wait_future(client.call_async(request), 20, 'set c').results[0]
 
     assert not set_c(0.5).successful            # outside [1e-4, 0.1] m: refused
@@ -95,6 +95,16 @@ def test_shape_constant_set_at_run_time_saves_a_new_model(ros_graph, tmp_path):
     assert first.shape_constant != pytest.approx(0.0007)
     # same pokes, same response: only the shape constant changed
     np.testing.assert_allclose(second.response.forces, first.response.forces)
+    assert np.isinf(second.shape_decay)
+    # the tail's decay length: saved with the model, 0 turns it off again
+    assert not set_c(-0.01, 'shape_decay').successful
+    assert set_c(0.008, 'shape_decay').successful
+    ros_graph.wait_for(lambda: statuses[-1].version == 6, 30, 'model v6 with a decay length')
+    third = load_model(statuses[-1].model_path)
+    assert (third.shape_constant, third.shape_decay) == pytest.approx((0.0007, 0.008))
+    assert set_c(0.0, 'shape_decay').successful
+    ros_graph.wait_for(lambda: statuses[-1].version == 7, 30, 'model v7 without')
+    assert np.isinf(load_model(statuses[-1].model_path).shape_decay)
 
 
 # --------------------------------------------------------------------------- accepted effects

@@ -200,7 +200,8 @@ def identify_shape_constant_from_probe(simulator, mesh: Mesh, poses: Sequence[Po
 
 def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
                                         c_bounds: Tuple[float, float] = (1e-4, 0.1),
-                                        decays: Sequence[float] = (np.inf,)) -> ShapeFit:
+                                        decays: Optional[Sequence[float]] = None
+                                        ) -> ShapeFit:
     """Fit one ``c`` (and a tail ``decay``) to several second-probe pokes at once.
 
     The fit minimises the summed squared force error. With ``decays`` of more than one value
@@ -219,8 +220,8 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
         pokes: ``(mesh, poses, approach, measured_force)`` per poke, each as
             :func:`identify_shape_constant_from_probe` takes them.
         c_bounds: search interval for ``c``, metres.
-        decays: decay lengths to try, metres (``inf``: the paper's ``g``); the default fits
-            ``c`` alone.
+        decays: decay lengths to try, metres (``inf``: the paper's ``g``); ``None`` (the
+            default) fits ``c`` alone at the simulator's own decay length.
 
     Returns:
         :class:`ShapeFit` with ``method='probe'``; ``rmse`` over every pose of every poke, N;
@@ -246,7 +247,8 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
                                f'{measured.shape}')
         prepared.append((mesh, poses, a, as_array(measured, 'measured_force', measured.shape)))
 
-    decays = [float(v) for v in decays]
+    decays = [float(v) for v in (decays if decays is not None
+                                 else (getattr(simulator, 'decay', np.inf),))]
     if not decays or not all(v > 0 for v in decays):
         raise InvalidInput(f'decays: need positive lengths (metres) or inf, got {decays}')
 

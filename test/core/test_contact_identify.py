@@ -111,6 +111,9 @@ def test_probes_on_a_layer_with_a_short_dent_recover_c_and_the_tail_decay():
     assert joint.decay == pytest.approx(decay_true)
     assert joint.c == pytest.approx(c_true, rel=1e-3)
     assert joint.rmse < 1e-3 * paper.rmse, (paper.rmse, joint.rmse)
+    # without decays, c is fitted at the simulator's own decay length (a served model's)
+    own = identify_shape_constant_from_probes(truth.with_shape_constant(0.05), pokes)
+    assert own.decay == decay_true and own.c == pytest.approx(c_true, rel=1e-3)
     with pytest.raises(InvalidInput, match='decays'):
         identify_shape_constant_from_probes(start, pokes, decays=(0.0,))
     with pytest.raises(InvalidInput, match='decay'):

@@ -193,8 +193,9 @@ def test_mesh_shift_case_solves_the_live_path_poke_on_shifted_meshes():
     depths, f, n, _ = nonlinear_point_poke(spec, x, y, h=0.005)
     np.testing.assert_allclose(r['depths'], depths)
     # no shift: the live path's own poke. The same solve run twice agrees to about 1e-9, not
-    # bit for bit (threaded sparse algebra sums in a varying order; a fresh clone once saw
-    # 1.1e-9), while a mesh shifted by a fraction of an element moves it by percent.
+    # bit for bit (a fresh clone once saw 1.1e-9; the cause is not traced, threaded linear
+    # algebra is the likely one), while a mesh shifted by part of an element moves it by
+    # percent.
     np.testing.assert_allclose(r['force'][0], f @ n, rtol=1e-7)
     # a shifted mesh answers the same physics, differently discretised
     assert np.all(r['force'][1] > 0) and not np.allclose(r['force'][1], r['force'][0])

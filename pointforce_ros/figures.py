@@ -801,8 +801,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         InvalidInput: fewer than 2 trials or fewer than ``n_train + 1`` curves.
 
     """
-    from pointforce_ros.contact.identify import (DECAY_GRID,
-                                                 identify_shape_constant_from_probes)
+    from pointforce_ros.contact.identify import DECAY_GRID, shape_fits_from_probes
     from pointforce_ros.contact.paper import PaperContactSimulator
     from pointforce_ros.contact.simulator import ContactSimulator
     from pointforce_ros.errors import PointforceError
@@ -833,15 +832,18 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     for j in evaluate:
         others = [(t['mesh'], trial_poses(t), t['direction'], t['force'])
                   for i, t in enumerate(trials) if i != j]
-        for decays, out in (((np.inf,), c_trial), (DECAY_GRID, shape_trial)):
-            try:
-                fit = identify_shape_constant_from_probes(calibration, others,
-                                                          c_bounds=(1e-4, 0.1), decays=decays)
-                out.append((float(fit.c), float(fit.decay)))
-            except PointforceError as exc:
-                say(f'[figures]   c for trial {j} not identified ({exc}); using {DEFAULT_C} m')
-                out.append((DEFAULT_C, np.inf))
-    c_trial = [c for c, _ in c_trial]
+        try:  # one scan gives both: c alone (the paper's g, decay inf) and the best pair
+            fits = shape_fits_from_probes(calibration, others, c_bounds=(1e-4, 0.1),
+                                          decays=DECAY_GRID)
+        except PointforceError as exc:
+            say(f'[figures]   c for trial {j} not identified ({exc}); using {DEFAULT_C} m')
+            fits = []
+        paper = [f.c for f in fits if np.isinf(f.decay)]
+        if fits and not paper:
+            say(f'[figures]   c alone for trial {j} not identified; using {DEFAULT_C} m')
+        c_trial.append(float(paper[0]) if paper else DEFAULT_C)
+        best = min(fits, key=lambda f: f.rmse) if fits else None
+        shape_trial.append((float(best.c), float(best.decay)) if best else (DEFAULT_C, np.inf))
     say('[figures]   c from the other trials [mm]: '
         + ', '.join(f'{1e3 * c:.2f}' for c in c_trial) + '; with the tail\'s decay length: '
         + ', '.join(f'{1e3 * c:.2f} / {1e3 * L:.0f}' for c, L in shape_trial))

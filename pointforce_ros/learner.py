@@ -25,6 +25,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
+from pointforce_ros.contact.lcp import check_decay
 from pointforce_ros.effects.correct import correct_record, correct_surface, effects_from_dict
 from pointforce_ros.effects.library import count_earlier, PLASTIC_RADIUS
 from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
@@ -111,9 +112,7 @@ class OnlineLearner:
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
-        if not shape_decay > 0:
-            raise InvalidInput(f'shape_decay: must be > 0 m or inf, got {shape_decay}')
-        self.shape_decay = float(shape_decay)
+        self.shape_decay = check_decay(shape_decay, 'shape_decay')
         self.store = PokeStore(store_dir)
         self.model_dir = Path(model_dir)
         self.surface = surface
@@ -241,12 +240,11 @@ class OnlineLearner:
         """
         if not (np.isfinite(c) and c > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {c}')
-        if decay is not None and not decay > 0:
-            raise InvalidInput(f'shape_decay: must be > 0 m or inf, got {decay}')
+        decay = None if decay is None else check_decay(decay, 'shape_decay')
         with self._lock:
             self.shape_constant = float(c)
             if decay is not None:
-                self.shape_decay = float(decay)
+                self.shape_decay = decay
             if self.model is None:
                 return None
             self._c_updates += 1

@@ -16,6 +16,7 @@ from typing import Callable, Mapping, Optional, Tuple
 
 import numpy as np
 
+from pointforce_ros.contact.lcp import check_decay
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
@@ -59,9 +60,7 @@ class ContactModel:
         if not np.isfinite(self.shape_constant) or self.shape_constant <= 0:
             raise InvalidInput(f'ContactModel.shape_constant: must be > 0 m, got '
                                f'{self.shape_constant}')
-        if not (self.shape_decay > 0):  # also refuses nan; inf is the paper's g
-            raise InvalidInput(f'ContactModel.shape_decay: must be > 0 m or inf, got '
-                               f'{self.shape_decay}')
+        check_decay(self.shape_decay, 'ContactModel.shape_decay')
 
 
 def atomic_write(path, write: Callable, binary: bool = True) -> Path:

@@ -16,13 +16,13 @@ Two ways are implemented:
 """
 
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
-from pointforce_ros.contact.lcp import shape_function
+from pointforce_ros.contact.lcp import check_decay, shape_function
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.types import as_array, Mesh, Pose, Surface
 
@@ -206,9 +206,10 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
 
     The fit minimises the summed squared force error. With ``decays`` of more than one value
     (for example :data:`DECAY_GRID`) ``c`` is fitted at each decay length and the pair with
-    the smallest error wins: on a layer over a rigid support the paper's ``1 / r`` tail makes
-    a wide probe share too much displacement, and no single ``c`` then fits both a line and a
-    cylinder (see :func:`~pointforce_ros.contact.lcp.shape_function`).
+    the smallest error wins (:func:`shape_fits_from_probes`): on a layer over a rigid support
+    the paper's ``1 / r`` tail makes a wide probe share too much displacement, and no single
+    ``c`` then fits both a line and a cylinder (see
+    :func:`~pointforce_ros.contact.lcp.shape_function`).
 
     One poke of a line or cylinder can pull ``c`` far off: where the point model is wrong
     under that probe, ``c`` absorbs the error (a point model 30 % too stiff at the spot asks
@@ -233,6 +234,24 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
         NotConverged: at every decay length the optimum of ``c`` lies on a search bound.
 
     """
+    return min(shape_fits_from_probes(simulator, pokes, c_bounds, decays),
+               key=lambda fit: fit.rmse)
+
+
+def shape_fits_from_probes(simulator, pokes: Sequence[tuple],
+                           c_bounds: Tuple[float, float] = (1e-4, 0.1),
+                           decays: Optional[Sequence[float]] = None) -> List[ShapeFit]:
+    """Fit the best ``c`` at each decay length, as :func:`identify_shape_constant_from_probes`.
+
+    Returns:
+        one :class:`ShapeFit` per decay length whose ``c`` has an interior optimum, in the
+        order of ``decays`` (a caller comparing the paper's ``g`` with the decayed one reads
+        both from one scan).
+
+    Raises:
+        as :func:`identify_shape_constant_from_probes`.
+
+    """
     lo, hi = _check_bounds(c_bounds)
     pokes = list(pokes)
     if not pokes:
@@ -246,11 +265,11 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
             raise InvalidInput(f'measured_force: expected ({n},) or ({n}, 3), got '
                                f'{measured.shape}')
         prepared.append((mesh, poses, a, as_array(measured, 'measured_force', measured.shape)))
-
-    decays = [float(v) for v in (decays if decays is not None
-                                 else (getattr(simulator, 'decay', np.inf),))]
-    if not decays or not all(v > 0 for v in decays):
-        raise InvalidInput(f'decays: need positive lengths (metres) or inf, got {decays}')
+    if decays is None:
+        decays = (getattr(simulator, 'decay', np.inf),)
+    decays = [check_decay(v, 'decays') for v in decays]
+    if not decays:
+        raise InvalidInput('decays: need at least one decay length (metres) or inf')
 
     def cost(c, decay):
         sim = simulator.with_shape_constant(c, decay)
@@ -261,7 +280,8 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
             total += float(np.sum((pred - measured) ** 2))
         return total
 
-    best, failure = None, None
+    count = sum(len(p[1]) for p in prepared)
+    fits, failure = [], None
     for decay in decays:
         try:
             c = _scan_then_refine(lambda v: cost(v, decay), (lo, hi),
@@ -269,11 +289,8 @@ def identify_shape_constant_from_probes(simulator, pokes: Sequence[tuple],
         except NotConverged as exc:
             failure = exc
             continue
-        value = cost(c, decay)
-        if best is None or value < best[0]:
-            best = (value, c, decay)
-    if best is None:
+        fits.append(ShapeFit(c=c, u0=float('nan'), rmse=float(np.sqrt(cost(c, decay) / count)),
+                             n_points=count, method='probe', decay=decay))
+    if not fits:
         raise failure
-    count = sum(len(p[1]) for p in prepared)
-    return ShapeFit(c=best[1], u0=float('nan'), rmse=float(np.sqrt(best[0] / count)),
-                    n_points=count, method='probe', decay=best[2])
+    return fits

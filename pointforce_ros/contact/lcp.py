@@ -51,10 +51,27 @@ def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray
     ``r``, ``c`` and ``decay`` share one length unit (metres at every public interface);
     ``g(0) = 1``.
     """
-    g = c / (c + np.asarray(r, dtype=np.float64))
+    r = np.asarray(r, dtype=np.float64)
+    g = c / (c + r)
     if np.isfinite(decay):
-        g *= np.exp(np.asarray(r, dtype=np.float64) * (-1.0 / decay))
+        g *= np.exp(r * (-1.0 / decay))
     return g
+
+
+def check_decay(value, name: str = 'decay') -> float:
+    """Return ``value`` as a decay length of :func:`shape_function`: metres > 0, or ``inf``.
+
+    Raises:
+        InvalidInput: not a number, NaN, zero or negative (the message starts with ``name``).
+
+    """
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        out = float('nan')
+    if not out > 0:  # also refuses NaN
+        raise InvalidInput(f'{name}: must be a positive length in metres or inf, got {value!r}')
+    return out
 
 
 def shape_matrix(points: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray:

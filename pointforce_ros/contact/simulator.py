@@ -51,7 +51,8 @@ from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from pointforce_ros.contact.lcp import bpp_dense, lcp_residual, shape_function, solve_lcp_batch
+from pointforce_ros.contact.lcp import (bpp_dense, check_decay, lcp_residual, shape_function,
+                                        solve_lcp_batch)
 from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import as_array, Mesh, Pose, Surface, Wrench
@@ -270,7 +271,7 @@ class ContactSimulator:
         self.surface = surface
         self.response = response
         self.c = _positive('c', c)
-        self.decay = _decay(decay)
+        self.decay = check_decay(decay)
         self.spacing = _positive('spacing', spacing)
         self.max_gap = None if max_gap is None else _positive('max_gap', max_gap)
         self.workers = int(workers)
@@ -297,7 +298,7 @@ class ContactSimulator:
         other = copy.copy(self)
         other.c = _positive('c', c)
         if decay is not None:
-            other.decay = _decay(decay)
+            other.decay = check_decay(decay)
         return other
 
     # ----------------------------------------------------------------------------- public API
@@ -664,16 +665,6 @@ def _positive(name: str, value) -> float:
     if not (np.isfinite(value) and value > 0.0):
         raise InvalidInput(f'{name}: must be a positive finite length in metres, got {value}')
     return value
-
-
-def _decay(value) -> float:
-    """``decay``: a positive length in metres, or ``inf`` (no cut-off)."""
-    try:
-        if np.isposinf(float(value)):
-            return float('inf')
-    except (TypeError, ValueError):
-        pass
-    return _positive('decay', value)
 
 
 __all__: List[str] = ['APPROACH_TOLERANCE', 'BatchContactResult', 'ContactResult',

@@ -178,8 +178,11 @@ def test_save_load_round_trip_predicts_identically(world, tmp_path):
     old = load_response_model(OLD_MODEL)
     assert not old.decorrelate and old.poke_ids == [c.poke_id for c in curves[:7]]
     independent = ContactGpModel(decorrelate=False).fit(curves[:7], surface)
-    np.testing.assert_allclose(old.predict(x, d), independent.predict(x, d), rtol=1e-9,
-                               atol=1e-12)
+    # a re-fit is not bit-stable across machines (the optimiser's result moved by 2e-7
+    # relative on another machine of this kind): compare at what the fit guarantees, far
+    # below the 0.01 N that tells the two parametrisations apart
+    np.testing.assert_allclose(old.predict(x, d), independent.predict(x, d), rtol=1e-5,
+                               atol=1e-5)
     # (which the decorrelated default does not: the fixture tells the two apart)
     decorrelated = ContactGpModel().fit(curves[:7], surface)
     assert np.max(np.abs(old.predict(x, d) - decorrelated.predict(x, d))) > 0.01

@@ -62,7 +62,7 @@ interfaces: $(STAMP)/interfaces
 $(STAMP)/install: setup.py setup.cfg package.xml $(wildcard config/*.yaml config/*/*.yaml) $(STAMP)/interfaces $(STAMP)/system
 	@echo '[setup] installing pointforce_ros (editable)'
 	$(VPY) -m pip install --quiet --no-deps --no-build-isolation -e . 2>&1 | { grep -v '^WARNING: Location' || true; }
-	$(VPY) -c 'import pointforce_ros.cli'
+	$(VPY) -c 'import pointforce_ros.bringup.cli'
 	@touch $@
 
 install: $(STAMP)/install

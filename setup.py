@@ -10,13 +10,17 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(include=['pointforce_ros', 'pointforce_ros.*',
-                                    'msg_adapters', 'msg_adapters.*']),
+                                    'msg_adapters', 'msg_adapters.*'],
+                           exclude=['pointforce_interfaces*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/objects', glob('config/objects/*.yaml')),
         ('share/' + package_name + '/config/scenarios', glob('config/scenarios/*.yaml')),
+        ('share/' + package_name + '/data/fem', glob('data/fem/*.npz')),
+        ('share/' + package_name + '/data/figures', glob('data/figures/*.npz')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
     zip_safe=False,
@@ -26,12 +30,12 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'pointforce = pointforce_ros.cli:main',
+            'pointforce = pointforce_ros.bringup.cli:main',
             'cloud_capture = pointforce_ros.nodes.cloud_capture:main',
             'poke_server = pointforce_ros.nodes.poke_server:main',
             'stiffness_learner = pointforce_ros.nodes.stiffness_learner:main',
             'contact_wrench = pointforce_ros.nodes.contact_wrench:main',
-            'rtde_emulator = pointforce_ros.cell.rtde_emulator:main',
+            'rtde_emulator = pointforce_ros.sim.rtde.emulator:main',
         ],
     },
 )

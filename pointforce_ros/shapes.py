@@ -1,7 +1,7 @@
 """Rigid triangle meshes of planner objects (sphere, box, cylinder) in their own frame.
 
 Metres, outward counter-clockwise triangles. The robot's probes (point probe, line paddle,
-cylinder) are in :mod:`pointforce_ros.cell.fem.probes`, in the UR tool convention (+z = push
+cylinder) are in :mod:`pointforce_ros.sim.fem.probes`, in the UR tool convention (+z = push
 direction, working end at the origin).
 """
 

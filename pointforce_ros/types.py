@@ -12,6 +12,7 @@ from typing import Mapping, Optional, Tuple
 import numpy as np
 
 from pointforce_ros.errors import InvalidInput
+from pointforce_ros.rotations import matrix_to_quaternion, quaternion_to_matrix
 
 ORIENTED_TOLERANCE = 1e-3
 """Largest accepted deviation of a normal's length from one."""
@@ -167,12 +168,14 @@ class Pose:
 
     def rotation(self) -> np.ndarray:
         """Return the (3, 3) rotation matrix of ``orientation``."""
-        x, y, z, w = self.orientation
-        return np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ])
+        return quaternion_to_matrix(self.orientation)
+
+    @classmethod
+    def from_matrix(cls, matrix: np.ndarray, frame: str = 'base') -> 'Pose':
+        """Return the pose of a (4, 4) rigid transform (child frame in ``frame``)."""
+        matrix = np.asarray(matrix, dtype=np.float64)
+        return cls(position=matrix[:3, 3], orientation=matrix_to_quaternion(matrix[:3, :3]),
+                   frame=frame)
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Map (N, 3) points from the pose's child frame into ``frame``."""

@@ -24,7 +24,7 @@ _isolate_ros_graph()
 @pytest.fixture
 def ros_graph():
     """A live, isolated ROS 2 graph; nodes added to it spin until the test ends."""
-    from pointforce_ros.nodes.launcher import InProcessLauncher
+    from pointforce_ros.bringup.launcher import InProcessLauncher
     graph = InProcessLauncher(threads=6)
     try:
         yield graph

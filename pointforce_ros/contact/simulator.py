@@ -56,6 +56,7 @@ from pointforce_ros.contact.lcp import (bpp_dense, check_decay, lcp_residual, sh
 from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import as_array, Mesh, Pose, Surface, Wrench
+from pointforce_ros.rotations import quaternion_to_matrix
 
 APPROACH_TOLERANCE = 1e-3
 """Largest accepted deviation of the approach direction's length from one."""
@@ -189,17 +190,6 @@ def normalise_approach(approach) -> np.ndarray:
     return a / norm
 
 
-def quaternions_to_matrices(quats: np.ndarray) -> np.ndarray:
-    """(B, 3, 3) rotation matrices of unit quaternions ``quats`` (B, 4) ``(x, y, z, w)``."""
-    q = quats / np.linalg.norm(quats, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
-
-
 def poses_as_arrays(poses, frame: str) -> Tuple[np.ndarray, np.ndarray]:
     """Return positions (B, 3) and rotations (B, 3, 3) of ``poses``.
 
@@ -218,7 +208,7 @@ def poses_as_arrays(poses, frame: str) -> Tuple[np.ndarray, np.ndarray]:
         norm = np.linalg.norm(quat, axis=1)
         if np.any(np.abs(norm - 1.0) > 1e-3):
             raise InvalidInput('poses: quaternion columns 3:7 must be unit length')
-        return arr[:, :3], quaternions_to_matrices(quat)
+        return arr[:, :3], quaternion_to_matrix(quat)
     poses = list(poses)
     for i, pose in enumerate(poses):
         if not isinstance(pose, Pose):
@@ -230,7 +220,7 @@ def poses_as_arrays(poses, frame: str) -> Tuple[np.ndarray, np.ndarray]:
         return np.zeros((0, 3)), np.zeros((0, 3, 3))
     pos = np.array([p.position for p in poses])
     quat = np.array([p.orientation for p in poses])
-    return pos, quaternions_to_matrices(quat)
+    return pos, quaternion_to_matrix(quat)
 
 
 class ContactSimulator:
@@ -669,4 +659,4 @@ def _positive(name: str, value) -> float:
 
 __all__: List[str] = ['APPROACH_TOLERANCE', 'BatchContactResult', 'ContactResult',
                       'ContactSimulator', 'normalise_approach', 'poses_as_arrays',
-                      'quaternions_to_matrices']
+                      ]

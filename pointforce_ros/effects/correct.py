@@ -2,7 +2,7 @@
 
 Accepted effects travel as a plain mapping ``{name: {param: value}}`` (SI values, the library's
 parameter names, fixed settings included), which is what ``ContactModel.effects`` of
-:mod:`pointforce_ros.model_io` stores: :func:`effects_to_dict` / :func:`effects_from_dict`.
+:mod:`pointforce_ros.model.files` stores: :func:`effects_to_dict` / :func:`effects_from_dict`.
 
 * :func:`correct_records` turns measured pokes into what the clean, quasi-static, frictionless
   elastic contact would have produced: the learner applies it before extracting curves.
@@ -19,7 +19,6 @@ from typing import Callable, Dict, List, Mapping, Sequence
 
 import numpy as np
 
-from pointforce_ros.effects.data import tare_reference
 from pointforce_ros.effects.library import (check_params, count_earlier, hysteresis_branch,
                                             hysteresis_factor, LIBRARY, PLASTIC_RADIUS,
                                             plastic_depth, PROBE_EFFECTS, prony_filter,
@@ -35,8 +34,8 @@ def effects_to_dict(effects) -> Dict[str, Dict[str, float]]:
     """Return accepted effects as a JSON-ready ``{name: {param: value}}`` mapping.
 
     Args:
-        effects: a :class:`~pointforce_ros.effects.diagnose.DiagnoseReport`, a sequence of
-            :class:`~pointforce_ros.effects.diagnose.AcceptedEffect`, or a mapping.
+        effects: a :class:`~pointforce_ros.diagnose.run.DiagnoseReport`, a sequence of
+            :class:`~pointforce_ros.diagnose.run.AcceptedEffect`, or a mapping.
 
     Raises:
         InvalidInput: unknown effects or bad parameters.
@@ -87,7 +86,7 @@ def correct_records(records: Sequence[PokeRecord], effects: Effects) -> List[Pok
     """Remove the accepted effects from measured pokes (inverse of the forward model).
 
     Per record, in this order: F/T bias and drift subtracted (drift since the tare, see
-    :func:`~pointforce_ros.effects.data.tare_reference`), force re-sampled at ``t + offset``
+    :func:`~pointforce_ros.diagnose.batch.tare_reference`), force re-sampled at ``t + offset``
     (time offset), friction removed (force projected on the poke's contact direction),
     hysteresis branch divided out, relaxation deconvolved (inverse Prony filter; zero after the
     relaxed force has vanished during unloading, where the elastic force is not observable, and
@@ -356,3 +355,17 @@ def predict_measured(force_of_depth: Callable[[np.ndarray], np.ndarray], t, d,
         z = hysteresis_branch(s, h['transition'], z0=1.0 if first_poke else -1.0)
         force = force * hysteresis_factor(z, h['eta'])
     return force
+
+
+def tare_reference(record: PokeRecord) -> float:
+    """Return the controller time the poke's F/T reading was zeroed at (drift reference), s.
+
+    ``meta['tare_time']`` when present; 0 (the controller epoch) for a record marked
+    ``tared: False``; otherwise the first sample (a tare right before the push).
+    """
+    tare_time = record.meta.get('tare_time')
+    if tare_time is not None:
+        return float(tare_time)
+    if record.meta.get('tared') is False:
+        return 0.0
+    return float(record.t_controller[0])

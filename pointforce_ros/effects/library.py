@@ -2,7 +2,7 @@
 
 Each :class:`EffectSpec` says what the effect is, its parameters (with units, bounds and the
 scale the optimiser works in), the residual signature it explains against the structured base
-model of :mod:`pointforce_ros.effects.model`, and how a record is corrected for it
+model of :mod:`pointforce_ros.diagnose.model`, and how a record is corrected for it
 (:mod:`pointforce_ros.effects.correct`). The physics of the terms lives here as small
 vectorised functions shared by the forward model and the corrections:
 

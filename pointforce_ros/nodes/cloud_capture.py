@@ -24,10 +24,10 @@ from std_srvs.srv import Trigger
 from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import PointforceError
-from pointforce_ros.model_io import save_surface
+from pointforce_ros.model.files import save_surface
 from pointforce_ros.nodes.common import declare, run
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
-from pointforce_ros.transforms import pose_to_matrix
+from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,

@@ -20,7 +20,7 @@ from msg_adapters.interfaces import (contact_query_from_batch_request, contact_q
                                      fail, fill_batch_response, fill_contact_response)
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.nodes.common import declare, run
-from pointforce_ros.serving import WrenchServer
+from pointforce_ros.model.serving import WrenchServer
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)

@@ -35,9 +35,10 @@ from pointforce_ros.errors import DeviceFault, PointforceError
 from pointforce_ros.nodes.common import declare, run
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
-from pointforce_ros.transforms import (matrix_to_quaternion, rotvec_aligning_z,
-                                       rotvec_to_matrix)
+from pointforce_ros.rotations import (matrix_to_quaternion, rotvec_aligning_z,
+                                      rotvec_to_matrix)
 from pointforce_ros.types import PokeRecord
+from pointforce_ros.drivers.ur_arm import UrArm
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -100,7 +101,6 @@ class PokeServerNode(Node):
     # ------------------------------------------------------------------ arm and streaming
     @staticmethod
     def _default_arm(host):
-        from pointforce_ros.drivers.ur_arm import UrArm
         return UrArm(host)
 
     def _connect(self):

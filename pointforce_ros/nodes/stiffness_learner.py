@@ -29,8 +29,8 @@ from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.effects.correct import effects_from_dict
 from pointforce_ros.errors import PointforceError
-from pointforce_ros.learner import OnlineLearner
-from pointforce_ros.model_io import load_surface
+from pointforce_ros.model.learner import OnlineLearner
+from pointforce_ros.model.files import load_surface
 from pointforce_ros.nodes.common import declare, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore

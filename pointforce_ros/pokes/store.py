@@ -32,8 +32,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from pointforce_ros.errors import DataError, InvalidInput
-from pointforce_ros.transforms import (matrix_to_quaternion, quaternion_to_rotvec,
-                                       rotvec_to_matrix)
+from pointforce_ros.rotations import (matrix_to_quaternion, quaternion_to_rotvec,
+                                      rotvec_to_matrix)
 from pointforce_ros.types import PokeRecord
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)

@@ -17,7 +17,7 @@ Every model in this package follows :class:`ForceResponseModel`:
 - ``bake(surface, depths (K,)) -> BakedResponse``: forces (N, K), std (N, K) and extrapolation
   slopes (N,) on a whole surface, vectorised; what the contact solver interpolates.
 - ``to_dict() -> dict`` (JSON-serialisable) and ``from_dict(dict)``: a loaded model predicts
-  exactly as the saved one, without refitting. :mod:`pointforce_ros.response.store` writes and
+  exactly as the saved one, without refitting. :mod:`pointforce_ros.lab.model_store` writes and
   reads these files atomically.
 - ``version`` (int, +1 per fit), ``kind`` (str), ``poke_ids`` and ``poke_points`` (n, 3).
 
@@ -26,8 +26,8 @@ malformed queries (wrong shapes, NaN).
 
 Implementations: :class:`~pointforce_ros.response.ours.ContactGpModel` (ours: a monotone
 contact law per poke, parameters interpolated by a Gaussian process, with uncertainty) and the
-seed paper's baselines :class:`~pointforce_ros.response.baseline.EtBaseline` and
-:class:`~pointforce_ros.response.baseline.AutoEtBaseline`.
+seed paper's baselines :class:`~pointforce_ros.lab.baseline.EtBaseline` and
+:class:`~pointforce_ros.lab.baseline.AutoEtBaseline`.
 """
 
 from typing import Optional, Protocol, Sequence, runtime_checkable

@@ -40,7 +40,7 @@ not use are built in here:
    explain, ``y_2`` the rest of ``p``. A prediction maps back with ``L``; the parameters'
    standard deviations combine the components'. With fewer than
    :data:`DECORRELATE_MIN_POKES` pokes the processes are independent, as before. Measured
-   by :mod:`pointforce_ros.figures`, figure 1 (``ours`` against ``ours_independent``).
+   by :mod:`pointforce_ros.lab.figures`, figure 1 (``ours`` against ``ours_independent``).
 
 A refit is: one bounded least-squares fit for the new poke (cached for the others), then three
 small GP fits on a fixed hyperparameter grid; baking 40 000 points is a handful of (N, K) numpy

@@ -16,7 +16,7 @@ other, so interpolating them separately over the surface mixes inconsistent sets
    every knot is conditioned with them; the prediction is made monotone in ``s`` again
    (running maximum) and interpolated linearly between knots, zero at and before the onset.
 
-Status: evaluated in :mod:`pointforce_ros.figures` beside ours and the baselines; it predicts
+Status: evaluated in :mod:`pointforce_ros.lab.figures` beside ours and the baselines; it predicts
 but does not bake or serialise yet, so the learner still uses ``ContactGpModel``.
 """
 

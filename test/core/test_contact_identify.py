@@ -7,7 +7,7 @@ from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.identify import (DECAY_GRID, dent_profile, identify_shape_constant,
                                              identify_shape_constant_from_probe,
                                              identify_shape_constant_from_probes)
-from pointforce_ros.contact.synthetic import grid_surface, linear_response
+from pointforce_ros.lab.synthetic_contact import grid_surface, linear_response
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.shapes import box, cylinder
 from pointforce_ros.types import Pose

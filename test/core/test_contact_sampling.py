@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pointforce_ros.contact import sample_mesh_surface
-from pointforce_ros.contact.synthetic import fibonacci_sphere_mesh
+from pointforce_ros.lab.synthetic_contact import fibonacci_sphere_mesh
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.shapes import box, icosphere
 from pointforce_ros.types import Mesh

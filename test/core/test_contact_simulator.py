@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from pointforce_ros.contact import (ContactSimulator, PaperContactSimulator, sample_mesh_surface,
-                                    shape_matrix)
-from pointforce_ros.contact.synthetic import (dome_surface, grid_surface, linear_response,
-                                              power_response)
+from pointforce_ros.contact import ContactSimulator, sample_mesh_surface, shape_matrix
+from pointforce_ros.lab.paper_contact import PaperContactSimulator
+from pointforce_ros.lab.synthetic_contact import (dome_surface, grid_surface, linear_response,
+                                                  power_response)
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.shapes import box, icosphere
 from pointforce_ros.types import Pose, Surface

@@ -6,7 +6,7 @@ import pytest
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.pokes.curves import (curve_from_series, extract_curve, fit_power_onset,
                                          PokeCurve)
-from pointforce_ros.response.synthetic import SyntheticObject
+from pointforce_ros.lab.synthetic_response import SyntheticObject
 from pointforce_ros.types import PokeRecord
 
 RATE = 250.0

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from pointforce_ros.cell.scenario import HalfSpaceContact, load_scenario
-from pointforce_ros.cell.session import halfspace_object, simulate_campaign
+from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
+from pointforce_ros.sim.session import halfspace_object, simulate_campaign
 from pointforce_ros.errors import InvalidInput, ModelNotReady
-from pointforce_ros.learner import OnlineLearner
-from pointforce_ros.model_io import load_model
+from pointforce_ros.model.learner import OnlineLearner
+from pointforce_ros.model.files import load_model
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.types import Surface
 
@@ -148,7 +148,7 @@ def test_a_shape_constant_fitted_by_diagnose_replaces_the_given_one(tmp_path):
 
 
 def test_the_tail_decay_length_reaches_the_saved_model_and_the_wrench_server(tmp_path):
-    from pointforce_ros.serving import WrenchServer
+    from pointforce_ros.model.serving import WrenchServer
 
     _, surface, _ = _stored_learner(tmp_path, 3, seed=1)
     learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,

@@ -8,7 +8,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from pointforce_ros.errors import DataError
-from pointforce_ros import transforms as tf
+from pointforce_ros import rotations as tf
 from pointforce_ros.pokes import store as st
 from pointforce_ros.types import PokeRecord
 

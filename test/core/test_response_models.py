@@ -9,13 +9,14 @@ import pytest
 from pointforce_ros.errors import DataError, InvalidInput, ModelNotReady
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.response import ForceResponseModel
-from pointforce_ros.response.baseline import AutoEtBaseline, EtBaseline
-from pointforce_ros.response.evaluate import heldout_errors, learning_curve
+from pointforce_ros.lab.baseline import AutoEtBaseline, EtBaseline
+from pointforce_ros.lab.evaluate import learning_curve
+from pointforce_ros.response.scoring import heldout_errors
 from pointforce_ros.response.gp import FeatureFrame, FeatureGp
 from pointforce_ros.response.ours import ContactGpModel
-from pointforce_ros.response.store import (load_response_model, model_from_dict,
-                                           save_response_model)
-from pointforce_ros.response.synthetic import spread_indices, SyntheticObject
+from pointforce_ros.lab.model_store import (load_response_model, model_from_dict,
+                                            save_response_model)
+from pointforce_ros.lab.synthetic_response import spread_indices, SyntheticObject
 
 DEPTHS = np.linspace(-0.008, 0.014, 45)
 OLD_MODEL = Path(__file__).resolve().parents[1] / 'data' / 'models' / 'contact_gp_independent.json'
@@ -264,7 +265,7 @@ def test_decorrelated_processes_beat_independent_ones_where_the_parameters_trade
     """Lamb's per-poke (d0, log F, p) correlate 0.98-0.99; spreading them independently mixes
     sets off the curve family. Held-out pokes of its committed poke fixture, 10 training pokes,
     the same draws for both."""
-    from pointforce_ros.figures import load_poke_fixture
+    from pointforce_ros.lab.figures import load_poke_fixture
     surface, curves, _ = load_poke_fixture('lamb', say=lambda m: None)
     theta = np.array([ContactGpModel().fit_curve(c)[0] for c in curves])
     corr = np.corrcoef(theta.T)

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from pointforce_ros.contact.synthetic import grid_surface
+from pointforce_ros.lab.synthetic_contact import grid_surface
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.response.common import curve_features
-from pointforce_ros.response.evaluate import learning_curve
+from pointforce_ros.lab.evaluate import learning_curve
 from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.response.shapefree import curve_knots, KNOTS, ShapeFreeGpModel
 

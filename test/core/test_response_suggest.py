@@ -4,11 +4,12 @@ import numpy as np
 import pytest
 
 from pointforce_ros.errors import InvalidInput, ModelNotReady
-from pointforce_ros.response.evaluate import learning_curve, plot_learning_curve
+from pointforce_ros.lab.evaluate import learning_curve, plot_learning_curve
 from pointforce_ros.response.ours import ContactGpModel
-from pointforce_ros.response.suggest import (active_vs_random_curve, plot_active_vs_random,
+from pointforce_ros.lab.active import active_vs_random_curve, plot_active_vs_random
+from pointforce_ros.response.suggest import (
                                              suggest_pokes)
-from pointforce_ros.response.synthetic import spread_indices, SyntheticObject
+from pointforce_ros.lab.synthetic_response import spread_indices, SyntheticObject
 
 PNG = b'\x89PNG\r\n\x1a\n'
 

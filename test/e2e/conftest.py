@@ -2,13 +2,13 @@
 
 ur_rtde fixes the ports (30004 RTDE, 29999 dashboard, 30003 script), so tests that run at the
 same time (other pytest sessions on this machine too) use different loopback addresses
-(:func:`pointforce_ros.cell.emulator_process.loopback_hosts`), with a retry on the next address
+(:func:`pointforce_ros.sim.rtde.process.loopback_hosts`), with a retry on the next address
 when the emulator reports that its address is taken.
 """
 
 import pytest
 
-from pointforce_ros.cell import emulator_process
+from pointforce_ros.sim.rtde import process as emulator_process
 from pointforce_ros.errors import DeviceFault
 
 _HOSTS = emulator_process.loopback_hosts()

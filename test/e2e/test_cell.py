@@ -6,7 +6,7 @@ from geometry_msgs.msg import Vector3
 
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
-from pointforce_ros.nodes.cell import CellSession
+from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.types import PokeGoal, Pose
 

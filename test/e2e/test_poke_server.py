@@ -29,7 +29,7 @@ START = [0.5, 0.0, 0.1, np.pi, 0.0, 0.0]
 
 @pytest.fixture
 def cell(ros_graph, start_emulator, tmp_path):
-    emulator = start_emulator(force_model='pointforce_ros.cell.rtde_emulator:HalfSpaceSpring',
+    emulator = start_emulator(force_model='pointforce_ros.sim.rtde.forces:HalfSpaceSpring',
                               force_model_kwargs=SPRING, initial_pose=START)
     server = ros_graph.add(PokeServerNode(context=ros_graph.context, parameter_overrides=[
         Parameter('robot_ip', value=emulator.host),

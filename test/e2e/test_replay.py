@@ -10,9 +10,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from pointforce_ros.errors import DataError
-from pointforce_ros.learner import OnlineLearner
-from pointforce_ros.model_io import load_model, save_surface
-from pointforce_ros.nodes.replay import bag_paths, replay
+from pointforce_ros.model.learner import OnlineLearner
+from pointforce_ros.model.files import load_model, save_surface
+from pointforce_ros.bringup.replay import bag_paths, replay
 from pointforce_ros.nodes.stiffness_learner import LATCHED, StiffnessLearnerNode
 from pointforce_ros.pokes.store import read_poke_bag
 from pointforce_ros.types import Surface

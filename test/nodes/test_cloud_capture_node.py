@@ -12,12 +12,11 @@ from std_srvs.srv import Trigger
 
 from msg_adapters.geometry import pose_stamped_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud, surface_from_msg
-from pointforce_ros.cell.camera import DepthCamera, look_at
-from pointforce_ros.model_io import load_surface
+from pointforce_ros.sim.camera import DepthCamera, look_at
+from pointforce_ros.model.files import load_surface
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode, LATCHED
 from pointforce_ros.shapes import box
-from pointforce_ros.transforms import matrix_to_pose
-from pointforce_ros.types import Mesh
+from pointforce_ros.types import Mesh, Pose
 
 pytestmark = pytest.mark.ros
 
@@ -47,7 +46,7 @@ def test_two_views_merge_into_a_latched_outward_surface(ros_graph, tmp_path):
     for eye in ([0.5, -0.25, 0.35], [0.5, 0.25, 0.35]):
         pose = look_at(eye, [0.5, 0.0, 0.04])
         frame = camera.render(mesh, pose, organised=True)
-        pose_pub.publish(pose_stamped_to_msg(matrix_to_pose(pose)))
+        pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose)))
         ros_graph.wait_for(lambda: node._camera_pose is not None and np.allclose(
             node._camera_pose.position, eye), 10, 'camera pose')
         cloud_pub.publish(msg_from_cloud(frame.points, frame.rgb,
@@ -99,8 +98,8 @@ def test_a_cloud_is_paired_with_the_camera_pose_of_its_own_stamp(ros_graph, tmp_
     cloud_pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
     pose_a = look_at([0.5, -0.3, 0.3], [0.5, 0.0, 0.0])
     pose_b = look_at([0.5, 0.3, 0.3], [0.5, 0.0, 0.0])
-    pose_pub.publish(pose_stamped_to_msg(matrix_to_pose(pose_a), stamp=10.0))
-    pose_pub.publish(pose_stamped_to_msg(matrix_to_pose(pose_b), stamp=10.5))
+    pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose_a), stamp=10.0))
+    pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose_b), stamp=10.5))
     ros_graph.wait_for(lambda: len(node._pose_history) == 2, 10, 'two poses')
     cloud_pub.publish(msg_from_cloud(np.random.default_rng(1).uniform(0.2, 0.3, (100, 3)),
                                      stamp=10.0))

@@ -11,10 +11,10 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
-from pointforce_ros.model_io import save_model
+from pointforce_ros.model.files import save_model
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode, LATCHED
-from pointforce_ros.contact.synthetic import patch_contact_model
-from pointforce_ros.serving import WrenchServer
+from pointforce_ros.lab.synthetic_contact import patch_contact_model
+from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.types import ContactQuery, Pose
 
@@ -102,7 +102,7 @@ def test_model_topic_hot_swaps_without_dropping_requests(served):
     graph, node, client_node, single, _, model, tmp_path = served
     stiffer = patch_contact_model(spacing=0.003, version=2)
     forces = stiffer.response.forces * 2.0
-    from pointforce_ros.model_io import ContactModel
+    from pointforce_ros.model.files import ContactModel
     from pointforce_ros.response.baked import BakedResponse
     stiffer = ContactModel(surface=stiffer.surface, shape_constant=stiffer.shape_constant,
                            version=2, response=BakedResponse(
@@ -139,7 +139,7 @@ def planners():
     (Clients sharing the server's busy executor lost 4 of 2400 futures in rclpy 7.1.6 while the
     server had answered all 2400; with their own context none is lost.)
     """
-    from pointforce_ros.nodes.launcher import InProcessLauncher
+    from pointforce_ros.bringup.launcher import InProcessLauncher
     with InProcessLauncher(threads=8) as launcher:
         yield launcher
 
@@ -186,7 +186,7 @@ def test_stored_effects_add_their_forward_terms(ros_graph, tmp_path):
 
     Viscoelastic: scaled by the fraction left after ``hold_time``. Both read from the file.
     """
-    from pointforce_ros.model_io import ContactModel
+    from pointforce_ros.model.files import ContactModel
     compliance, g, tau, hold = 2e-4, 0.25, 2.0, 1.0
     clean = patch_contact_model(spacing=0.003)
     effects = {'series_compliance': {'compliance': compliance},

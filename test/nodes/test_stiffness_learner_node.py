@@ -8,9 +8,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
-from pointforce_ros.cell.scenario import HalfSpaceContact, load_scenario
-from pointforce_ros.cell.session import halfspace_object, simulate_campaign
-from pointforce_ros.model_io import load_model, save_surface
+from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
+from pointforce_ros.sim.session import halfspace_object, simulate_campaign
+from pointforce_ros.model.files import load_model, save_surface
 from pointforce_ros.nodes.stiffness_learner import LATCHED, RELIABLE, StiffnessLearnerNode
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.types import Surface

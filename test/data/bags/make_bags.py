@@ -11,8 +11,8 @@ Usage: python test/data/bags/make_bags.py
 import shutil
 from pathlib import Path
 
-from pointforce_ros.cell.scenario import HalfSpaceContact, load_scenario
-from pointforce_ros.cell.session import halfspace_object, simulate_campaign
+from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
+from pointforce_ros.sim.session import halfspace_object, simulate_campaign
 from pointforce_ros.pokes.store import PokeStore
 
 HERE = Path(__file__).resolve().parent

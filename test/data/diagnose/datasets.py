@@ -1,7 +1,7 @@
 """Cell data sets for the diagnose tests: one per library effect, clean, two effects, foreign.
 
 Every set pokes the analytic heterogeneous half-space (``HalfSpaceContact``, stiffness ripple
-30 % over x, y) with the offline cell (:mod:`pointforce_ros.cell.session`): 16 pokes at
+30 % over x, y) with the offline cell (:mod:`pointforce_ros.sim.session`): 16 pokes at
 2-5 mm/s from a 2 mm stand-off to 4 N, 1 s hold, 100 Hz, F/T noise 2 mN (a good lab sensor at
 100 Hz). Generation is fast (well under a second per set), so the tests build the sets on the
 fly instead of committing arrays; run this file to write them as CSV tables for the CLI::
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.cell import effects as ce
-from pointforce_ros.cell.scenario import HalfSpaceContact, Scenario
-from pointforce_ros.cell.session import simulate_campaign
+from pointforce_ros.sim import effects as ce
+from pointforce_ros.sim.scenario import HalfSpaceContact, Scenario
+from pointforce_ros.sim.session import simulate_campaign
 from pointforce_ros.types import PokeRecord
 
 NOISE = ce.FtNoise(force_std=0.002, torque_std=0.0001)
@@ -101,7 +101,7 @@ def make(name: str, seed: int = 1):
 
 
 if __name__ == '__main__':
-    from pointforce_ros.effects.data import write_poke_table
+    from pointforce_ros.pokes.table import write_poke_table
     out = Path(sys.argv[1] if len(sys.argv) > 1 else '.')
     for set_name in SETS:
         print(write_poke_table(make(set_name), out / f'{set_name}.csv'))

@@ -29,10 +29,10 @@ import sys
 import time
 from pathlib import Path
 
-from pointforce_ros.cell import effects as ce
-from pointforce_ros.cell.scenario import load_scenario, Scenario
-from pointforce_ros.cell.session import simulate_campaign
-from pointforce_ros.effects import diagnose
+from pointforce_ros.sim import effects as ce
+from pointforce_ros.sim.scenario import load_scenario, Scenario
+from pointforce_ros.sim.session import simulate_campaign
+from pointforce_ros.diagnose import diagnose
 
 HERE = Path(__file__).resolve().parent
 _spec = importlib.util.spec_from_file_location('diagnose_datasets_table', HERE / 'datasets.py')
@@ -71,9 +71,9 @@ def cell_object(name: str):
     common = dict(datasets.COMMON)
     if name == 'analytic':
         return datasets.OBJECT, common
-    from pointforce_ros.cell.fem.live import LiveContact
-    from pointforce_ros.cell.generate import fem_cell_object
-    from pointforce_ros.cell.objects import load_object
+    from pointforce_ros.sim.fem.live import LiveContact
+    from pointforce_ros.sim.generate import fem_cell_object
+    from pointforce_ros.sim.objects import load_object
     spec = load_object(name)
     live = LiveContact.load(spec.name, build=False)
     common.update(force_limit=min(spec.force_cap, 6.0), depth_limit=0.007, standoff=0.004)

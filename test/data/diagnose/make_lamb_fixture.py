@@ -35,7 +35,7 @@ def _blocks(x: np.ndarray) -> np.ndarray:
 
 def make(folder) -> Path:
     """Write the fixture from a ``cell generate`` output folder; return its path."""
-    from pointforce_ros.cell.objects import load_object
+    from pointforce_ros.sim.objects import load_object
     from pointforce_ros.pokes.store import PokeStore
     folder = Path(folder)
     manifest = json.loads((folder / 'manifest.json').read_text())

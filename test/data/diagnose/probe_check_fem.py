@@ -1,6 +1,6 @@
 """Score the demo's FEM planner queries as one-step probe trials (real FEM ground truth).
 
-``test/data/fem/demo_queries_<object>.npz`` holds the full nonlinear FEM wrench of the 9 demo
+``data/fem/demo_queries_<object>.npz`` holds the full nonlinear FEM wrench of the 9 demo
 queries (sphere, paddle, cylinder at three poses; ``make_demo_queries.py``). This script learns
 the point model from the pokes of a ``pointforce cell generate`` folder of the same object, as
 the nodes do, on that folder's ``surface.npz``, answers the queries through the contact service
@@ -23,12 +23,12 @@ ROOT = Path(__file__).resolve().parents[2]  # test/
 
 def main(folder: str, shape_constant: float = 0.004) -> int:
     """Print the probe score of the queries against the model learned from ``folder``."""
-    from pointforce_ros.cell.objects import load_object
-    from pointforce_ros.effects.data import load_pokes
-    from pointforce_ros.effects.probes import (learn_contact_model, ProbeTrial,
-                                               score_probe_trials, trial_errors)
-    from pointforce_ros.model_io import load_surface
-    from pointforce_ros.nodes.demo import demo_query_set
+    from pointforce_ros.sim.objects import load_object
+    from pointforce_ros.pokes.table import load_pokes
+    from pointforce_ros.diagnose.probes import (learn_contact_model, ProbeTrial,
+                                                score_probe_trials, trial_errors)
+    from pointforce_ros.model.files import load_surface
+    from pointforce_ros.bringup.demo import demo_query_set
     folder = Path(folder)
     spec = load_object(json.loads((folder / 'manifest.json').read_text())['object'])
     with np.load(ROOT / 'data' / 'fem' / f'demo_queries_{spec.name}.npz') as z:

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.cell.fem.probes import cylinder_probe, paddle_probe, pose_for_push
+from pointforce_ros.sim.fem.probes import cylinder_probe, paddle_probe, pose_for_push
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.effects.forward import solve_retreat
-from pointforce_ros.effects.probes import ProbeTrial
+from pointforce_ros.diagnose.probes import ProbeTrial
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from pointforce_ros.response.ours import ContactGpModel
-from pointforce_ros.response.store import save_response_model
-from pointforce_ros.response.synthetic import spread_indices, SyntheticObject
+from pointforce_ros.lab.model_store import save_response_model
+from pointforce_ros.lab.synthetic_response import spread_indices, SyntheticObject
 
 
 def world_curves(count: int = 7):

@@ -1,0 +1,45 @@
+"""Precompute the demo's calibration push: a sphere pushed once, away from every planner query.
+
+The demo identifies the shape constant ``c`` of the contact simulator from this one push with
+a second, known probe (seed 000 picks ``c`` by eye; here it is fitted to a measurement): the
+sphere of :func:`pointforce_ros.bringup.demo.calibration_push` at two depths, full nonlinear FEM
+solve (:func:`pointforce_ros.sim.fem.indentation.probe_wrench_full`, element size
+``mesh_live``), as the F/T sensor would read it without noise. Writes
+``demo_calibration_<object>.npz`` (depths (T,) m, force (T, 3) N, base frame).
+
+Usage: python data/fem/make_demo_calibration.py [--object lamb]   (minutes)
+"""
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pointforce_ros.sim.fem.indentation import probe_wrench_full
+from pointforce_ros.sim.objects import load_object
+from pointforce_ros.bringup.demo import calibration_push
+
+HERE = Path(__file__).resolve().parent
+
+
+def main():
+    """Compute and write the fixture."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--object', default='lamb')
+    args = parser.parse_args()
+    spec = load_object(args.object)
+    mesh, poses, depths = calibration_push(spec)
+    start = time.monotonic()
+    force = []
+    for k, pose in enumerate(poses):
+        f, _ = probe_wrench_full(spec, mesh, pose, pose.position, h=spec.mesh_live)
+        force.append(f)
+        print(f'{k + 1}/{len(poses)}: F = {np.round(f, 3)} N, {time.monotonic() - start:.0f} s',
+              flush=True)
+    np.savez(HERE / f'demo_calibration_{spec.name}.npz',
+             depths=np.asarray(depths), force=np.array(force))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,153 @@
+"""The ``pointforce`` command: demo, cell (run, generate), diagnose, figures, replay, bench.
+
+Each sub-command imports what it needs lazily, so ``pointforce --help`` is instant and the core
+sub-commands run without a ROS graph.
+"""
+
+import argparse
+import importlib
+import json
+import sys
+from typing import Callable, Dict, List, Optional
+
+from pointforce_ros.errors import PointforceError
+
+BENCHMARKS: Dict[str, str] = {
+    'contact': 'pointforce_ros.lab.bench_contact:bench_contact',
+    'batch': 'pointforce_ros.lab.bench_contact:bench_batch',
+    'learn': 'pointforce_ros.lab.bench_learn:bench_learn',
+    'cell': 'pointforce_ros.sim.fem.bench:bench_cell',
+    'ros': 'pointforce_ros.bringup.bench_ros:bench_ros',
+}
+
+
+QUICK: Dict[str, dict] = {'cell': {'queries': 200, 'full_solve': False}}
+"""Keyword arguments of ``--quick`` per benchmark (default ``{'quick': True}``)."""
+
+
+def _load(target: str) -> Callable:
+    module, _, name = target.partition(':')
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise PointforceError(f'{target} is not available in this build: {exc}') from exc
+
+
+def _cmd_bench(args) -> int:
+    names = list(BENCHMARKS) if args.name == 'all' else [args.name]
+    for name in names:
+        kwargs = QUICK.get(name, {'quick': True}) if args.quick else {}
+        result = _load(BENCHMARKS[name])(**kwargs)
+        result = {'benchmark': name, **result}
+        if args.json:
+            print(json.dumps(result, sort_keys=True))
+        else:
+            print(f'== bench {name}')
+            for key, value in result.items():
+                print(f'  {key:40s} {value}')
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    return _load('pointforce_ros.bringup.demo:run_demo')(
+        out=args.out, quick=args.quick, object_name=args.object, scenario=args.scenario,
+        pokes=args.pokes)
+
+
+def _cmd_cell(args) -> int:
+    if args.action == 'generate':
+        return _load('pointforce_ros.sim.generate:run_generate')(
+            object_name=args.object, scenario=args.scenario, pokes=args.pokes,
+            probes=[p for p in args.probes.split(',') if p], seed=args.seed,
+            out=args.out or f'out/data/{args.object}-{args.scenario}')
+    return _load('pointforce_ros.bringup.cell:run_cell')(
+        out=args.out or 'out/cell', object_name=args.object, scenario=args.scenario,
+        robot_ip=args.robot_ip, camera_topic=args.camera_topic, duration=args.duration)
+
+
+def _cmd_diagnose(args) -> int:
+    run = _load('pointforce_ros.diagnose.run:run_diagnose')
+    return run(args.data, args.out, seed=args.seed)
+
+
+def _cmd_figures(args) -> int:
+    return _load('pointforce_ros.lab.figures:main')(args.rest)
+
+
+def _cmd_replay(args) -> int:
+    return _load('pointforce_ros.bringup.replay:run_replay')(args.bag, rate=args.rate)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of the ``pointforce`` command."""
+    parser = argparse.ArgumentParser(prog='pointforce', description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    demo = sub.add_parser('demo', help='run the whole job on the simulated cell')
+    demo.add_argument('--out', default='out/demo', help='output directory (bags, model, plots)')
+    demo.add_argument('--quick', action='store_true', help='fewer pokes (4 instead of 8)')
+    demo.add_argument('--object', default='lamb', help='simulated object (config/objects)')
+    demo.add_argument('--scenario', default='realistic', help='sensor effects (config/scenarios)')
+    demo.add_argument('--pokes', type=int, default=0, help='number of pokes (0: 8, or 4 quick)')
+    demo.set_defaults(func=_cmd_demo)
+
+    cell = sub.add_parser('cell', help='run the node suite on the simulated (or a real) cell; '
+                          '"cell generate" writes data sets')
+    cell.add_argument('action', nargs='?', choices=['run', 'generate'], default='run',
+                      help='run the cell (default) or generate a data set')
+    cell.add_argument('--object', default='lamb', help='simulated object (config/objects)')
+    cell.add_argument('--scenario', default='realistic',
+                      help='simulated sensor effects (config/scenarios)')
+    cell.add_argument('--robot-ip', default=None, help='a real UR controller (no emulator)')
+    cell.add_argument('--camera-topic', default=None,
+                      help='a real PointCloud2 topic (no simulated camera)')
+    cell.add_argument('--out', default=None, help='output directory')
+    cell.add_argument('--duration', type=float, default=None, help='seconds to run (run)')
+    cell.add_argument('--pokes', type=int, default=20, help='point pokes (generate)')
+    cell.add_argument('--probes', default='point,line,cylinder',
+                      help='probe kinds to generate, comma-separated (generate)')
+    cell.add_argument('--seed', type=int, default=0, help='seed (generate)')
+    cell.set_defaults(func=_cmd_cell)
+
+    diagnose = sub.add_parser('diagnose', help='residuals -> the physical effect behind them, '
+                              'error before and after (held-out)')
+    diagnose.add_argument('data', help='poke store directory, one poke bag, or a CSV table')
+    diagnose.add_argument('--out', default='out/diagnose', help='report directory')
+    diagnose.add_argument('--seed', type=int, default=0, help='train/held-out split seed')
+    diagnose.set_defaults(func=_cmd_diagnose)
+
+    figures = sub.add_parser('figures', help='the seed-method figures on the simulated cell '
+                             '(learning curves, probe wrench RMSE, shape constant)')
+    figures.add_argument('rest', nargs=argparse.REMAINDER,
+                         help='options of python -m pointforce_ros.lab.figures (--out, --quick, '
+                         '...)')
+    figures.set_defaults(func=_cmd_figures)
+
+    replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
+    replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')
+    replay.add_argument('--rate', type=float, default=1.0, help='speed-up factor (1 = real time)')
+    replay.set_defaults(func=_cmd_replay)
+
+    bench = sub.add_parser('bench', help='benchmarks; ratios against a baseline in the same run')
+    bench.add_argument('name', choices=sorted(BENCHMARKS) + ['all'])
+    bench.add_argument('--json', action='store_true', help='one JSON object per benchmark')
+    bench.add_argument('--quick', action='store_true', help='smaller sizes (for CI smoke)')
+    bench.set_defaults(func=_cmd_bench)
+    return parser
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Entry point of the ``pointforce`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except PointforceError as exc:
+        print(f'pointforce {args.command}: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'pointforce {args.command}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

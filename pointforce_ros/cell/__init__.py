@@ -1,1 +1,0 @@
-"""pointforce_ros.cell."""

@@ -1,0 +1,395 @@
+"""Online stiffness learning: poke store in, versioned baked contact models out.
+
+:class:`OnlineLearner` is what the ``stiffness_learner`` node wraps (pure Python, no ROS). Each
+call to :meth:`OnlineLearner.update` reads the pokes that landed in the store since the last call,
+cuts their loading curves, refits the force-response model, bakes it on the equilibrium surface
+and saves a :class:`~pointforce_ros.model.files.ContactModel` atomically. The model version is the
+number of pokes in it, so a restarted learner that reloads the same store produces the same
+model under the same version.
+
+Before a poke joins the training set, the current model predicts it: that *prequential* error is
+a genuine held-out figure, reported as ``validation_rmse``.
+
+With accepted effects (``effects=``, what ``pointforce diagnose`` writes to ``effects.json``)
+every poke is corrected before its curve is cut (:func:`~pointforce_ros.effects.correct_record`;
+the plastic set counts the earlier pokes at the spot over the whole store), the model is baked
+on the corrected surface (surface offset, and the set where the object was poked), and the
+effects are saved with the model so that the contact service adds their forward terms.
+"""
+
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pointforce_ros.contact.lcp import check_decay
+from pointforce_ros.effects.correct import correct_record, correct_surface, effects_from_dict
+from pointforce_ros.effects.library import count_earlier, PLASTIC_RADIUS
+from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
+from pointforce_ros.model.files import ContactModel, model_path, save_model
+from pointforce_ros.pokes.curves import extract_curve, PokeCurve
+from pointforce_ros.pokes.store import PokeStore
+from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.suggest import suggest_pokes
+from pointforce_ros.types import Surface
+
+DEFAULT_DEPTHS = np.linspace(-0.004, 0.025, 59)
+
+
+@dataclass(frozen=True)
+class LearnerStatus:
+    """What the learner publishes after a refit.
+
+    Attributes:
+        version: model version (= pokes in the model).
+        num_pokes: training pokes.
+        training_rmse: N, model against its own training curves.
+        validation_rmse: N, prequential: each poke predicted by the model before it was added
+            (RMS over the pokes that had a predecessor model); NaN before the second poke.
+        model_path: saved contact model.
+        fit_seconds: refit + bake + save time of this update.
+        skipped: poke id -> reason, for pokes that could not be used (no contact, ...).
+
+    """
+
+    version: int
+    num_pokes: int
+    training_rmse: float
+    validation_rmse: float
+    model_path: Optional[Path]
+    fit_seconds: float
+    skipped: Dict[str, str] = field(default_factory=dict)
+
+
+def curve_rmse(model, curves: Sequence[PokeCurve], surface: Surface) -> float:
+    """RMS of ``model`` against the force samples of ``curves`` (N); NaN for no curves."""
+    from scipy.spatial import cKDTree
+    if not curves:
+        return float('nan')
+    tree = cKDTree(surface.points)
+    errors = []
+    for curve in curves:
+        _, idx = tree.query(curve.point)
+        feats = np.repeat(surface.features[idx][None], len(curve.d), axis=0)
+        errors.append(model.predict(feats, curve.d) - curve.f)
+    err = np.concatenate(errors)
+    return float(np.sqrt(np.mean(err ** 2)))
+
+
+class OnlineLearner:
+    """Refit-as-pokes-arrive learner over a :class:`PokeStore`.
+
+    Args:
+        store_dir: the poke store the poke server writes (``None``: records come only through
+            :meth:`learn_records`).
+        model_dir: where versioned contact models are saved (``None``: nothing is saved;
+            :meth:`contact_model` returns the model in memory).
+        surface: equilibrium surface the model is baked on.
+        shape_constant: ``c`` of the shape function, metres.
+        shape_decay: decay length of the shape function's tail, metres (``inf``: the paper's
+            ``g``).
+        depths: (K,) bake grid, metres.
+        model_factory: makes an empty force-response model (ours by default).
+        corrections: optional callable ``records -> records`` applied before curve extraction
+            instead of the built-in correction by ``effects``.
+        effects: accepted effects ``{name: {param: value}}`` (``pointforce diagnose``'s
+            ``effects.json``): removed from every poke, applied to the baked surface and
+            stored in each saved model. Its ``spatial_coupling`` (``c`` fitted on probe
+            trials) replaces ``shape_constant``.
+        min_peak_force: N; a poke whose force never exceeded this made no real contact (the
+            point was off the object or the surface is wrong) and is not learned from.
+
+    Raises:
+        InvalidInput: a non-positive shape constant or decay length, or malformed effects.
+
+    """
+
+    def __init__(self, store_dir, model_dir, surface: Surface, *, shape_constant: float,
+                 depths: np.ndarray = DEFAULT_DEPTHS,
+                 model_factory: Callable[[], object] = ContactGpModel,
+                 corrections: Optional[Callable] = None, effects: Optional[dict] = None,
+                 min_peak_force: float = 0.3, shape_decay: float = np.inf):
+        """Open the store; nothing is fitted until :meth:`update`."""
+        if not (np.isfinite(shape_constant) and shape_constant > 0):
+            raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
+        self.shape_decay = check_decay(shape_decay, 'shape_decay')
+        self.store = None if store_dir is None else PokeStore(store_dir)
+        self.model_dir = None if model_dir is None else Path(model_dir)
+        self.surface = surface
+        self.shape_constant = float(shape_constant)
+        self.depths = np.asarray(depths, dtype=np.float64)
+        self.model_factory = model_factory
+        self.corrections = corrections
+        self.effects = effects_from_dict(effects)
+        coupling = self.effects.get('spatial_coupling')
+        if coupling is not None:
+            # c identified by diagnose on probe trials replaces the one given
+            self.shape_constant = float(coupling['shape_constant'])
+        # every poke read (time, point, normal, peak normal force): plastic-set counts
+        self._spots: List[tuple] = []
+        self.min_peak_force = float(min_peak_force)
+        self._failed_points: List[np.ndarray] = []
+        self.model = None
+        self.curves: List[PokeCurve] = []
+        self.skipped: Dict[str, str] = {}
+        self._c_updates = 0   # models saved for a new shape constant (versions stay increasing)
+        self._prequential: List[np.ndarray] = []
+        self.status: Optional[LearnerStatus] = None
+        self._lock = threading.RLock()  # update() mutates the model that suggest() reads
+
+    def _new_curves(self) -> List[PokeCurve]:
+        if self.store is None:
+            return []
+        self.store.refresh()
+        seen = {c.poke_id for c in self.curves} | set(self.skipped)
+        fresh = []
+        for poke_id in self.store.ids():
+            if poke_id in seen:
+                continue
+            try:
+                curve = self._curve(self.store.get(poke_id))
+            except PointforceError as exc:
+                self.skipped[poke_id] = str(exc)
+                continue
+            if curve is not None:
+                fresh.append(curve)
+        return fresh
+
+    def _curve(self, record) -> Optional[PokeCurve]:
+        """Loading curve of one poke record (corrected), or ``None`` with the reason noted.
+
+        Raises:
+            PointforceError: the record cannot be cut into a curve.
+
+        """
+        poke_id = record.poke_id
+        if record.outcome.startswith('aborted'):
+            self.skipped[poke_id] = f'not learned from: {record.outcome}'
+            return None
+        peak = float(np.max(record.normal_force())) if len(record) else 0.0
+        if peak < self.min_peak_force:
+            self._failed_points.append(record.point.copy())
+            self.skipped[poke_id] = (f'no contact: peak force {peak:.3f} N < '
+                                     f'{self.min_peak_force:g} N ({record.outcome}); '
+                                     'the point is off the object or the surface is wrong')
+            return None
+        count = self._remember(record, peak)
+        if self.corrections is not None:
+            record = self.corrections([record])[0]
+        elif self.effects:
+            record = correct_record(record, self.effects, count)
+        return extract_curve(record)
+
+    def learn_records(self, records: Sequence) -> Optional[LearnerStatus]:
+        """Learn from ``records`` (point pokes, in time order) as if they had landed in the store.
+
+        Returns the new status, or ``None`` when none of them could be learned from (see
+        ``skipped`` for why).
+        """
+        fresh = []
+        with self._lock:
+            for record in sorted(records, key=lambda r: float(r.t[0]) if len(r) else 0.0):
+                if record.probe != 'point':
+                    continue
+                try:
+                    curve = self._curve(record)
+                except PointforceError as exc:
+                    self.skipped[record.poke_id] = str(exc)
+                    continue
+                if curve is not None:
+                    fresh.append(curve)
+            return self._fit(fresh)
+
+    def _remember(self, record, peak: float) -> int:
+        """Note a poke's spot; return how many earlier pokes pressed there (plastic set)."""
+        self._spots.append((float(record.t_controller[0]) if len(record) else 0.0,
+                            record.point.copy(), record.normal.copy(), peak))
+        if 'plastic_set' not in self.effects:
+            return 0
+        counts, order = self._spot_counts()
+        return int(counts[np.flatnonzero(order == len(self._spots) - 1)[0]])
+
+    def _spot_counts(self):
+        """Earlier pokes within the plastic radius of every remembered poke, in time order."""
+        order = np.argsort([s[0] for s in self._spots], kind='stable')
+        radius = self.effects.get('plastic_set', {}).get('radius', PLASTIC_RADIUS)
+        counts = count_earlier(np.array([self._spots[i][1] for i in order]),
+                               np.array([self._spots[i][2] for i in order]),
+                               np.array([self._spots[i][3] for i in order]), radius)
+        return counts, order
+
+    def model_surface(self) -> Surface:
+        """Surface the model is baked on: the observed one moved by the surface effects."""
+        if not any(k in self.effects for k in ('surface_offset', 'plastic_set')):
+            return self.surface
+        points = counts = None
+        if 'plastic_set' in self.effects and self._spots:
+            counts, order = self._spot_counts()
+            points = np.array([self._spots[i][1] for i in order])
+            counts = counts + 1  # the set after each poke, itself included
+        return correct_surface(self.surface, self.effects, poke_points=points,
+                               poke_counts=counts)
+
+    def update(self) -> Optional[LearnerStatus]:
+        """Fit the pokes that arrived since the last call; return the new status or ``None``."""
+        with self._lock:
+            return self._update()
+
+    def _update(self) -> Optional[LearnerStatus]:
+        return self._fit(self._new_curves())
+
+    def _fit(self, fresh: List[PokeCurve]) -> Optional[LearnerStatus]:
+        if not fresh:
+            return None
+        start = time.perf_counter()
+        for curve in fresh:
+            if self.model is not None:
+                self._prequential.append(np.array([curve_rmse(self.model, [curve],
+                                                              self.surface)]))
+            try:
+                if self.model is None:
+                    self.model = self.model_factory().fit([curve], self.surface)
+                else:
+                    self.model.partial_fit(curve, self.surface)
+            except PointforceError as exc:
+                self.skipped[curve.poke_id] = str(exc)
+                continue
+            self.curves.append(curve)
+        if self.model is None:
+            return None
+        return self._save(start)
+
+    def set_shape_constant(self, c: float, decay: Optional[float] = None
+                           ) -> Optional[LearnerStatus]:
+        """Use shape constant ``c`` (m) from now on; save a new model version if there is one.
+
+        ``decay`` (m, or ``inf`` for the paper's ``g``) replaces the tail's decay length too
+        unless it is ``None``.
+
+        For a ``c`` identified from data (``identify_shape_constant_from_probe`` or a dent):
+        the response is unchanged, the saved model's simulator uses the new ``c``.
+
+        Raises:
+            InvalidInput: ``c`` not finite and positive, ``decay`` not positive.
+
+        """
+        if not (np.isfinite(c) and c > 0):
+            raise InvalidInput(f'shape_constant: must be > 0 m, got {c}')
+        decay = None if decay is None else check_decay(decay, 'shape_decay')
+        with self._lock:
+            self.shape_constant = float(c)
+            if decay is not None:
+                self.shape_decay = decay
+            if self.model is None:
+                return None
+            self._c_updates += 1
+            return self._save(time.perf_counter())
+
+    def contact_model(self) -> ContactModel:
+        """The current model baked on the model surface, as it would be saved.
+
+        Raises:
+            ModelNotReady: before the first fit.
+
+        """
+        with self._lock:
+            if self.model is None:
+                raise ModelNotReady('no model yet: no poke has been learned from')
+            corrected = [k for k in ('surface_offset', 'plastic_set') if k in self.effects]
+            return ContactModel(surface=self.model_surface(),
+                                response=self.model.bake(self.surface, self.depths),
+                                shape_constant=self.shape_constant,
+                                version=len(self.curves) + self._c_updates,
+                                shape_decay=self.shape_decay, effects=self.effects,
+                                meta={'kind': getattr(self.model, 'kind', 'unknown'),
+                                      'pokes': [c.poke_id for c in self.curves],
+                                      'surface_corrected': corrected})
+
+    def _save(self, start: float) -> LearnerStatus:
+        contact = self.contact_model()
+        version = contact.version
+        path = None if self.model_dir is None else save_model(contact, self.model_dir)
+        pre = np.concatenate(self._prequential) if self._prequential else np.zeros(0)
+        self.status = LearnerStatus(
+            version=version, num_pokes=len(self.curves),
+            training_rmse=curve_rmse(self.model, self.curves, self.surface),
+            validation_rmse=float(np.sqrt(np.mean(pre ** 2))) if len(pre) else float('nan'),
+            model_path=path, fit_seconds=time.perf_counter() - start,
+            skipped=dict(self.skipped))
+        return self.status
+
+    def processed(self, poke_id: str) -> bool:
+        """Whether ``poke_id`` has been learned from or skipped (see ``skipped`` for why)."""
+        with self._lock:
+            return poke_id in self.skipped or any(c.poke_id == poke_id for c in self.curves)
+
+    def current_model_path(self) -> Optional[Path]:
+        """Path of the newest saved model, or ``None`` before the first fit."""
+        if self.status is None or self.model_dir is None:
+            return None
+        return model_path(self.model_dir, self.status.version)
+
+    def suggest(self, count: int = 1, exclude_radius: float = 0.01,
+                max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0), edge_margin: float = 0.008):
+        """Next poke locations where the model is least certain.
+
+        Only points whose normal is within ``max_tilt_deg`` of ``up``, that lie at least
+        ``edge_margin`` (m, measured across ``up``) from any steeper point and half of it from the
+        rim of the cloud (points whose neighbours within ``edge_margin`` lie on one side), and are
+        not near a poke that found no contact, are candidates: the probe pushes along ``-n``,
+        and at an edge the camera's point may not be on the object.
+
+        Returns:
+            (indices (count,), std (count,) in N) into ``surface``.
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: ``count`` outside 1..50.
+
+        """
+        if self.model is None:
+            raise ModelNotReady('no model yet: poke at least once before asking for suggestions')
+        if not 1 <= int(count) <= 50:
+            raise InvalidInput(f'count: must be 1..50, got {count}')
+        up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+        flat = self.surface.normals @ up >= np.cos(np.radians(max_tilt_deg))
+        candidates = np.flatnonzero(flat)
+        across = self.surface.points - np.outer(self.surface.points @ up, up)
+        if edge_margin > 0 and np.any(~flat) and len(candidates):
+            dist, _ = cKDTree(across[~flat]).query(across[candidates])
+            candidates = candidates[dist >= edge_margin]
+        if edge_margin > 0 and len(candidates):
+            rim = np.flatnonzero(_on_rim(across, np.arange(len(across)), edge_margin))
+            if len(rim):
+                dist, _ = cKDTree(across[rim]).query(across[candidates])
+                candidates = candidates[dist >= edge_margin / 2]
+        failed = [p for p in self._failed_points]
+        if failed and len(candidates):
+            dist, _ = cKDTree(np.array(failed)).query(self.surface.points[candidates])
+            candidates = candidates[dist >= max(exclude_radius, edge_margin)]
+        if len(candidates) == 0:
+            raise InvalidInput(f'no surface point has a normal within {max_tilt_deg} degrees of '
+                               f'{up.tolist()} and {edge_margin} m from steeper points')
+        with self._lock:
+            return suggest_pokes(self.model, self.surface, int(count),
+                                 exclude_radius=exclude_radius, candidates=candidates)
+
+
+def _on_rim(points: np.ndarray, indices: np.ndarray, radius: float) -> np.ndarray:
+    """Whether each of ``points[indices]`` is on the rim of the cloud (one-sided neighbours).
+
+    A point is on the rim when the mean offset of its neighbours within ``radius`` is longer
+    than a fifth of ``radius``: an interior point's neighbours surround it (mean offset near
+    0), an edge point's lie in a half disc (centroid 0.42 r, about 0.3 r on a coarse grid).
+    """
+    from scipy.spatial import cKDTree
+    tree = cKDTree(points)
+    rim = np.zeros(len(indices), dtype=bool)
+    for k, neighbours in enumerate(tree.query_ball_point(points[indices], radius)):
+        offsets = points[neighbours] - points[indices[k]]
+        rim[k] = np.linalg.norm(offsets.mean(axis=0)) > radius / 5
+    return rim

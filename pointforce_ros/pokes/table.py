@@ -1,0 +1,181 @@
+"""Loading measured pokes: a poke store, one bag, or the documented import table.
+
+Sources :func:`load_pokes` accepts:
+
+* a :class:`~pointforce_ros.pokes.store.PokeStore` directory (``index.json`` + ``poke-*`` bags),
+  or a ``pointforce cell generate`` folder holding one as ``pokes/``,
+* a single poke bag directory (rosbag2 MCAP with ``metadata.yaml``),
+* an imported table (``.csv``, DESIGN.md section 4), one row per sample::
+
+      poke_id,t,px,py,pz,nx,ny,nz,depth,force[,fx,fy,fz]
+
+  ``t`` seconds (controller clock, strictly increasing within a poke), ``p`` the poked surface
+  point (m, ``base``) and ``n`` its unit outward normal (repeated on every row of the poke),
+  ``depth`` the probe displacement along ``-n`` past ``p`` (m), ``force`` the normal force on the
+  probe (N, push-back > 0) and optionally the full force vector (N, ``base``). Parquet is not
+  supported (no pyarrow in the pinned environment),
+* a sequence of :class:`~pointforce_ros.types.PokeRecord`.
+
+"""
+
+import csv
+import io
+from pathlib import Path
+from typing import List, Sequence
+
+import numpy as np
+
+from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.pokes.store import PokeStore, read_poke_bag
+from pointforce_ros.rotations import rotvec_aligning_z
+from pointforce_ros.types import PokeRecord
+
+TABLE_COLUMNS = ('poke_id', 't', 'px', 'py', 'pz', 'nx', 'ny', 'nz', 'depth', 'force')
+FORCE_COLUMNS = ('fx', 'fy', 'fz')
+
+
+# --------------------------------------------------------------------------- tables
+
+
+def write_poke_table(records: Sequence[PokeRecord], path) -> Path:
+    """Write records as the plain import table (CSV, full double precision); return the path.
+
+    ``t`` is the controller time; ``fx, fy, fz`` the base-oriented force vector.
+
+    Raises:
+        InvalidInput: no records.
+
+    """
+    records = list(records)
+    if not records:
+        raise InvalidInput('write_poke_table: no records to write')
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    buf.write(','.join(TABLE_COLUMNS + FORCE_COLUMNS) + '\n')
+    for rec in records:
+        if ',' in rec.poke_id or '\n' in rec.poke_id:
+            raise InvalidInput(f'write_poke_table: poke id {rec.poke_id!r} contains a comma or '
+                               'newline')
+        n = len(rec)
+        cols = np.column_stack([rec.t_controller, np.tile(rec.point, (n, 1)),
+                                np.tile(rec.normal, (n, 1)), rec.displacement(),
+                                rec.normal_force(), rec.wrench[:, :3]])
+        body = io.StringIO()
+        np.savetxt(body, cols, fmt='%.17g', delimiter=',')
+        prefix = rec.poke_id + ','
+        buf.write(''.join(prefix + line + '\n' for line in body.getvalue().splitlines()))
+    path.write_text(buf.getvalue())
+    return path
+
+
+def _speed_of(t: np.ndarray, depth: np.ndarray) -> float:
+    """Median inward speed of the samples moving in faster than a fifth of the fastest."""
+    if len(t) < 2:
+        return 0.002
+    v = np.diff(depth) / np.diff(t)
+    fast = v[v > 0.2 * v.max()] if v.max() > 0 else v[:0]
+    return float(np.median(fast)) if len(fast) else 0.002
+
+
+def read_poke_table(path) -> List[PokeRecord]:
+    """Read the plain import table (see the module docstring) into point-poke records.
+
+    The TCP is placed at ``p - depth * n`` with its z axis along ``-n``; the wrench is the force
+    vector when ``fx, fy, fz`` are present, else ``force * n``; torques are zero. The push speed
+    is estimated from the depth series.
+
+    Raises:
+        DataError: unreadable file, missing columns, non-numeric values, a poke whose time is
+            not strictly increasing, or a poke whose point/normal changes between rows.
+
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise DataError(f'cannot read poke table {path}: {exc}')
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        raise DataError(f'{path}: empty table')
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in TABLE_COLUMNS if c not in header]
+    if missing:
+        raise DataError(f'{path}: missing column(s) {missing}; need {", ".join(TABLE_COLUMNS)}'
+                        f'[, {", ".join(FORCE_COLUMNS)}]')
+    has_vector = all(c in header for c in FORCE_COLUMNS)
+    body = [r for r in rows[1:] if r and any(cell.strip() for cell in r)]
+    if not body:
+        raise DataError(f'{path}: no data rows')
+    if any(len(r) != len(header) for r in body):
+        raise DataError(f'{path}: rows with a different number of fields than the header')
+    col = {name: i for i, name in enumerate(header)}
+    ids = [r[col['poke_id']].strip() for r in body]
+    numeric = [c for c in header if c != 'poke_id']
+    try:
+        values = np.array([[float(r[col[c]]) for c in numeric] for r in body], dtype=np.float64)
+    except ValueError as exc:
+        raise DataError(f'{path}: non-numeric value: {exc}')
+    if not np.all(np.isfinite(values)):
+        raise DataError(f'{path}: NaN or infinite values')
+    num = {c: values[:, i] for i, c in enumerate(numeric)}
+    id_arr = np.asarray(ids)
+    order, first = np.unique(id_arr, return_index=True)
+    records = []
+    for poke_id in order[np.argsort(first)]:
+        sel = id_arr == poke_id
+        t = num['t'][sel]
+        point = np.column_stack([num['px'][sel], num['py'][sel], num['pz'][sel]])
+        normal = np.column_stack([num['nx'][sel], num['ny'][sel], num['nz'][sel]])
+        if np.ptp(point, axis=0).max() > 0 or np.ptp(normal, axis=0).max() > 0:
+            raise DataError(f'{path}: poke {poke_id}: point or normal changes between rows')
+        depth = num['depth'][sel]
+        n = normal[0] / np.linalg.norm(normal[0])
+        if has_vector:
+            force = np.column_stack([num['fx'][sel], num['fy'][sel], num['fz'][sel]])
+        else:
+            force = num['force'][sel][:, None] * n
+        tcp = np.column_stack([point[0] - depth[:, None] * n,
+                               np.tile(rotvec_aligning_z(-n), (len(t), 1))])
+        try:
+            records.append(PokeRecord(
+                poke_id=str(poke_id), point=point[0], normal=n, t=t, t_controller=t,
+                tcp_pose=tcp, wrench=np.column_stack([force, np.zeros((len(t), 3))]),
+                speed=max(_speed_of(t, depth), 1e-6), meta={'source': str(path)}))
+        except InvalidInput as exc:
+            raise DataError(f'{path}: poke {poke_id}: {exc}') from exc
+    return records
+
+
+def load_pokes(data) -> List[PokeRecord]:
+    """Load poke records from a store directory, one bag, a CSV table or a record sequence.
+
+    Raises:
+        DataError: a path that is none of these, or unreadable content.
+        InvalidInput: a sequence holding something other than PokeRecords.
+
+    """
+    if isinstance(data, (list, tuple)):
+        bad = [type(r).__name__ for r in data if not isinstance(r, PokeRecord)]
+        if bad:
+            raise InvalidInput(f'load_pokes: expected PokeRecords, got {bad[0]}')
+        return list(data)
+    path = Path(data)
+    if not path.exists():
+        raise DataError(f'no poke data at {path}')
+    if path.is_file():
+        if path.suffix.lower() == '.csv':
+            return read_poke_table(path)
+        if path.suffix.lower() in ('.parquet', '.pq'):
+            raise DataError(f'{path}: Parquet needs pyarrow, which is not installed; export '
+                            'the table as CSV')
+        raise DataError(f'{path}: unknown data file type (expected a .csv table, a poke store '
+                        'directory or a bag directory)')
+    if (path / 'metadata.yaml').is_file():
+        return [read_poke_bag(path)]
+    if (path / PokeStore.INDEX).is_file() or any(path.glob('poke-*/metadata.yaml')):
+        return list(PokeStore(path))
+    pokes = path / 'pokes'
+    if (pokes / PokeStore.INDEX).is_file() or any(pokes.glob('poke-*/metadata.yaml')):
+        return list(PokeStore(pokes))  # a ``pointforce cell generate`` folder
+    raise DataError(f'{path}: neither a poke store (index.json, poke-* bags) nor a bag')

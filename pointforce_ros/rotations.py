@@ -1,0 +1,91 @@
+"""Rotations and poses: the one home of rotation maths in the project, on scipy's ``Rotation``.
+
+Quaternions are ``(x, y, z, w)`` as in ROS (and scipy); rotation vectors ``axis * angle`` (rad)
+as UR reports them; UR poses ``[x, y, z, rx, ry, rz]`` (m, rad). Every function is vectorised
+over leading axes and returns float64 arrays. Nothing here normalises silently beyond what
+scipy does (a quaternion is normalised; a zero quaternion raises ``ValueError``).
+"""
+
+from typing import Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def _flat(a, tail: int):
+    a = np.asarray(a, dtype=np.float64)
+    return a.reshape((-1,) + a.shape[a.ndim - tail:]), a.shape[:a.ndim - tail]
+
+
+def rotvec_to_matrix(rotvec) -> np.ndarray:
+    """(..., 3) rotation vectors (rad) -> (..., 3, 3) rotation matrices."""
+    flat, lead = _flat(rotvec, 1)
+    return Rotation.from_rotvec(flat).as_matrix().reshape(lead + (3, 3))
+
+
+def matrix_to_rotvec(rot) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 3) rotation vectors, angle in [0, pi]."""
+    flat, lead = _flat(rot, 2)
+    return Rotation.from_matrix(flat).as_rotvec().reshape(lead + (3,))
+
+
+def matrix_to_quaternion(rot) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions (x, y, z, w), w >= 0."""
+    flat, lead = _flat(rot, 2)
+    return Rotation.from_matrix(flat).as_quat(canonical=True).reshape(lead + (4,))
+
+
+def quaternion_to_matrix(q) -> np.ndarray:
+    """(..., 4) quaternions (x, y, z, w; normalised here) -> (..., 3, 3) rotation matrices."""
+    flat, lead = _flat(q, 1)
+    return Rotation.from_quat(flat).as_matrix().reshape(lead + (3, 3))
+
+
+def quaternion_to_rotvec(q) -> np.ndarray:
+    """(..., 4) quaternions (x, y, z, w) -> (..., 3) rotation vectors, angle in [0, pi]."""
+    flat, lead = _flat(q, 1)
+    return Rotation.from_quat(flat).as_rotvec().reshape(lead + (3,))
+
+
+def pose_to_matrix(pose) -> np.ndarray:
+    """Return the (4, 4) homogeneous transform of a :class:`~pointforce_ros.types.Pose`."""
+    m = np.eye(4)
+    m[:3, :3] = quaternion_to_matrix(pose.orientation)
+    m[:3, 3] = pose.position
+    return m
+
+
+def pose6_to_matrix(pose6) -> np.ndarray:
+    """Return (..., 4, 4) transforms of UR poses ``[x, y, z, rx, ry, rz]`` (..., 6)."""
+    pose6 = np.asarray(pose6, dtype=np.float64)
+    out = np.zeros(pose6.shape[:-1] + (4, 4))
+    out[..., :3, :3] = rotvec_to_matrix(pose6[..., 3:])
+    out[..., :3, 3] = pose6[..., :3]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def pose_trans(p_from: Sequence[float], p_from_to: Sequence[float]) -> np.ndarray:
+    """Compose two UR poses (6,) as URScript ``pose_trans`` does; returns (6,)."""
+    r1 = rotvec_to_matrix(np.asarray(p_from[3:6], dtype=np.float64))
+    r2 = rotvec_to_matrix(np.asarray(p_from_to[3:6], dtype=np.float64))
+    pos = np.asarray(p_from[:3], dtype=np.float64) + r1 @ np.asarray(p_from_to[:3],
+                                                                     dtype=np.float64)
+    return np.concatenate([pos, matrix_to_rotvec(r1 @ r2)])
+
+
+def rotvec_aligning_z(axis: np.ndarray) -> np.ndarray:
+    """UR rotation vector (3,) of a tool whose z axis points along ``axis`` (3,).
+
+    The rotation is the shortest one from base z to ``axis``; for ``axis = -z`` it is a half
+    turn about x (tool pointing straight down, as a poke of a level surface).
+    """
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    z = np.array([0.0, 0.0, 1.0])
+    cross = np.cross(z, a)
+    s = float(np.linalg.norm(cross))
+    c = float(np.dot(z, a))
+    if s < 1e-12:
+        return np.zeros(3) if c > 0 else np.array([np.pi, 0.0, 0.0])
+    return cross / s * np.arctan2(s, c)

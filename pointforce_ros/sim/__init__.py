@@ -1,0 +1,1 @@
+"""pointforce_ros.sim."""

@@ -53,8 +53,8 @@ def imports_of(path: Path):
     local = set()
     for node in ast.walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-            local.update(id(n) for n in ast.walk(node) if isinstance(n, (ast.Import,
-                                                                          ast.ImportFrom)))
+            local.update(id(n) for n in ast.walk(node)
+                         if isinstance(n, (ast.Import, ast.ImportFrom)))
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.level == 0:
             names = [node.module or '']
@@ -127,8 +127,8 @@ def test_the_package_keeps_the_house_rule():
     ('response', '    from pointforce_ros import lab  # figures\n',
      "product wing 'response' imports pointforce_ros.lab"),
 ])
-def test_the_rule_catches_a_forbidden_import_inside_a_function(tmp_path, monkeypatch, wing,
-                                                              line, broken):
+def test_the_rule_catches_a_forbidden_import_inside_a_function(tmp_path, monkeypatch,
+                                                               wing, line, broken):
     # a copy of the package with one import added inside a function
     fake_root = tmp_path / 'repo'
     target = fake_root / 'pointforce_ros' / wing

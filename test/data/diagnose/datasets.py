@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.sim import effects as ce
+from pointforce_ros.sim import disturbances as ce
 from pointforce_ros.sim.scenario import HalfSpaceContact, Scenario
 from pointforce_ros.sim.session import simulate_campaign
 from pointforce_ros.types import PokeRecord

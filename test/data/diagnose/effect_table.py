@@ -29,7 +29,7 @@ import sys
 import time
 from pathlib import Path
 
-from pointforce_ros.sim import effects as ce
+from pointforce_ros.sim import disturbances as ce
 from pointforce_ros.sim.scenario import load_scenario, Scenario
 from pointforce_ros.sim.session import simulate_campaign
 from pointforce_ros.diagnose import diagnose

@@ -1,0 +1,14 @@
+"""Seed 001 (Petit/Ficuciello): an FEM model of the scanned object and force from deformation.
+
+Pure core (numpy/scipy; no ROS, and never the simulated cell, whose FEM stays the independent
+truth):
+
+- :mod:`.mesh`: tetrahedral volume mesh closed down to the table from the equilibrium surface.
+- :mod:`.fem`: static co-rotational linear tet FEM with a reusable factorisation.
+- :mod:`.observe`: the point-to-plane comparison of a depth cloud with the model's surface (and
+  the paper's two-way nearest-neighbour error for its baselines).
+- :mod:`.identify`: (E, nu) from pokes (force + cloud); closed-form E, 1-D search over nu.
+- :mod:`.force`: the contact force from a cloud alone, with residual and covariance.
+- :mod:`.bench`: timing of one force estimate and one identification against the paper's
+  Nelder-Mead.
+"""

@@ -1,0 +1,315 @@
+"""Young's modulus and Poisson ratio from pokes: measured force + depth cloud (seed 001, sec. 4).
+
+Each poke gives a contact point, the force the F/T sensor measured there and a depth cloud of
+the object at static equilibrium. For the linear model the displacement under a known force is
+``u = a(nu) / E`` with ``a`` the unit-modulus solution, so with the point-to-plane residuals of
+:mod:`.observe` (affine in ``u``) the best ``s = 1 / E`` for a given ``nu`` has a closed form
+(a one-unknown least-squares problem over every poke's points). What is left is a 1-D bounded
+search over ``nu`` of the residual at its best ``E`` (variable projection), done with
+``scipy.optimize.minimize_scalar`` (bounded Brent).
+
+Every ``nu`` needs ``a(nu) = K(nu)^-1 W F`` for each poke, and a new ``nu`` would mean a new
+factorisation (about 1 s at 6k unknowns with SuperLU). Instead the solutions are taken from a
+reduced basis: ``K(nu) ~ K_mu + r K_lambda`` (``r = lambda / mu``) and the Krylov vectors
+``(P^-1 K_lambda)^j P^-1 f`` of the factorisation ``P`` at a reference ``nu``, Galerkin-projected
+(exact at the reference ``nu``, error checked by a test against direct solves). After the search
+the model is factorised once at the found ``nu`` and ``E`` is refined with the co-rotation
+(``u = (W F / E + K^-1 g) ...``, the same fixed point as the force estimate) and re-pairing.
+
+The paper's baseline (:func:`identify_nelder_mead`) runs Nelder-Mead over ``(E, nu)`` on its
+eq. 7 two-way nearest-neighbour error with one co-rotational simulation (and factorisation) per
+evaluation. Units SI, frame ``base``.
+"""
+
+from dataclasses import dataclass, field
+import time
+from typing import Sequence, Tuple
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from pointforce_ros.deformation.fem import (CorotationalFem, lame, load_columns,
+                                            surface_point_load)
+from pointforce_ros.deformation.mesh import TetMesh
+from pointforce_ros.deformation.observe import (MatchConfig, normal_of, SurfaceMatcher,
+                                                two_way_nn_error, visible_nodes)
+from pointforce_ros.errors import InvalidInput, NotConverged
+from pointforce_ros.types import as_array
+
+
+@dataclass(frozen=True)
+class Poke:
+    """One static poke for identification.
+
+    Attributes:
+        contact_point: (3,) contact point on the rest surface, metres, ``base``.
+        force: (3,) measured force on the object (the F/T reading), newtons, ``base``.
+        cloud: (P, 3) depth points of the object at that equilibrium, metres, ``base``.
+
+    Raises:
+        InvalidInput: wrong shapes or non-finite values.
+
+    """
+
+    contact_point: np.ndarray
+    force: np.ndarray
+    cloud: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, 'contact_point',
+                           as_array(self.contact_point, 'Poke.contact_point', (3,)))
+        object.__setattr__(self, 'force', as_array(self.force, 'Poke.force', (3,)))
+        object.__setattr__(self, 'cloud', as_array(self.cloud, 'Poke.cloud', (None, 3)))
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """Settings of the identification.
+
+    Attributes:
+        poisson_bounds: search interval of nu.
+        reference_poisson: nu of the factorisation the reduced basis is built from.
+        krylov: Krylov vectors per poke in the reduced basis.
+        load_radius: load patch radius, metres.
+        match: cloud pairing settings.
+        refine_iter: co-rotation and re-pairing passes after the search.
+        xatol: tolerance of the nu search.
+
+    Raises:
+        InvalidInput: bounds outside (-1, 0.5) or empty, bad counts.
+
+    """
+
+    poisson_bounds: Tuple[float, float] = (0.0, 0.49)
+    reference_poisson: float = 0.35
+    krylov: int = 10
+    load_radius: float = 0.004
+    match: MatchConfig = field(default_factory=MatchConfig)
+    refine_iter: int = 3
+    xatol: float = 1e-3
+
+    def __post_init__(self):
+        lo, hi = self.poisson_bounds
+        if not -1.0 < lo < hi < 0.5 or not -1.0 < self.reference_poisson < 0.5:
+            raise InvalidInput(f'IdentifyConfig: need -1 < lo < hi < 0.5 and a reference nu in '
+                               f'(-1, 0.5); got {self.poisson_bounds}, {self.reference_poisson}')
+        if int(self.krylov) < 1 or int(self.refine_iter) < 0 or not self.xatol > 0:
+            raise InvalidInput('IdentifyConfig: krylov >= 1, refine_iter >= 0, xatol > 0')
+
+
+@dataclass(frozen=True)
+class ElasticityFit:
+    """Identified material.
+
+    Attributes:
+        young: Young's modulus, Pa.
+        poisson: Poisson ratio.
+        residual_rms: RMS point-to-plane residual over every poke at the fit, metres.
+        points: cloud points used.
+        evaluations: objective evaluations (nu values tried, or Nelder-Mead calls).
+        seconds: wall time.
+        error: the minimised objective (method-specific: sum of squares m^2 or eq. 7).
+
+    """
+
+    young: float
+    poisson: float
+    residual_rms: float
+    points: int
+    evaluations: int
+    seconds: float
+    error: float
+
+
+def _loads(mesh: TetMesh, pokes: Sequence[Poke], radius: float) -> np.ndarray:
+    """(ndof, n) nodal load vector of each poke's measured force."""
+    cols = []
+    for p in pokes:
+        nodes, w = surface_point_load(mesh, p.contact_point, radius)
+        cols.append(load_columns(mesh, nodes, w) @ p.force)
+    return np.column_stack(cols)
+
+
+def _check_pokes(pokes) -> list:
+    pokes = list(pokes)
+    if not pokes:
+        raise InvalidInput('identify: no pokes given (need at least one force + cloud)')
+    for i, p in enumerate(pokes):
+        if not isinstance(p, Poke):
+            raise InvalidInput(f'identify: poke {i} is not a deformation.identify.Poke')
+        if not np.linalg.norm(p.force) > 0:
+            raise InvalidInput(f'identify: poke {i} has a zero force')
+    return pokes
+
+
+class ReducedPoissonFamily:
+    """Unit-modulus displacements ``a(nu) = K_1(nu)^-1 f`` for fixed loads, from a reduced basis.
+
+    Args:
+        fem: the model, factorised at the reference nu (its ``young`` is ignored).
+        loads: (ndof, n) load vectors, newtons.
+        krylov: Krylov vectors per load.
+
+    """
+
+    def __init__(self, fem: CorotationalFem, loads: np.ndarray, krylov: int):
+        free = fem.free
+        k_lam = fem._k_lam_g[free][:, free]
+        k_mu = fem._k_mu_g[free][:, free]
+        scale = fem.young
+        vecs = []
+        for j in range(loads.shape[1]):
+            v = fem.solve_linear(loads[:, j])[free] * scale
+            for _ in range(int(krylov)):
+                vecs.append(v)
+                full = np.zeros(fem.ndof)
+                full[free] = k_lam @ v
+                v = fem.solve_linear(full)[free] * scale
+        basis, _ = np.linalg.qr(np.column_stack(vecs))
+        self.basis = basis
+        self.k_lam = basis.T @ (k_lam @ basis)
+        self.k_mu = basis.T @ (k_mu @ basis)
+        self.rhs = basis.T @ loads[free]
+        self.free = free
+        self.ndof = fem.ndof
+
+    def displacements(self, poisson: float) -> np.ndarray:
+        """(ndof, n) displacements at unit Young's modulus (1 Pa), metres."""
+        lam, mu = lame(1.0, poisson)
+        y = np.linalg.solve(lam * self.k_lam + mu * self.k_mu, self.rhs)
+        out = np.zeros((self.ndof, self.rhs.shape[1]))
+        out[self.free] = self.basis @ y
+        return out
+
+
+def _best_compliance(matches, unit, corr) -> Tuple[float, float, int]:
+    """Closed-form ``s = 1/E`` over all pokes; returns (s, sum of squares, points)."""
+    num = den = 0.0
+    parts = []
+    for j, m in enumerate(matches):
+        a = normal_of(m, unit[:, j])
+        b = m.gap - normal_of(m, corr[:, j])
+        num += float(a @ b)
+        den += float(a @ a)
+        parts.append((a, b))
+    if not den > 0:
+        raise InvalidInput('identify: the clouds do not see the poke displacements')
+    s = num / den
+    sse = sum(float(np.sum((b - s * a) ** 2)) for a, b in parts)
+    return s, sse, sum(len(a) for a, _ in parts)
+
+
+def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
+                        config: IdentifyConfig = IdentifyConfig(), rest_offset=None,
+                        young_guess: float = 5e4) -> Tuple[ElasticityFit, CorotationalFem]:
+    """Identify (E, nu): closed-form E per nu, bounded 1-D search over nu, co-rotation refine.
+
+    Args:
+        mesh: volume mesh of the object.
+        pokes: one or more pokes with force and cloud.
+        config: settings.
+        rest_offset: (N,) rest-scan offsets (:func:`.observe.rest_offsets`).
+        young_guess: scale of the reference factorisation, Pa (only conditions the numbers).
+
+    Returns:
+        ``(fit, fem)``: the fit and the model factorised at it (for force estimates).
+
+    Raises:
+        InvalidInput: no pokes, a zero force, bad clouds, contact points off the surface, or a
+            non-positive fitted modulus (the clouds move against the forces).
+
+    """
+    t0 = time.perf_counter()
+    pokes = _check_pokes(pokes)
+    matchers = [SurfaceMatcher(mesh, p.contact_point, p.cloud, config.match,
+                               rest_offset=rest_offset) for p in pokes]
+    fem = CorotationalFem(mesh, young_guess, config.reference_poisson)
+    loads = _loads(mesh, pokes, config.load_radius)
+    family = ReducedPoissonFamily(fem, loads, config.krylov)
+    corr = np.zeros_like(loads)
+    state = dict(evals=0, matches=[m.match() for m in matchers])
+
+    def objective(nu):
+        state['evals'] += 1
+        _, sse, _ = _best_compliance(state['matches'], family.displacements(nu), corr)
+        return sse
+
+    lo, hi = config.poisson_bounds
+    nu = config.reference_poisson
+    for _ in range(2):  # search, re-pair on the predicted surfaces, search again
+        nu = float(minimize_scalar(objective, bounds=(lo, hi), method='bounded',
+                                   options=dict(xatol=config.xatol)).x)
+        unit = family.displacements(nu)
+        s, _, _ = _best_compliance(state['matches'], unit, corr)
+        if not s > 0:
+            raise InvalidInput(f'identify: fitted compliance {s:.3g} 1/Pa is not positive: the '
+                               f'clouds do not move with the measured forces')
+        state['matches'] = [m.match(unit[:, j] * s) for j, m in enumerate(matchers)]
+    fem.set_material(1.0 / s, nu)
+    unit = fem.solve_linear(loads) * fem.young  # exact unit-modulus solutions at nu
+    for _ in range(int(config.refine_iter)):
+        u = unit * s + corr
+        state['matches'] = [m.match(u[:, j]) for j, m in enumerate(matchers)]
+        s, sse, npts = _best_compliance(state['matches'], unit, corr)
+        if not s > 0:
+            raise InvalidInput('identify: fitted compliance is not positive')
+        # co-rotation: E K_1 u = f + E g_1(u)  ->  u = s K_1^-1 f + K_1^-1 g_1(u), and
+        # K_1^-1 g_1 = K^-1 g at any E, so the correction does not depend on s
+        corr = np.column_stack([fem.solve_linear(fem.nonlinear_force(u[:, j]))
+                                for j in range(len(pokes))])
+    s, sse, npts = _best_compliance(state['matches'], unit, corr)
+    fem.set_material(1.0 / s, nu)
+    fit = ElasticityFit(young=1.0 / s, poisson=nu, residual_rms=float(np.sqrt(sse / npts)),
+                        points=npts, evaluations=state['evals'],
+                        seconds=time.perf_counter() - t0, error=sse)
+    return fit, fem
+
+
+def identify_nelder_mead(mesh: TetMesh, pokes: Sequence[Poke],
+                         config: IdentifyConfig = IdentifyConfig(), start=(2e4, 0.25),
+                         max_evaluations: int = 80, xatol: float = 1e-3,
+                         fatol: float = 1e-12) -> ElasticityFit:
+    """Seed 001's identification: Nelder-Mead over (E, nu) on its eq. 7 error.
+
+    Each evaluation factorises the model at (E, nu), solves the co-rotational equilibrium
+    under each measured force and sums eq. 7 (two-way nearest neighbours between the visible
+    surface nodes and the cloud) over the pokes. ``E`` is searched as ``log E`` and ``nu`` is
+    clipped into the bounds (the paper resets an out-of-bounds value to just inside).
+
+    Raises:
+        InvalidInput: as :func:`identify_elasticity`.
+
+    """
+    t0 = time.perf_counter()
+    pokes = _check_pokes(pokes)
+    matchers = [SurfaceMatcher(mesh, p.contact_point, p.cloud, config.match) for p in pokes]
+    visible = [visible_nodes(mesh, m) for m in matchers]
+    loads = _loads(mesh, pokes, config.load_radius)
+    fem = CorotationalFem(mesh, start[0], start[1])
+    lo, hi = config.poisson_bounds
+    state = dict(evals=0)
+
+    def error(x):
+        state['evals'] += 1
+        young = float(np.exp(x[0]))
+        nu = float(np.clip(x[1], lo + 1e-4, hi - 1e-4))
+        fem.set_material(young, nu)
+        total = 0.0
+        for j, m in enumerate(matchers):
+            try:
+                u = fem.solve(loads[:, j])
+            except NotConverged:
+                return 1.0
+            total += two_way_nn_error(mesh.nodes + u.reshape(-1, 3), visible[j], m.points)
+        return total
+
+    x0 = np.array([np.log(start[0]), start[1]])
+    res = minimize(error, x0, method='Nelder-Mead',
+                   options=dict(xatol=xatol, fatol=fatol, maxfev=int(max_evaluations),
+                                initial_simplex=np.array([x0, x0 + [0.5, 0.0],
+                                                          x0 + [0.0, 0.1]])))
+    young = float(np.exp(res.x[0]))
+    nu = float(np.clip(res.x[1], lo + 1e-4, hi - 1e-4))
+    return ElasticityFit(young=young, poisson=nu, residual_rms=float('nan'),
+                         points=sum(len(m.points) for m in matchers), evaluations=state['evals'],
+                         seconds=time.perf_counter() - t0, error=float(res.fun))

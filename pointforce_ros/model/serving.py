@@ -8,28 +8,126 @@ Accepted effects stored in the model (``ContactModel.effects``) are applied as t
 terms (:mod:`pointforce_ros.effects.forward`): a surface offset the file has not applied yet, a
 series compliance (the answer is the one at the pose moved back along the approach by
 ``compliance * F_n``, solved for the total normal force), and a viscoelastic hold fraction.
+
+Every request passes :class:`RequestLimits` before any work (rigid samples x poses, a memory
+estimate from the mesh's sample count, coordinates, depth past the surface, torque-centre
+distance), and every answer is checked before it is returned: a non-finite wrench or one beyond
+what the model's baked force table can give for the contacts found is refused with a message
+about the request.
 """
 
 import dataclasses
+import hashlib
 import threading
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Tuple
+from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 
 from pointforce_ros.contact import ContactSimulator
+from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
 from pointforce_ros.contact.simulator import normalise_approach, poses_as_arrays
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
-from pointforce_ros.errors import ModelNotReady
+from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.model.files import ContactModel, latest_model_path, load_model
 from pointforce_ros.types import ContactQuery, Pose
+
+BYTES_PER_SAMPLE_POSE = 256
+"""Working memory of one rigid sample at one pose in the simulator's first pass, bytes.
+
+The posed coordinates (24), their in-plane cell indices and temporaries (~70), masks and, for a
+sample that passes the height bound, its neighbour query and candidate arrays (~150).
+"""
+
+BYTES_PER_CONTACT_PAIR = 64
+"""Working memory of one entry of a pose's contact problem (pairwise distances, ``G``,
+products), bytes; a pose with ``K`` candidates needs about ``64 K^2``."""
+
+_MIB = float(2 ** 20)
+_NO_ANSWER = ('{where}: the model has no finite answer for this pose ({bad} of {count} poses); '
+              'the mesh is outside what the model covers; check the pose and the mesh')
+
+
+@dataclass(frozen=True)
+class RequestLimits:
+    """What one contact request may ask of the service; checked before any work.
+
+    Attributes:
+        max_sample_poses: largest rigid samples x poses of one request (the simulator's work;
+            1e8 is a few seconds of one core).
+        max_memory: largest working-memory estimate of one request, bytes. Batches are cut
+            into chunks of poses that fit; a request whose single pose does not fit is refused.
+        max_distance: largest distance of a pose position or the torque centre from the
+            surface's bounding box, and of a mesh vertex from the mesh origin, metres.
+        max_depth: largest depth of a mesh vertex (over the surface, in the projection along
+            the approach) past the deepest surface point, metres.
+        max_torque_arm: largest distance from the torque centre to a pose position, metres.
+        chunk: most poses solved together (memory permitting).
+
+    Raises:
+        InvalidInput: a limit that is not a positive finite number.
+
+    """
+
+    max_sample_poses: int = 100_000_000
+    max_memory: int = 2 ** 30
+    max_distance: float = 10.0
+    max_depth: float = 0.1
+    max_torque_arm: float = 5.0
+    chunk: int = 1024
+
+    def __post_init__(self):
+        for name in ('max_sample_poses', 'max_memory', 'max_distance', 'max_depth',
+                     'max_torque_arm', 'chunk'):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise InvalidInput(f'RequestLimits.{name}: must be a positive number, got '
+                                   f'{value!r}')
+
+
+class _Bounds(NamedTuple):
+    """Per-model constants of the request and answer checks."""
+
+    lo: np.ndarray          # (3,) surface bounding box, m, base
+    hi: np.ndarray          # (3,)
+    contact_force: float    # largest force one contact can give within max_depth, N
+
+
+def _model_bounds(model: ContactModel, limits: RequestLimits) -> _Bounds:
+    """Bounding box of the surface and the per-contact force ceiling of the baked table.
+
+    The ceiling is the table's largest force plus its steepest extrapolation slope over
+    ``max_depth`` (or the table's depth span, if longer): no contact of an admitted request can
+    give more, so a larger answer is an artefact, not a force.
+    """
+    response = model.response
+    depths = np.asarray(response.depths, dtype=np.float64)
+    span = max(limits.max_depth, float(depths[-1] - depths[0]))
+    top = float(np.max(np.abs(response.forces))) if response.forces.size else 0.0
+    slope = float(np.max(response.slopes)) if len(response.slopes) else 0.0
+    ceiling = top + max(slope, 0.0) * span
+    points = model.surface.points
+    return _Bounds(points.min(axis=0), points.max(axis=0), ceiling)
+
+
+def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(B,) distance of ``points`` (B, 3) from the box ``lo..hi`` (0 inside), metres."""
+    gap = np.maximum(np.maximum(lo - points, points - hi), 0.0)
+    with np.errstate(over='ignore'):
+        return np.linalg.norm(gap, axis=1)
+
+
+def _where(count: int, i: int) -> str:
+    """Name pose ``i`` of a request the way the request does (``pose`` or ``poses[i]``)."""
+    return 'pose' if count == 1 else f'poses[{i}]'
 
 
 class WrenchServer:
     """Answers :class:`ContactQuery` objects from the latest loaded :class:`ContactModel`."""
 
     def __init__(self, spacing: float = 0.003, *, series_compliance: bool = True,
-                 hold_time: float = 0.0):
+                 hold_time: float = 0.0, limits: Optional[RequestLimits] = None):
         """Create an empty server.
 
         Args:
@@ -37,14 +135,22 @@ class WrenchServer:
             series_compliance: apply a series compliance the model's effects hold.
             hold_time: seconds a pose is held after a fast approach, for a viscoelastic
                 effect (0: the instantaneous force).
+            limits: what one request may ask (default :class:`RequestLimits`).
 
         """
+        self.limits = RequestLimits() if limits is None else limits
+        if not isinstance(self.limits, RequestLimits):
+            raise InvalidInput(f'WrenchServer: limits must be a RequestLimits, got '
+                               f'{type(self.limits).__name__}')
         self._spacing = float(spacing)
         self._series = bool(series_compliance)
         self._hold_time = float(hold_time)
         ForwardTerms.of({}, hold_time=self._hold_time)  # validates hold_time
-        self._current: Optional[Tuple[ContactModel, ContactSimulator, ForwardTerms]] = None
+        self._current: Optional[Tuple[ContactModel, ContactSimulator, ForwardTerms,
+                                      _Bounds]] = None
         self._swap_lock = threading.Lock()
+        self._sizes = {}    # mesh content -> (radius, sample count)
+        self._facing = {}   # projection -> (it, deepest facing height, in-plane box lo, hi)
         self.loaded_path: Optional[Path] = None
 
     @property
@@ -64,9 +170,10 @@ class WrenchServer:
                                 hold_time=self._hold_time)
         simulator = ContactSimulator(model_surface(model), model.response, model.shape_constant,
                                      spacing=self._spacing, decay=model.shape_decay)
+        bounds = _model_bounds(model, self.limits)
         with self._swap_lock:
             if self._current is None or model.version >= self._current[0].version:
-                self._current = (model, simulator, terms)
+                self._current = (model, simulator, terms, bounds)
 
     @property
     def forward_terms(self) -> Optional[ForwardTerms]:
@@ -89,7 +196,7 @@ class WrenchServer:
         self.load(path)
         return True
 
-    def _snapshot(self) -> Tuple[ContactModel, ContactSimulator, ForwardTerms]:
+    def _snapshot(self) -> Tuple[ContactModel, ContactSimulator, ForwardTerms, _Bounds]:
         current = self._current
         if current is None:
             raise ModelNotReady('no contact model loaded yet: run the learner or give model_dir')
@@ -109,41 +216,236 @@ class WrenchServer:
 
         Raises:
             ModelNotReady: no model loaded.
-            InvalidInput: a query the simulator cannot use.
+            InvalidInput: a query the simulator cannot use, one beyond :attr:`limits` (checked
+                before any work), or one whose answer is not finite or beyond what the model
+                can give (a message about the request).
 
         """
-        model, simulator, terms = self._snapshot()
+        model, simulator, terms, bounds = self._snapshot()
         pose = query.poses[0]
+        chunk = self._admit(query, simulator, bounds, (pose,))
         if terms.compliance > 0:
-            shift = self._retreat(simulator, terms, query, query.poses[:1])[0]
+            shift = self._retreat(simulator, terms, query, query.poses[:1], chunk)[0]
             pose = Pose(position=pose.position - shift * normalise_approach(query.approach),
                         orientation=pose.orientation, frame=pose.frame)
-        result = simulator.query(query.mesh, pose, query.approach, query.torque_centre,
-                                 return_displacements=query.return_displacements)
+        try:
+            result = simulator.query(query.mesh, pose, query.approach, query.torque_centre,
+                                     return_displacements=query.return_displacements)
+        except InvalidInput as exc:
+            if not str(exc).startswith('Wrench'):
+                raise
+            # the request was checked already: a wrench the simulator cannot build is the
+            # answer's fault, told about the request
+            raise InvalidInput(_NO_ANSWER.format(where='pose', bad=1, count=1)) from exc
         if terms.force_scale != 1.0:
             k = terms.force_scale
             wrench = dataclasses.replace(result.wrench, force=result.wrench.force * k,
                                          torque=result.wrench.torque * k)
             result = dataclasses.replace(result, wrench=wrench,
                                          contact_forces=result.contact_forces * k)
+        row = np.concatenate([result.wrench.force, result.wrench.torque])[None]
+        self._check_answer(query, bounds, row, np.array([result.contact_count]),
+                           np.array([result.max_displacement]), pose.position[None])
         return result, int(model.version)
 
     def answer_batch(self, query: ContactQuery):
-        """Answer every pose of ``query``: returns (BatchContactResult, model version)."""
-        model, simulator, terms = self._snapshot()
+        """Answer every pose of ``query``: returns (BatchContactResult, model version).
+
+        Raises:
+            ModelNotReady: no model loaded.
+            InvalidInput: as :meth:`answer`; the message names the first offending pose.
+
+        """
+        model, simulator, terms, bounds = self._snapshot()
         poses = list(query.poses)
+        chunk = self._admit(query, simulator, bounds, poses)
         if terms.compliance > 0:
-            shift = self._retreat(simulator, terms, query, poses)
+            shift = self._retreat(simulator, terms, query, poses, chunk)
             poses = _shifted(poses, simulator.surface.frame, shift,
                              normalise_approach(query.approach))
-        batch = simulator.query_batch(query.mesh, poses, query.approach, query.torque_centre)
+        batch = simulator.query_batch(query.mesh, poses, query.approach, query.torque_centre,
+                                      chunk=chunk)
         if terms.force_scale != 1.0:
             batch = dataclasses.replace(batch, wrenches=batch.wrenches * terms.force_scale)
+        positions = np.array([p.position for p in query.poses])
+        self._check_answer(query, bounds, batch.wrenches, batch.contact_count,
+                           batch.max_displacement, positions)
         return batch, int(model.version)
+
+    # ------------------------------------------------------------------ request checks
+    def _admit(self, query: ContactQuery, simulator: ContactSimulator, bounds: _Bounds,
+               poses) -> int:
+        """Refuse a request beyond :attr:`limits` before any work; return the pose chunk.
+
+        Raises:
+            InvalidInput: too many samples x poses, too much memory, a mesh, pose or torque
+                centre too far away, or a mesh reaching deeper than ``max_depth`` past the
+                surface.
+
+        """
+        limits = self.limits
+        mesh = query.mesh
+        radius, samples = self._mesh_size(mesh)
+        if samples > MAX_SAMPLES:
+            raise InvalidInput(f'mesh: {samples} samples at {1e3 * self._spacing:g} mm spacing '
+                               f'(more than {MAX_SAMPLES}); send a smaller or coarser mesh')
+        count = len(poses)
+        work = float(samples) * count
+        if work > limits.max_sample_poses:
+            most = max(int(limits.max_sample_poses // samples), 0)
+            raise InvalidInput(
+                f'request too large: {count} poses x {samples} mesh samples (at '
+                f'{1e3 * self._spacing:g} mm spacing) = {work:.3g}, above the service limit '
+                f'of {limits.max_sample_poses:.3g}; send at most {most} poses of this mesh '
+                'per request, or a smaller mesh')
+        per_pose = samples * BYTES_PER_SAMPLE_POSE
+        if per_pose > limits.max_memory:
+            raise InvalidInput(f'mesh: one pose of its {samples} samples needs about '
+                               f'{per_pose / _MIB:.0f} MiB, above the service limit of '
+                               f'{limits.max_memory / _MIB:.0f} MiB; send a smaller mesh')
+        chunk = int(max(1, min(limits.chunk, limits.max_memory // per_pose)))
+        positions = np.array([p.position for p in poses], dtype=np.float64).reshape(-1, 3)
+        far = _box_distance(positions, bounds.lo, bounds.hi)
+        worst = int(np.argmax(far))
+        if not far[worst] <= limits.max_distance:
+            raise InvalidInput(f'{_where(count, worst)}: position '
+                               f'{np.array2string(positions[worst], precision=4)} m is '
+                               f'{far[worst]:.3g} m from the object (limit '
+                               f'{limits.max_distance:g} m); check the frame and units')
+        centre = np.asarray(query.torque_centre, dtype=np.float64)
+        off = float(_box_distance(centre[None], bounds.lo, bounds.hi)[0])
+        if not off <= limits.max_distance:
+            raise InvalidInput(f'torque_centre: {off:.3g} m from the object (limit '
+                               f'{limits.max_distance:g} m); check the frame and units')
+        with np.errstate(over='ignore'):
+            arm = np.linalg.norm(positions - centre, axis=1)
+        worst = int(np.argmax(arm))
+        if not arm[worst] <= limits.max_torque_arm:
+            raise InvalidInput(f'torque_centre: {arm[worst]:.3g} m from '
+                               f'{_where(count, worst)} (limit {limits.max_torque_arm:g} m); '
+                               'take the torque about a point near the body')
+        self._check_geometry(query, simulator, poses, positions, samples, radius)
+        return chunk
+
+    def _mesh_size(self, mesh) -> Tuple[float, int]:
+        """(radius m, sample count) of ``mesh``, cached by content (planners resend meshes).
+
+        Raises:
+            InvalidInput: a vertex farther than ``max_distance`` from the mesh origin, or
+                edges the sampler cannot count (huge coordinates).
+
+        """
+        digest = hashlib.blake2b(mesh.vertices.tobytes(), digest_size=16)
+        digest.update(mesh.triangles.tobytes())
+        key = (digest.digest(), len(mesh.vertices), self._spacing)
+        hit = self._sizes.get(key)
+        if hit is not None:
+            return hit
+        with np.errstate(over='ignore'):
+            radius = float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
+        if not radius <= self.limits.max_distance:
+            raise InvalidInput(f'mesh: a vertex lies {radius:.3g} m from the mesh origin '
+                               f'(limit {self.limits.max_distance:g} m); check the mesh units')
+        size = (radius, mesh_sample_count(mesh, self._spacing))
+        if len(self._sizes) >= 64:
+            self._sizes.clear()
+        self._sizes[key] = size
+        return size
+
+    def _check_geometry(self, query: ContactQuery, simulator: ContactSimulator, poses,
+                        positions: np.ndarray, samples: int, radius: float) -> None:
+        """Refuse a mesh too deep in the object, or with too many possible contacts.
+
+        Depth: a mesh vertex over the surface deeper than ``max_depth`` past all of it, along
+        the approach, past the deepest surface point that faces the approach; "over the
+        surface" is inside the facing points' bounding box in the projection plane (widened by
+        the simulator's ``max_gap``). Vectorised in chunks of 1e6 vertex-poses.
+
+        Contacts: a pose has at most as many contacts as facing surface points lie under its
+        footprint (within the mesh radius plus ``max_gap`` in the projection plane) and as it
+        has samples; ``BYTES_PER_CONTACT_PAIR`` times its square must fit ``max_memory``.
+        Counted only when the whole surface could exceed it.
+        """
+        a = normalise_approach(query.approach)
+        proj = simulator.projection(a)
+        if proj.tree is None:
+            return  # no surface faces this approach: nothing can be touched
+        limit = self.limits.max_memory
+        if float(min(samples, len(proj.index))) ** 2 * BYTES_PER_CONTACT_PAIR > limit:
+            under = proj.tree.query_ball_point(positions @ proj.basis, r=radius + proj.max_gap,
+                                               return_length=True)
+            need = np.minimum(np.asarray(under, dtype=np.float64), samples) ** 2
+            worst = int(np.argmax(need))
+            if need[worst] * BYTES_PER_CONTACT_PAIR > limit:
+                raise InvalidInput(
+                    f'{_where(len(poses), worst)}: up to {int(np.sqrt(need[worst]))} contacts '
+                    f'under the mesh would need about '
+                    f'{need[worst] * BYTES_PER_CONTACT_PAIR / _MIB:.0f} MiB to solve, above the '
+                    f'service limit of {limit / _MIB:.0f} MiB; send a smaller mesh')
+        hit = self._facing.get(id(proj))
+        if hit is None or hit[0] is not proj:
+            facing = simulator.surface.points[proj.index]
+            uv = facing @ proj.basis
+            hit = (proj, float(np.max(facing @ a)), uv.min(axis=0) - proj.max_gap,
+                   uv.max(axis=0) + proj.max_gap)
+            if len(self._facing) >= 64:
+                self._facing.clear()
+            self._facing[id(proj)] = hit
+        _, deepest, lo2, hi2 = hit
+        verts = query.mesh.vertices
+        rotations = np.array([p.rotation() for p in poses]).reshape(-1, 3, 3)
+        frame = np.column_stack([a, proj.basis])
+        step = max(1, 1_000_000 // len(verts))
+        for s in range(0, len(poses), step):
+            rot, pos = rotations[s:s + step], positions[s:s + step]
+            coords = np.matmul(verts, rot.transpose(0, 2, 1) @ frame) + (pos @ frame)[:, None]
+            over = np.all((coords[..., 1:] >= lo2) & (coords[..., 1:] <= hi2), axis=2)
+            depth = np.where(over, coords[..., 0] - deepest, -np.inf).max(axis=1)
+            worst = int(np.argmax(depth))
+            if depth[worst] > self.limits.max_depth:
+                raise InvalidInput(
+                    f'{_where(len(poses), s + worst)}: the mesh reaches {depth[worst]:.3g} m '
+                    f'past the deepest point of the object along the approach (limit '
+                    f'{self.limits.max_depth:g} m): it would be inside the object; check the '
+                    'pose, its frame and the approach direction')
+
+    def _check_answer(self, query: ContactQuery, bounds: _Bounds, wrenches: np.ndarray,
+                      contacts: np.ndarray, displacement: np.ndarray,
+                      positions: np.ndarray) -> None:
+        """Refuse an answer that is not finite or more than the model's table can give.
+
+        The bound on a pose's force is the per-contact ceiling of the table times its contact
+        count; on its torque, that force times the farthest a mesh point can be from the
+        torque centre.
+
+        Raises:
+            InvalidInput: naming the pose of the request, not the output.
+
+        """
+        count = len(wrenches)
+        finite = np.all(np.isfinite(wrenches), axis=1) & np.isfinite(displacement)
+        if not np.all(finite):
+            i = int(np.flatnonzero(~finite)[0])
+            raise InvalidInput(_NO_ANSWER.format(where=_where(count, i),
+                                                 bad=int(np.sum(~finite)), count=count))
+        force_cap = bounds.contact_force * np.maximum(np.asarray(contacts, float), 1.0)
+        radius = self._mesh_size(query.mesh)[0]
+        reach = np.linalg.norm(positions - np.asarray(query.torque_centre), axis=1) + radius
+        force = np.linalg.norm(wrenches[:, :3], axis=1)
+        torque = np.linalg.norm(wrenches[:, 3:], axis=1)
+        bad = (force > force_cap * (1 + 1e-6) + 1e-9) | (
+            torque > force_cap * reach * (1 + 1e-6) + 1e-9)
+        if np.any(bad):
+            i = int(np.flatnonzero(bad)[0])
+            raise InvalidInput(
+                f'{_where(count, i)}: the model cannot give this answer ({force[i]:.3g} N, '
+                f'{torque[i]:.3g} N m for {int(contacts[i])} contacts, at most '
+                f'{bounds.contact_force:.3g} N each): the mesh is deeper than the model '
+                'knows; check the pose')
 
     @staticmethod
     def _retreat(simulator: ContactSimulator, terms: ForwardTerms, query: ContactQuery,
-                 poses) -> np.ndarray:
+                 poses, chunk: int = 1024) -> np.ndarray:
         """Retreat (B,) metres of each pose along the approach under the series compliance."""
         a = normalise_approach(query.approach)
         base = _as_rows(poses, simulator.surface.frame)
@@ -152,7 +454,7 @@ class WrenchServer:
         def push_back(index, shift):
             rows = base[index].copy()
             rows[:, :3] -= shift[:, None] * a
-            out = simulator.query_batch(query.mesh, rows, a, centre)
+            out = simulator.query_batch(query.mesh, rows, a, centre, chunk=chunk)
             return -terms.force_scale * (out.wrenches[:, :3] @ a)
 
         shift, _ = solve_retreat(push_back, terms.compliance, len(base))

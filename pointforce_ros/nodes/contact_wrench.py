@@ -2,7 +2,10 @@
 
 Answers from the latest contact model: a file in ``model_dir`` (polled) or the path announced on
 the learner's latched model topic. A new model is swapped in without dropping requests. Malformed
-requests get ``success=False`` and a message; the node keeps serving. Accepted effects stored in
+requests get ``success=False`` and a message; the node keeps serving: each callback contains
+every exception (``MemoryError`` and unforeseen errors included) and answers with a reason, and
+requests beyond the limits (``max_sample_poses``, ``max_request_memory``, ``max_distance``,
+``max_depth``, ``max_torque_arm``) are refused before any work. Accepted effects stored in
 the model add their forward terms (:mod:`pointforce_ros.effects.forward`): series compliance
 (``series_compliance``), a viscoelastic hold fraction (``hold_time``) and a surface offset.
 """
@@ -20,7 +23,7 @@ from msg_adapters.interfaces import (contact_query_from_batch_request, contact_q
                                      fail, fill_batch_response, fill_contact_response)
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.nodes.common import declare, run
-from pointforce_ros.model.serving import WrenchServer
+from pointforce_ros.model.serving import RequestLimits, WrenchServer
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -51,8 +54,30 @@ class ContactWrenchNode(Node):
                             'For a viscoelastic model: seconds the pose is held after a fast '
                             'approach (0: instantaneous force, the upper bound), s',
                             bounds=(0.0, 1e6))
+        limits = RequestLimits(
+            max_sample_poses=declare(
+                self, 'max_sample_poses', 100_000_000,
+                'Largest rigid-mesh samples x poses of one request (the work it asks for)',
+                bounds=(1000, 10_000_000_000)),
+            max_memory=int(2 ** 20 * declare(
+                self, 'max_request_memory', 1024.0,
+                'Largest working-memory estimate of one request, MiB (batches are cut into '
+                'chunks that fit; a mesh whose single pose does not fit is refused)',
+                bounds=(16.0, 65536.0))),
+            max_distance=declare(
+                self, 'max_distance', 10.0,
+                'Largest distance of a pose or the torque centre from the surface bounding '
+                'box, and of a mesh vertex from its origin, m (base)', bounds=(0.1, 1000.0)),
+            max_depth=declare(
+                self, 'max_depth', 0.1,
+                'Largest depth of a mesh vertex past the deepest surface point along the '
+                'approach, m (base)', bounds=(0.001, 10.0)),
+            max_torque_arm=declare(
+                self, 'max_torque_arm', 5.0,
+                'Largest distance from the torque centre to a pose, m (base)',
+                bounds=(0.01, 1000.0)))
         self.server = WrenchServer(spacing=spacing, series_compliance=series,
-                                   hold_time=hold_time)
+                                   hold_time=hold_time, limits=limits)
         self.requests_served = 0
         self.requests_failed = 0
         self._try_load_dir()
@@ -78,6 +103,9 @@ class ContactWrenchNode(Node):
         except PointforceError as exc:
             self.get_logger().error(f'cannot load model from {self.model_dir}: {exc}',
                                     throttle_duration_sec=10.0)
+        except Exception as exc:  # noqa: BLE001 - a timer callback must not end the executor
+            self.get_logger().error(f'cannot load model from {self.model_dir}: '
+                                    f'{type(exc).__name__}: {exc}', throttle_duration_sec=10.0)
 
     def _on_model(self, msg: ModelStatus):
         if not msg.model_path or msg.version <= self.server.version:
@@ -87,6 +115,9 @@ class ContactWrenchNode(Node):
             self.get_logger().info(f'hot-swapped to model v{self.server.version}{self._terms()}')
         except PointforceError as exc:
             self.get_logger().error(f'model v{msg.version} at {msg.model_path} rejected: {exc}')
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            self.get_logger().error(f'model v{msg.version} at {msg.model_path} rejected: '
+                                    f'{type(exc).__name__}: {exc}')
 
     def _terms(self) -> str:
         terms = self.server.forward_terms
@@ -102,28 +133,42 @@ class ContactWrenchNode(Node):
             result, version = self.server.answer(query)
             fill_contact_response(response, result, version, query.return_displacements)
             self.requests_served += 1
-        except PointforceError as exc:
-            self.requests_failed += 1
-            fail(response, str(exc))
-            self.get_logger().warn(f'contact_wrench refused: {exc}', throttle_duration_sec=2.0)
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            self._refuse(response, 'contact_wrench', exc)
         self.get_logger().debug(f'contact_wrench in {1e3 * (time.perf_counter() - start):.2f} ms')
         return response
 
     def _on_batch(self, request, response):
         try:
             if len(request.poses) > self.max_batch:
+                self.requests_failed += 1
                 return fail(response, f'poses: {len(request.poses)} exceeds max_batch '
                                       f'{self.max_batch}')
             query = contact_query_from_batch_request(request)
             batch, version = self.server.answer_batch(query)
             fill_batch_response(response, batch, version)
             self.requests_served += 1
-        except PointforceError as exc:
-            self.requests_failed += 1
-            fail(response, str(exc))
-            self.get_logger().warn(f'contact_wrench_batch refused: {exc}',
-                                   throttle_duration_sec=2.0)
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            self._refuse(response, 'contact_wrench_batch', exc)
         return response
+
+    def _refuse(self, response, service: str, exc: Exception):
+        """Answer ``success=False`` with a reason about the request, whatever ``exc`` was."""
+        self.requests_failed += 1
+        if isinstance(exc, PointforceError):
+            message = str(exc)
+        elif isinstance(exc, MemoryError):
+            message = ('the request needs more memory than the service has; send fewer poses '
+                       'or a smaller mesh (limits: max_sample_poses, max_request_memory)')
+        else:
+            message = (f'the service could not answer this request ({type(exc).__name__}: '
+                       f'{exc}); it keeps serving others')
+        fail(response, message)
+        if isinstance(exc, PointforceError):
+            self.get_logger().warn(f'{service} refused: {message}', throttle_duration_sec=2.0)
+        else:
+            self.get_logger().error(f'{service} failed on a request: {type(exc).__name__}: '
+                                    f'{exc!r}', throttle_duration_sec=2.0)
 
 
 def main(args=None):

@@ -5,6 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pointforce_ros.contact import sample_mesh_surface
+from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
 from pointforce_ros.lab.synthetic_contact import fibonacci_sphere_mesh
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.shapes import box, icosphere
@@ -68,3 +69,29 @@ def test_bad_spacing_and_meshes():
         Mesh(vertices=[[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], triangles=[[0, 1, 2]])
     with pytest.raises(InvalidInput, match='empty'):
         Mesh(vertices=np.zeros((3, 3)), triangles=np.zeros((0, 3)))
+
+
+@pytest.mark.parametrize('mesh, spacing', [(box((0.03, 0.02, 0.01)), 0.003),
+                                           (icosphere(0.02, 2), 0.003),
+                                           (box((0.5, 0.5, 0.5)), 0.01)])
+def test_sample_count_without_sampling_equals_the_samples(mesh, spacing):
+    assert mesh_sample_count(mesh, spacing) == len(sample_mesh_surface(mesh, spacing)[0])
+
+
+@pytest.mark.parametrize('size', [1e20, 1e300])
+def test_huge_coordinates_cannot_wrap_the_count_past_the_cap(size):
+    """A float-to-int cast of 3e22 steps wrapped to a negative count: only 3 points placed."""
+    mesh = Mesh(vertices=[[0, 0, 0], [size, 0, 0], [0, size, 0]], triangles=[[0, 1, 2]])
+    with pytest.raises(InvalidInput, match='units'):
+        sample_mesh_surface(mesh, 0.003)
+    with pytest.raises(InvalidInput, match='units'):
+        mesh_sample_count(mesh, 0.003)
+
+
+def test_the_count_reports_an_oversized_mesh_the_sampler_refuses():
+    """A 2.9 m plate (two triangles) at 1 mm: counted in microseconds, refused by the sampler."""
+    plate = Mesh(vertices=[[0, 0, 0], [2.9, 0, 0], [2.9, 2.9, 0], [0, 2.9, 0]],
+                 triangles=[[0, 1, 2], [0, 2, 3]])
+    assert mesh_sample_count(plate, 0.001) > MAX_SAMPLES
+    with pytest.raises(InvalidInput, match='million'):
+        sample_mesh_surface(plate, 0.001)

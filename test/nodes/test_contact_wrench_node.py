@@ -1,6 +1,7 @@
 """contact_wrench node over real DDS: answers, batch, bad requests, hot swap, concurrency."""
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from pointforce_ros.nodes.contact_wrench import ContactWrenchNode, LATCHED
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.shapes import icosphere
-from pointforce_ros.types import ContactQuery, Pose
+from pointforce_ros.types import ContactQuery, Mesh, Pose
 
 pytestmark = pytest.mark.ros
 SPHERE = icosphere(0.02, 2)
@@ -64,6 +65,11 @@ def test_answer_round_trips_and_equals_the_core_solver(served):
     (lambda r: setattr(r.approach, 'z', 0.2), 'approach'),
     (lambda r: setattr(r.mesh, 'triangles', []), 'empty'),
     (lambda r: setattr(r.pose.position, 'z', float('nan')), 'non-finite'),
+    # issue 16: answered with Fz = 9718 N, 9.8e12 N and torques up to 5.9e300 N m
+    (lambda r: setattr(r.pose.position, 'z', 0.02 - 1.0), 'past the deepest point'),
+    (lambda r: setattr(r.pose.position, 'z', -1e9), 'from the object'),
+    (lambda r: setattr(r.torque_centre, 'x', 1e300), 'torque_centre'),
+    (lambda r: setattr(r.torque_centre, 'x', 7.0), 'torque_centre'),
 ])
 def test_malformed_requests_fail_cleanly_and_the_node_keeps_serving(served, breakage, match):
     graph, node, _, single, _, _, _ = served
@@ -73,6 +79,54 @@ def test_malformed_requests_fail_cleanly_and_the_node_keeps_serving(served, brea
     assert not response.success and match in response.message
     good = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'good request')
     assert good.success and node.requests_failed == 1
+
+
+def _plate_batch(poses):
+    """A 2.9 m plate (two triangles, ~1.9 million samples at 3 mm) at ``poses`` poses."""
+    half = 1.45
+    plate = Mesh(vertices=[[-half, -half, 0], [half, -half, 0], [half, half, 0],
+                           [-half, half, 0]], triangles=[[0, 2, 1], [0, 3, 2]])
+    request = ContactWrenchBatch.Request(mesh=mesh_to_msg(plate),
+                                         approach=Vector3(x=0.0, y=0.0, z=-1.0),
+                                         torque_centre=to_point([0.5, 0.0, 0.045]))
+    request.poses = [pose_to_msg(Pose(position=[0.5, 0.0, 0.045]))] * poses
+    return request
+
+
+def test_a_huge_legal_batch_is_refused_quickly_and_the_node_keeps_answering(served):
+    """Issue 16: 1000 poses of a 2.9 m plate asked for 41.9 GiB and ended the executor."""
+    graph, node, _, single, batch, _, _ = served
+    before = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'before')
+    request = _plate_batch(1000)
+    start = time.perf_counter()
+    response = graph.wait_future(batch.call_async(request), 10, 'plate batch')
+    elapsed = time.perf_counter() - start
+    assert not response.success and 'request too large: 1000 poses' in response.message
+    assert elapsed < 3.0, f'refusal took {elapsed:.2f} s'
+    after = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'after')
+    assert after.success and node.requests_failed == 1
+    assert after.wrench.force.z == before.wrench.force.z   # bit-identical
+
+
+@pytest.mark.parametrize('error', [MemoryError(), KeyError('points'),
+                                   ZeroDivisionError('float division by zero')])
+def test_every_exception_is_contained_and_answered(served, monkeypatch, error):
+    """No exception, MemoryError included, escapes a callback into the executor."""
+    graph, node, _, single, batch, _, _ = served
+
+    def explode(query):
+        raise error
+    monkeypatch.setattr(node.server, 'answer', explode)
+    monkeypatch.setattr(node.server, 'answer_batch', explode)
+    one = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'single')
+    many = graph.wait_future(batch.call_async(_batch_request([0.0, 0.002])), 10, 'batch')
+    for response in (one, many):
+        assert not response.success
+        assert ('memory' in response.message if isinstance(error, MemoryError)
+                else type(error).__name__ in response.message)
+    monkeypatch.undo()
+    good = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'good')
+    assert good.success and node.requests_failed == 2
 
 
 def _batch_request(depths):

@@ -1,0 +1,148 @@
+"""WrenchServer refuses requests beyond its limits before work, and answers it cannot stand by.
+
+Issue 16: a legal 1000-pose batch of a 2.9 m plate asked for 41.9 GiB and ended the service's
+executor; a mesh 1e9 m below the surface got Fz = 9.8e12 N, 1 m inside 9718 N, a far torque
+centre 5.9e300 N m, all with ``success=true``.
+"""
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from pointforce_ros.contact.sampling import mesh_sample_count
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.lab.synthetic_contact import patch_contact_model
+from pointforce_ros.model.files import ContactModel
+from pointforce_ros.model.serving import BYTES_PER_SAMPLE_POSE, RequestLimits, WrenchServer
+from pointforce_ros.response.baked import BakedResponse
+from pointforce_ros.shapes import icosphere
+from pointforce_ros.types import ContactQuery, Mesh, Pose
+
+SPHERE = icosphere(0.02, 2)
+MODEL = patch_contact_model(spacing=0.003)   # 60 mm patch at z = 0.04 m around (0.5, 0)
+
+
+def _plate(half):
+    """A square plate of side ``2 half`` metres in z = 0, two triangles facing down."""
+    return Mesh(vertices=[[-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0]],
+                triangles=[[0, 2, 1], [0, 3, 2]])
+
+
+def _query(mesh, positions, centre=None):
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    return ContactQuery(mesh=mesh, poses=tuple(Pose(position=p) for p in positions),
+                        approach=[0.0, 0.0, -1.0],
+                        torque_centre=positions[0] if centre is None else centre)
+
+
+@pytest.fixture
+def server():
+    served = WrenchServer()
+    served.swap(MODEL)
+    return served
+
+
+def test_a_large_plate_batch_is_refused_before_any_work(server):
+    reference, _ = server.answer(_query(SPHERE, [0.5, 0.0, 0.057]))
+    start = time.perf_counter()
+    with pytest.raises(InvalidInput, match=r'request too large: 1000 poses x \d+ mesh samples'):
+        server.answer_batch(_query(_plate(1.45), [[0.5, 0.0, 0.045]] * 1000))
+    assert time.perf_counter() - start < 0.5
+    again, _ = server.answer(_query(SPHERE, [0.5, 0.0, 0.057]))
+    np.testing.assert_array_equal(again.wrench.force, reference.wrench.force)
+
+
+@pytest.mark.parametrize('position, match', [
+    ([0.5, 0.0, 0.02 - 1.0], r'1\.0\d m past the deepest point of the object'),
+    ([0.5, 0.0, -1e9], 'from the object'),
+    ([1e12, 0.0, 0.05], 'from the object'),
+])
+def test_meshes_inside_or_far_from_the_object_are_refused(server, position, match):
+    with pytest.raises(InvalidInput, match=match):
+        server.answer(_query(SPHERE, position))
+    batch = [[0.5, 0.0, 0.057]] * 3 + [position]
+    with pytest.raises(InvalidInput, match=r'poses\[3\]'):
+        server.answer_batch(_query(SPHERE, batch, centre=[0.5, 0.0, 0.057]))
+
+
+@pytest.mark.parametrize('centre, match', [([1e300, 0.0, 0.0], 'torque_centre: inf m'),
+                                           ([6.5, 0.0, 0.05], r'torque_centre: 6 m from pose')])
+def test_far_torque_centres_are_refused(server, centre, match):
+    with pytest.raises(InvalidInput, match=match):
+        server.answer(_query(SPHERE, [0.5, 0.0, 0.057], centre=centre))
+
+
+def test_huge_mesh_coordinates_are_refused_not_wrapped_past_the_cap(server):
+    huge = Mesh(vertices=[[0, 0, 0], [1e20, 0, 0], [0, 1e20, 0]], triangles=[[0, 2, 1]])
+    with pytest.raises(InvalidInput, match='units'):
+        server.answer(_query(huge, [0.5, 0.0, 0.05]))
+    big = Mesh(vertices=SPHERE.vertices * 1e3, triangles=SPHERE.triangles)  # mm as m
+    with pytest.raises(InvalidInput, match='mesh units'):
+        server.answer(_query(big, [0.5, 0.0, 0.06]))
+
+
+def test_memory_limits_cut_batches_and_refuse_what_cannot_fit():
+    tight = WrenchServer(limits=RequestLimits(max_memory=5 * 2 ** 20))
+    tight.swap(MODEL)
+    # 0.2 m plate: ~9000 samples fit one pose (2 MiB), but up to 441 contacts under it need
+    # 12 MiB to solve
+    with pytest.raises(InvalidInput, match=r'up to \d+ contacts under the mesh'):
+        tight.answer(_query(_plate(0.1), [0.5, 0.0, 0.035]))
+    with pytest.raises(InvalidInput, match='one pose of its'):
+        tight.answer(_query(_plate(0.4), [0.5, 0.0, 0.035]))
+    # a batch is cut into chunks that fit and answers as the default server does
+    roomy = WrenchServer()
+    roomy.swap(MODEL)
+    depths = np.linspace(0.0, 0.005, 30)
+    query = _query(SPHERE, [[0.5, 0.0, 0.06 - d] for d in depths], centre=[0.5, 0.0, 0.06])
+    small = WrenchServer(limits=RequestLimits(max_memory=6 * 2 ** 20))   # chunks of 20 poses
+    small.swap(MODEL)
+    calls = []
+    original = small.simulator().query_batch
+    small.simulator().query_batch = lambda *a, **k: calls.append(k['chunk']) or original(*a, **k)
+    np.testing.assert_allclose(small.answer_batch(query)[0].wrenches,
+                               roomy.answer_batch(query)[0].wrenches, rtol=0, atol=1e-12)
+    assert calls == [6 * 2 ** 20 // (mesh_sample_count(SPHERE, 0.003) * BYTES_PER_SAMPLE_POSE)]
+    assert calls[0] < len(depths)
+
+
+@dataclass(frozen=True)
+class _Scaled(BakedResponse):
+    """A response whose forces are ``gain`` times its own table (an artefact to catch)."""
+
+    gain: float = 1.0
+
+    def force(self, indices, d):
+        return BakedResponse.force(self, indices, d) * self.gain
+
+
+def _artefact(gain):
+    r = MODEL.response
+    response = _Scaled(depths=r.depths, forces=r.forces, slopes=r.slopes, gain=gain)
+    return ContactModel(surface=MODEL.surface, response=response,
+                        shape_constant=MODEL.shape_constant, version=2)
+
+
+@pytest.mark.parametrize('gain, match', [(1e6, 'the model cannot give this answer'),
+                                         (np.inf, 'the model has no finite answer')])
+def test_absurd_answers_are_refused_with_a_message_about_the_request(gain, match):
+    server = WrenchServer()
+    server.swap(_artefact(gain))
+    with pytest.raises(InvalidInput, match=match) as single:
+        server.answer(_query(SPHERE, [0.5, 0.0, 0.055]))
+    with pytest.raises(InvalidInput, match=r'poses\[1\]: ' + match) as batch:
+        server.answer_batch(_query(SPHERE, [[0.5, 0.0, 0.07], [0.5, 0.0, 0.055]]))
+    for raised in (single, batch):
+        assert 'Wrench' not in str(raised.value) and 'torque:' not in str(raised.value)
+    server.swap(_artefact(1.0))    # the same table, honest: answered
+    result, _ = server.answer(_query(SPHERE, [0.5, 0.0, 0.055]))
+    assert result.wrench.force[2] > 1.0
+
+
+@pytest.mark.parametrize('field, value', [('max_memory', 0), ('max_depth', float('nan')),
+                                          ('max_distance', -1.0)])
+def test_limits_themselves_are_checked(field, value):
+    with pytest.raises(InvalidInput, match=field):
+        RequestLimits(**{field: value})

@@ -1,0 +1,338 @@
+"""Calibrate the replica's Lame parameters and damping to measured pokes: two calibrators.
+
+* :func:`calibrate_paper` is seed 002 as written: a grid of simulations over (lambda, mu), an
+  sklearn ``MLPRegressor`` with two hidden layers [32, 8] and sigmoid activations mapping the
+  steady force at fixed depths to (lambda, mu); then the damping from normalised force-time
+  curves over a grid of ``NeoHookeanDamping`` values (a second network); then (lambda, mu)
+  again with a grid at the new damping.
+* :func:`calibrate_scaling` is ours. A quasi-static neo-Hookean force is homogeneous of degree
+  one in (lambda, mu): ``F(k mu, k lam) = k F(mu, lam)``. So per Poisson ratio one simulation
+  per training poke gives the best scale in closed form (linear least squares); a second
+  simulation at that scale corrects what the engine's contact makes of the scaling (a secant
+  step). A handful of Poisson ratios are tried; the best on the training pokes wins.
+
+The damping step of both is the residual loop of DESIGN.md section 6: the candidate damping is
+kept only when it lowers the held-out force-time error significantly (paired one-sided
+Wilcoxon test over held-out pokes, p < 0.05, and at least 5 % lower median error).
+
+Errors (all on pokes, cell units): the force error at the largest compression as a fraction of
+the measured force there; the RMS force error over the loading curve as a fraction of the
+measured peak; the RMS error of the force against time.
+"""
+
+from dataclasses import asdict, dataclass, field
+import time
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+import warnings
+
+import numpy as np
+from scipy.stats import wilcoxon
+
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.replica.data import MeasuredPoke
+from pointforce_ros.replica.mesh import TetMesh
+from pointforce_ros.replica.scene import Material, ReplicaScene, SceneConfig
+
+STATIC_SPEED = 0.008
+"""Push speed of the quasi-static simulations, m/s (4x the cell's default poke speed)."""
+
+FEATURE_DEPTHS = np.array([2.0, 4.0, 6.0, 8.0]) * 1e-3
+"""Depths (m) at which the paper's network reads the steady force (the paper: every 5 mm)."""
+
+
+@dataclass
+class SimCounter:
+    """Counts engine simulations (one poke each) and their wall time, seconds."""
+
+    simulations: int = 0
+    seconds: float = 0.0
+
+
+def simulate_loading(mesh: TetMesh, material: Material, poke: MeasuredPoke,
+                     config: SceneConfig, speed: float = STATIC_SPEED,
+                     counter: Optional[SimCounter] = None) -> Tuple[np.ndarray, np.ndarray]:
+    """Simulate the loading of ``poke`` on the replica; return ``(depth, force)`` (T,) each.
+
+    Depth in metres past the undeformed top at the poke's x-y, force in newtons; only the
+    push (no hold, no retraction).
+
+    Raises:
+        NotConverged: the engine went unstable.
+
+    """
+    started = time.monotonic()
+    with ReplicaScene(mesh, material, config) as scene:
+        trace = scene.poke(poke.xy, float(poke.depth.max()), speed, hold=0.0, retract=False)
+    if counter is not None:
+        counter.simulations += 1
+        counter.seconds += time.monotonic() - started
+    moving = trace.target > 0
+    return trace.depth[moving], trace.force[moving]
+
+
+def force_at(sim_depth: np.ndarray, sim_force: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Interpolate the simulated force at measured ``depth`` (M,) on the sorted loading branch."""
+    order = np.argsort(sim_depth, kind='stable')
+    return np.interp(depth, sim_depth[order], sim_force[order])
+
+
+@dataclass(frozen=True)
+class PokeErrors:
+    """Errors of a replica on one poke (fractions; newtons for ``rms``).
+
+    Attributes:
+        poke_id: id.
+        at_max: |F_sim - F_meas| / F_meas at the largest compression.
+        curve: RMS force error over the loading curve / measured peak force.
+        rms: RMS force error over the loading curve, N.
+
+    """
+
+    poke_id: str
+    at_max: float
+    curve: float
+    rms: float
+
+
+def poke_errors(poke: MeasuredPoke, predicted: np.ndarray) -> PokeErrors:
+    """Errors of ``predicted`` (M,) force against ``poke`` (the last 2 % of depth averaged)."""
+    deep = poke.depth >= poke.depth.max() - 0.02 * (poke.depth.max() - poke.depth.min())
+    f_max = float(np.mean(poke.force[deep]))
+    p_max = float(np.mean(predicted[deep]))
+    peak = max(float(poke.force.max()), 1e-9)
+    rms = float(np.sqrt(np.mean((predicted - poke.force) ** 2)))
+    return PokeErrors(poke.poke_id, abs(p_max - f_max) / max(abs(f_max), 1e-9), rms / peak,
+                      rms)
+
+
+@dataclass
+class Calibration:
+    """Result of a calibrator.
+
+    Attributes:
+        name: ``paper`` or ``scaling``.
+        static: (lambda, mu) material after the first static step.
+        final: material after the whole procedure (damping and static again).
+        damping_accepted: whether the damping step was kept.
+        damping_test: p-value and median held-out errors of the damping step.
+        simulations: engine simulations used.
+        seconds: wall time, s.
+        trace: step-by-step notes (JSON-able).
+
+    """
+
+    name: str
+    static: Material
+    final: Material
+    damping_accepted: bool = False
+    damping_test: Dict = field(default_factory=dict)
+    simulations: int = 0
+    seconds: float = 0.0
+    trace: List[Dict] = field(default_factory=list)
+
+    def to_json(self) -> Dict:
+        """JSON-able summary."""
+        out = {k: v for k, v in self.__dict__.items() if k not in ('static', 'final')}
+        out['static'] = asdict(self.static)
+        out['final'] = asdict(self.final)
+        return out
+
+
+def _predict(mesh, material, pokes, config, counter, speed=STATIC_SPEED):
+    return [force_at(*simulate_loading(mesh, material, p, config, speed, counter), p.depth)
+            for p in pokes]
+
+
+def _scale_fit(pred: Sequence[np.ndarray], pokes: Sequence[MeasuredPoke]) -> float:
+    """Return the closed-form least-squares k of ``k * pred ~ force`` (per-poke means)."""
+    num = sum(float(np.mean(f * p.force)) for f, p in zip(pred, pokes))
+    den = sum(float(np.mean(f * f)) for f in pred)
+    if den <= 0:
+        raise InvalidInput('calibration: the replica gave no force on the training pokes '
+                           '(the tip did not touch the body)')
+    return num / den
+
+
+def _curve_error(pred, pokes) -> float:
+    return float(np.mean([poke_errors(p, f).curve for f, p in zip(pred, pokes)]))
+
+
+def calibrate_scaling(mesh: TetMesh, train: Sequence[MeasuredPoke], config: SceneConfig,
+                      poissons: Sequence[float] = (0.30, 0.45), young0: float = 1.0e5,
+                      damping: float = 0.03, say: Callable[[str], None] = print
+                      ) -> Calibration:
+    """Ours: per Poisson ratio, one simulation per poke, the closed-form scale, a secant step.
+
+    Args:
+        mesh: replica body.
+        train: training pokes.
+        config: engine settings.
+        poissons: Poisson ratios tried.
+        young0: Young's modulus of the first simulation, Pa.
+        damping: ``NeoHookeanDamping`` of the static step.
+        say: progress printer.
+
+    Returns:
+        The calibration (``final`` = ``static``; the damping step is separate).
+
+    Raises:
+        InvalidInput: no training pokes, or no force at all from the replica.
+
+    """
+    if not train:
+        raise InvalidInput('calibrate_scaling: no training pokes')
+    counter = SimCounter()
+    started = time.monotonic()
+    best = None
+    notes = []
+    for nu in poissons:
+        mat = Material.from_young(young0, nu, damping)
+        pred = _predict(mesh, mat, train, config, counter)
+        k1 = _scale_fit(pred, train)
+        mat1 = mat.scaled(k1)
+        pred1 = _predict(mesh, mat1, train, config, counter)
+        k2 = _scale_fit(pred1, train)  # what the engine made of the scaling: secant step
+        mat2 = mat1.scaled(k2)
+        err1 = _curve_error(pred1, train)
+        notes.append({'poisson': nu, 'young_first': young0, 'k1': k1, 'k2': k2,
+                      'young': mat2.young, 'train_curve_error_at_k1': err1})
+        say(f'[scaling] nu={nu:.2f}: E={mat1.young:.4g} Pa (train curve error '
+            f'{100 * err1:.2f} %), secant -> E={mat2.young:.4g} Pa')
+        if best is None or err1 < best[0]:
+            best = (err1, mat2)
+    return Calibration('scaling', best[1], best[1], simulations=counter.simulations,
+                       seconds=time.monotonic() - started, trace=notes)
+
+
+def _features(pred_depths: Sequence[Tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Mean steady force over pokes at :data:`FEATURE_DEPTHS`, (len(FEATURE_DEPTHS),)."""
+    return np.mean([force_at(d, f, FEATURE_DEPTHS) for d, f in pred_depths], axis=0)
+
+
+def _measured_features(pokes: Sequence[MeasuredPoke]) -> np.ndarray:
+    return np.mean([np.interp(FEATURE_DEPTHS, p.depth, p.force) for p in pokes], axis=0)
+
+
+def _mlp(seed: int):
+    from sklearn.neural_network import MLPRegressor  # sklearn loads slowly; only here
+    return MLPRegressor(hidden_layer_sizes=(32, 8), activation='logistic', solver='lbfgs',
+                        max_iter=5000, random_state=seed)
+
+
+def _fit_predict(x, y, x_query, seed):
+    """Standardise, fit the paper's network, predict (log targets)."""
+    mx, sx = x.mean(axis=0), x.std(axis=0) + 1e-12
+    ly = np.log(y)
+    my, sy = ly.mean(axis=0), ly.std(axis=0) + 1e-12
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        net = _mlp(seed).fit((x - mx) / sx, (ly - my) / sy)
+    out = net.predict(((np.atleast_2d(x_query) - mx) / sx))
+    return np.exp(np.atleast_2d(out) * sy + my)[0]
+
+
+def _static_grid(mesh, train, config, mus, lams, damping, counter, say):
+    rows, targets = [], []
+    for mu in mus:
+        for lam in lams:
+            mat = Material(mu, lam, damping)
+            sims = [simulate_loading(mesh, mat, p, config, STATIC_SPEED, counter)
+                    for p in train]
+            rows.append(_features(sims))
+            targets.append((lam, mu))
+    say(f'[paper] grid of {len(rows)} (lambda, mu) at damping {damping:g}: '
+        f'{counter.simulations} simulations so far')
+    return np.array(rows), np.array(targets)
+
+
+def calibrate_paper(mesh: TetMesh, train: Sequence[MeasuredPoke], config: SceneConfig,
+                    mus: Sequence[float] = (1e4, 3e4, 9e4),
+                    lams: Sequence[float] = (3e4, 1e5, 3e5), damping: float = 0.03,
+                    seed: int = 0, say: Callable[[str], None] = print) -> Calibration:
+    """Seed 002's static step: an MLP [32, 8] sigmoid from force features to (lambda, mu).
+
+    The grid (``mus`` x ``lams``, Pa) is simulated on every training poke; features are the
+    mean steady force at :data:`FEATURE_DEPTHS`; the network maps measured features back.
+
+    Raises:
+        InvalidInput: no training pokes.
+
+    """
+    if not train:
+        raise InvalidInput('calibrate_paper: no training pokes')
+    counter = SimCounter()
+    started = time.monotonic()
+    x, y = _static_grid(mesh, train, config, mus, lams, damping, counter, say)
+    lam, mu = _fit_predict(x, y, _measured_features(train), seed)
+    mat = Material(mu=float(mu), lam=float(lam), damping=damping)
+    say(f'[paper] MLP -> lambda={lam:.4g} Pa, mu={mu:.4g} Pa (E={mat.young:.4g} Pa, '
+        f'nu={mat.poisson:.3f})')
+    return Calibration('paper', mat, mat, simulations=counter.simulations,
+                       seconds=time.monotonic() - started,
+                       trace=[{'grid_mu': list(mus), 'grid_lambda': list(lams),
+                               'features_measured': _measured_features(train).tolist()}])
+
+
+def force_time_errors(mesh, material, pokes, config, counter=None) -> List[float]:
+    """RMS force-time error (N) per poke, simulated at each poke's own speed."""
+    out = []
+    for p in pokes:
+        d, f = simulate_loading(mesh, material, p, config, p.speed, counter)
+        t_sim = np.arange(1, len(d) + 1) * config.time_step
+        t_meas = (p.t - p.t[0]) + p.depth[0] / max(p.speed, 1e-9)
+        out.append(float(np.sqrt(np.mean((np.interp(t_meas, t_sim, f) - p.force) ** 2))))
+    return out
+
+
+def damping_step(mesh, calib: Calibration, train, held_out, config,
+                 candidates: Sequence[float] = (0.003, 0.3),
+                 say: Callable[[str], None] = print) -> Calibration:
+    """Run the residual loop's rate-dependence step: keep another damping only if it wins.
+
+    The best candidate on the training pokes' force-time error is compared with the static
+    material on the held-out pokes (paired one-sided Wilcoxon, p < 0.05, median error at
+    least 5 % lower). Updates ``calib`` in place and returns it.
+    """
+    counter = SimCounter()
+    started = time.monotonic()
+    base_train = np.mean(force_time_errors(mesh, calib.static, train, config, counter))
+    best = (base_train, calib.static.damping)
+    for c in candidates:
+        mat = Material(calib.static.mu, calib.static.lam, c)
+        err = float(np.mean(force_time_errors(mesh, mat, train, config, counter)))
+        say(f'[{calib.name}] damping {c:g}: train force-time RMS {err:.3f} N '
+            f'(static {base_train:.3f} N)')
+        if err < best[0]:
+            best = (err, c)
+    test = {'candidate': best[1], 'static_damping': calib.static.damping}
+    accepted = False
+    if best[1] != calib.static.damping:
+        before = force_time_errors(mesh, calib.static, held_out, config, counter)
+        after = force_time_errors(mesh, Material(calib.static.mu, calib.static.lam, best[1]),
+                                  held_out, config, counter)
+        diff = np.array(before) - np.array(after)
+        p = float(wilcoxon(diff, alternative='greater').pvalue) if np.any(diff != 0) else 1.0
+        accepted = bool(p < 0.05 and np.median(after) < 0.95 * np.median(before))
+        test.update(p_value=p, held_out_before=float(np.median(before)),
+                    held_out_after=float(np.median(after)))
+    calib.damping_accepted = accepted
+    calib.damping_test = test
+    if accepted:
+        calib.final = Material(calib.static.mu, calib.static.lam, best[1])
+    calib.simulations += counter.simulations
+    calib.seconds += time.monotonic() - started
+    say(f'[{calib.name}] damping step {"accepted" if accepted else "rejected"}: {test}')
+    return calib
+
+
+def evaluate(mesh, material, pokes, config, counter=None) -> List[PokeErrors]:
+    """Steady-state errors of ``material`` on ``pokes``."""
+    return [poke_errors(p, f) for p, f in
+            zip(pokes, _predict(mesh, material, pokes, config, counter))]
+
+
+def summary(errors: Sequence[PokeErrors]) -> Dict[str, float]:
+    """Median errors in percent (and N for ``rms``) over pokes."""
+    return {'at_max_pct': 100 * float(np.median([e.at_max for e in errors])),
+            'curve_pct': 100 * float(np.median([e.curve for e in errors])),
+            'rms_N': float(np.median([e.rms for e in errors]))}

@@ -1,0 +1,166 @@
+"""Measured pokes for the replica: loading curves plus the scanned surface they were poked on.
+
+Two sources: a generated data set (``pointforce cell generate --out DIR``: ``DIR/pokes`` is the
+poke store, ``DIR/surface.npz`` the equilibrium surface), or a poke fixture ``.npz`` of the
+figures (``data/figures/pokes_<object>.npz``: curves and surface in one file). Either way the
+result is a :class:`PokeSet`: per poke the x-y of the poked point, the depth past the contact
+onset, the force and the time, in metres, newtons and seconds, frame ``base``.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Sequence, Tuple
+
+import numpy as np
+
+from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.model.files import load_surface
+from pointforce_ros.pokes.curves import extract_curve, PokeCurve
+from pointforce_ros.pokes.store import PokeStore
+from pointforce_ros.types import as_array
+
+
+@dataclass(frozen=True)
+class MeasuredPoke:
+    """One measured loading curve, depth measured from the contact onset.
+
+    Attributes:
+        poke_id: id of the poke.
+        xy: (2,) poked point x-y, metres, ``base``.
+        depth: (M,) displacement past the contact onset, metres (``d - onset_d``).
+        force: (M,) normal force, newtons.
+        t: (M,) seconds since the first sample of the record.
+
+    """
+
+    poke_id: str
+    xy: np.ndarray
+    depth: np.ndarray
+    force: np.ndarray
+    t: np.ndarray
+
+    def __post_init__(self):
+        xy = as_array(self.xy, 'MeasuredPoke.xy', (2,))
+        depth = as_array(self.depth, 'MeasuredPoke.depth', (None,))
+        force = as_array(self.force, 'MeasuredPoke.force', (len(depth),))
+        t = as_array(self.t, 'MeasuredPoke.t', (len(depth),))
+        for name, value in (('xy', xy), ('depth', depth), ('force', force), ('t', t)):
+            object.__setattr__(self, name, value)
+
+    @property
+    def speed(self) -> float:
+        """Median push speed over the curve, m/s."""
+        v = np.diff(self.depth) / np.maximum(np.diff(self.t), 1e-9)
+        return float(np.median(v[v > 0])) if np.any(v > 0) else 0.002
+
+    def in_contact(self) -> 'MeasuredPoke':
+        """Return the samples past the onset (depth > 0)."""
+        keep = self.depth > 0
+        return MeasuredPoke(self.poke_id, self.xy, self.depth[keep], self.force[keep],
+                            self.t[keep])
+
+
+@dataclass(frozen=True)
+class PokeSet:
+    """Measured pokes and the surface points they were poked on.
+
+    Attributes:
+        pokes: the pokes, in store order.
+        surface_points: (P, 3) equilibrium-surface points, metres, ``base``.
+        source: where it was read from.
+
+    """
+
+    pokes: Tuple[MeasuredPoke, ...]
+    surface_points: np.ndarray
+    source: str
+
+    def split(self, held_out: float = 0.5, seed: int = 0
+              ) -> Tuple[List[MeasuredPoke], List[MeasuredPoke]]:
+        """Seeded split into (training, held-out) pokes; each part gets at least one.
+
+        Raises:
+            InvalidInput: fewer than 2 pokes.
+
+        """
+        if len(self.pokes) < 2:
+            raise InvalidInput(f'{self.source}: need at least 2 pokes to hold some out, got '
+                               f'{len(self.pokes)}')
+        order = np.random.default_rng(seed).permutation(len(self.pokes))
+        n_out = int(np.clip(round(held_out * len(order)), 1, len(order) - 1))
+        return ([self.pokes[i] for i in sorted(order[n_out:])],
+                [self.pokes[i] for i in sorted(order[:n_out])])
+
+
+def _from_curve(curve: PokeCurve) -> MeasuredPoke:
+    return MeasuredPoke(curve.poke_id, curve.point[:2], curve.d - curve.onset_d, curve.f,
+                        curve.t).in_contact()
+
+
+def _fixture(path: Path) -> PokeSet:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise DataError(f'{path}: unreadable poke file: {exc}') from exc
+    if 'surface_points' not in data or len(data['surface_points']) == 0:
+        raise DataError(f'{path}: the pokes come without a surface (no surface_points): the '
+                        'replica needs the scanned object')
+    if 'curve_offsets' not in data or len(data.get('curve_ids', [])) == 0:
+        raise InvalidInput(f'{path}: no pokes in the file')
+    off = data['curve_offsets']
+    pokes = []
+    for k, poke_id in enumerate(data['curve_ids']):
+        s = slice(int(off[k]), int(off[k + 1]))
+        d = np.asarray(data['curve_d'][s], dtype=float) - float(data['curve_onsets'][k])
+        pokes.append(MeasuredPoke(str(poke_id), np.asarray(data['curve_points'][k][:2], float),
+                                  d, np.asarray(data['curve_f'][s], float),
+                                  np.asarray(data['curve_t'][s], float)).in_contact())
+    return PokeSet(tuple(pokes), np.asarray(data['surface_points'], float), str(path))
+
+
+def _dataset(root: Path) -> PokeSet:
+    store_dir = root / 'pokes' if (root / 'pokes').is_dir() else root
+    surface_file = next((p for p in (root / 'surface.npz', root.parent / 'surface.npz')
+                         if p.is_file()), None)
+    if not (store_dir / PokeStore.INDEX).exists() and not any(store_dir.glob('poke-*')):
+        raise DataError(f'{root}: not a poke store or a generated data set (no index.json '
+                        'or poke-* bags)')
+    store = PokeStore(store_dir)
+    if len(store) == 0:
+        raise InvalidInput(f'{store_dir}: the poke store holds no pokes')
+    if surface_file is None:
+        raise DataError(f'{root}: the pokes come without a surface (no surface.npz beside '
+                        'the store): the replica needs the scanned object')
+    surface = load_surface(surface_file)
+    pokes = []
+    for record in store:
+        try:
+            pokes.append(_from_curve(extract_curve(record)))
+        except InvalidInput:
+            continue  # a poke without contact or loading phase adds nothing to calibrate
+    if not pokes:
+        raise InvalidInput(f'{store_dir}: no poke with a usable loading curve')
+    return PokeSet(tuple(pokes), np.asarray(surface.points), str(root))
+
+
+def load_pokes(path) -> PokeSet:
+    """Read measured pokes from a generated data set, a poke store or a poke fixture ``.npz``.
+
+    Raises:
+        DataError: missing path, unreadable store or file, no surface beside the pokes.
+        InvalidInput: no pokes, or none with a usable loading curve.
+
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f'{path}: no such poke store or file')
+    if path.is_file():
+        return _fixture(path)
+    return _dataset(path)
+
+
+def subset(pokes: Sequence[MeasuredPoke], every: int) -> List[MeasuredPoke]:
+    """Every ``every``-th sample of each poke (for cheap comparisons)."""
+    return [MeasuredPoke(p.poke_id, p.xy, p.depth[::every], p.force[::every], p.t[::every])
+            for p in pokes]

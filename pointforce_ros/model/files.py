@@ -4,15 +4,27 @@ A *contact model* is everything the contact-wrench service needs, loadable witho
 the equilibrium surface, the baked force table, the shape-function constant ``c`` and the
 accepted effects. Files are ``model-v000042.npz`` in one directory; a save writes a temporary file
 and renames it, so a reader sees either the old or the new model, never half of one.
+
+Versions are never reused for different content and never go down: each file's header carries
+a SHA-256 of its content (everything but the version), a save whose version is taken by other
+content, or is not above the highest version the directory has ever held, gets the next free
+version instead, and that highest version is persisted (``versions.json``, written atomically)
+beside the files and the quarantine. A file the loader cannot read (truncated, empty, not a zip,
+altered, unknown format) is moved to ``quarantine/`` beside it with a ``.reason.txt``, logged,
+and :func:`load_latest_model` falls back to the newest valid version.
 """
 
+import dataclasses
+import hashlib
 import json
+import logging
 import os
 import re
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping, Optional, Tuple
+from typing import Callable, List, Mapping, Optional, Tuple
 
 import numpy as np
 
@@ -23,6 +35,11 @@ from pointforce_ros.types import Surface
 
 FORMAT = 'pointforce-contact-model/1'
 _NAME = re.compile(r'^model-v(\d{6,})\.npz$')
+QUARANTINE = 'quarantine'
+"""Folder, beside the model files, that unreadable files are moved to."""
+VERSIONS = 'versions.json'
+"""File, beside the model files, holding the highest version ever saved there."""
+LOG = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -90,34 +107,123 @@ def model_path(directory, version: int) -> Path:
     return Path(directory) / f'model-v{int(version):06d}.npz'
 
 
-def save_model(model: ContactModel, directory) -> Path:
-    """Write ``model`` atomically into ``directory`` (created if needed); return its path."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    header = {
+def _header(model: ContactModel) -> dict:
+    return {
         'format': FORMAT, 'version': int(model.version),
         'shape_constant': float(model.shape_constant), 'frame': model.surface.frame,
         'shape_decay': float(model.shape_decay) if np.isfinite(model.shape_decay) else None,
         'effects': dict(model.effects), 'meta': dict(model.meta),
         'response_version': int(model.response.version), 'response_meta': model.response.meta,
     }
+
+
+def _arrays(model: ContactModel) -> dict:
     arrays = {
         'points': model.surface.points, 'normals': model.surface.normals,
         'colors': model.surface.colors, 'depths': model.response.depths,
         'forces': model.response.forces, 'slopes': model.response.slopes,
-        'header': np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),
     }
     if model.response.std is not None:
         arrays['std'] = model.response.std
-    return atomic_write(model_path(directory, model.version),
+    return arrays
+
+
+def content_digest(model: ContactModel) -> str:
+    """SHA-256 (hex) of everything in ``model`` but its version: equal digests, same answers.
+
+    Covers every array (dtype, shape and bytes) and the header (shape constant and decay,
+    frame, effects, meta, the response's version and meta) in a canonical JSON form.
+    """
+    digest = hashlib.sha256()
+    header = _header(model)
+    del header['version']
+    digest.update(json.dumps(header, sort_keys=True, default=str).encode())
+    for name, array in sorted(_arrays(model).items()):
+        array = np.ascontiguousarray(array)
+        digest.update(f'{name}:{array.dtype.str}:{array.shape}'.encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+def _versions_on_disk(directory: Path) -> List[int]:
+    """Versions of model files in ``directory`` and in its quarantine."""
+    found = []
+    for folder in (directory, directory / QUARANTINE):
+        if folder.is_dir():
+            for p in folder.iterdir():
+                m = _NAME.match(p.name.split('.npz')[0] + '.npz')
+                if m:
+                    found.append(int(m.group(1)))
+    return found
+
+
+def highest_version(directory) -> int:
+    """Highest model version ``directory`` has ever held (files, quarantine, persisted), or -1.
+
+    Reads ``versions.json`` when present and readable (an unreadable one is ignored: the
+    files still bound the answer from below).
+    """
+    directory = Path(directory)
+    highest = max(_versions_on_disk(directory), default=-1)
+    try:
+        stored = json.loads((directory / VERSIONS).read_text())['highest']
+        highest = max(highest, int(stored))
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return highest
+
+
+def _stored_digest(path: Path) -> Optional[str]:
+    """Content digest of the model file at ``path``; ``None`` if it cannot be read."""
+    try:
+        return content_digest(load_model(path))
+    except DataError:
+        return None
+
+
+def save_model(model: ContactModel, directory) -> Path:
+    """Write ``model`` atomically into ``directory`` (created if needed); return its path.
+
+    The version is kept when it is free and above every version the directory has held, or
+    when the file of that version holds the same content (then nothing is written: a restarted
+    learner reproducing a model gets the same file). Otherwise the model is saved under the
+    next free version, so a version never names two different models and never goes down;
+    the returned path (and the file's header) carry the version actually used.
+
+    Raises:
+        OSError: the directory or the file cannot be written.
+
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    digest = content_digest(model)
+    wanted = model_path(directory, model.version)
+    if wanted.is_file() and _stored_digest(wanted) == digest:
+        return wanted
+    highest = highest_version(directory)
+    if model.version <= highest:
+        new = highest + 1
+        LOG.warning('model v%d: that version is taken by other content or not above the '
+                    'highest saved (v%d); saving as v%d', model.version, highest, new)
+        model = dataclasses.replace(model, version=new)
+    header = dict(_header(model), content_sha256=digest)
+    arrays = dict(_arrays(model),
+                  header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8))
+    path = atomic_write(model_path(directory, model.version),
                         lambda fh: np.savez(fh, **arrays))
+    atomic_write(directory / VERSIONS, lambda fh: json.dump(
+        {'highest': max(int(model.version), highest)}, fh), binary=False)
+    return path
 
 
 def load_model(path) -> ContactModel:
     """Load a model file.
 
+    Every read error (a truncated or empty file, not a zip archive, a missing array, a bad
+    header, content that does not match the header's SHA-256) becomes a :class:`DataError`.
+
     Raises:
-        DataError: missing file, not a model file, unknown format, or corrupt arrays.
+        DataError: missing file, not a model file, unknown format, or corrupt content.
 
     """
     path = Path(path)
@@ -126,22 +232,101 @@ def load_model(path) -> ContactModel:
     try:
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(bytes(z['header']).decode())
-            if header.get('format') != FORMAT:
-                raise DataError(f'{path}: unknown model format {header.get("format")!r}')
+            if not isinstance(header, dict) or header.get('format') != FORMAT:
+                found = header.get('format') if isinstance(header, dict) else header
+                raise DataError(f'{path}: unknown model format {found!r}')
             surface = Surface(points=z['points'], normals=z['normals'], colors=z['colors'],
                               frame=header.get('frame', 'base'))
             response = BakedResponse(depths=z['depths'], forces=z['forces'], slopes=z['slopes'],
                                      std=z['std'] if 'std' in z.files else None,
                                      version=header.get('response_version', 0),
                                      meta=header.get('response_meta', {}))
+        model = ContactModel(surface=surface, response=response,
+                             shape_constant=float(header['shape_constant']),
+                             version=int(header['version']),
+                             shape_decay=float(header.get('shape_decay') or float('inf')),
+                             effects=header.get('effects', {}), meta=header.get('meta', {}))
     except DataError:
         raise
-    except (OSError, ValueError, KeyError, InvalidInput) as exc:
-        raise DataError(f'{path}: corrupt or unreadable model file: {exc}') from exc
-    return ContactModel(surface=surface, response=response,
-                        shape_constant=header['shape_constant'], version=header['version'],
-                        shape_decay=float(header.get('shape_decay') or float('inf')),
-                        effects=header.get('effects', {}), meta=header.get('meta', {}))
+    except Exception as exc:  # noqa: BLE001 - zipfile, zlib, numpy, json: many error types
+        raise DataError(f'{path}: corrupt or unreadable model file: '
+                        f'{type(exc).__name__}: {exc}') from exc
+    stored = header.get('content_sha256')
+    if stored is not None and stored != content_digest(model):
+        raise DataError(f'{path}: content does not match its SHA-256 (altered or corrupt)')
+    return model
+
+
+def quarantine_file(path, reason: str) -> Optional[Path]:
+    """Move ``path`` into ``quarantine/`` beside it, with ``<name>.reason.txt``; log why.
+
+    A name already in the quarantine gets a numbered suffix. Returns the new path, or ``None``
+    when the file was gone already (another reader moved it).
+
+    Raises:
+        OSError: the quarantine folder cannot be created or written.
+
+    """
+    path = Path(path)
+    folder = path.parent / QUARANTINE
+    folder.mkdir(parents=True, exist_ok=True)
+    target = folder / path.name
+    n = 0
+    while target.exists():
+        n += 1
+        target = folder / f'{path.name}.{n}'
+    try:
+        os.replace(path, target)
+    except FileNotFoundError:
+        return None
+    stamp = time.strftime('%Y-%m-%dT%H:%M:%S%z')
+    atomic_write(folder / f'{target.name}.reason.txt',
+                 lambda fh: fh.write(f'{stamp} {path}: {reason}\n'), binary=False)
+    LOG.error('quarantined %s as %s: %s', path, target, reason)
+    return target
+
+
+def load_latest_model(directory, newer_than: int = -1,
+                      log: Optional[Callable[[str], None]] = None
+                      ) -> Optional[Tuple[ContactModel, Path]]:
+    """Load the newest valid model in ``directory`` with a version above ``newer_than``.
+
+    Files that cannot be read are quarantined (:func:`quarantine_file`) and the next older
+    version is tried, down to ``newer_than``: a corrupt newest file never hides an older
+    valid one.
+
+    Args:
+        directory: the model directory.
+        newer_than: the version already held (-1: none); older files are not read.
+        log: called with one message per quarantined file (a node's logger).
+
+    Returns:
+        ``(model, path)``, or ``None`` when no valid file is newer than ``newer_than``.
+
+    A bad file that cannot be moved (a read-only folder) is skipped and reported.
+
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        return None
+    candidates = []
+    for p in directory.iterdir():
+        m = _NAME.match(p.name)
+        if m and int(m.group(1)) > newer_than:
+            candidates.append((int(m.group(1)), p))
+    for _, path in sorted(candidates, reverse=True):
+        try:
+            return load_model(path), path
+        except DataError as exc:
+            try:
+                moved = quarantine_file(path, str(exc))
+                note = None if moved is None else f'quarantined {path.name} as {moved}: {exc}'
+            except OSError as move_error:
+                note = f'skipping {path.name} ({exc}); cannot quarantine it: {move_error}'
+                LOG.error(note)
+            if log is not None and note is not None:
+                log(note)
+    return None
 
 
 def latest_model_path(directory) -> Optional[Path]:
@@ -173,5 +358,5 @@ def load_surface(path) -> Surface:
         with np.load(path, allow_pickle=False) as z:
             return Surface(points=z['points'], normals=z['normals'], colors=z['colors'],
                            frame=bytes(z['frame']).decode() or 'base')
-    except (OSError, ValueError, KeyError, InvalidInput) as exc:
+    except Exception as exc:  # noqa: BLE001 - zipfile, zlib, numpy: many error types
         raise DataError(f'{path}: corrupt or unreadable surface file: {exc}') from exc

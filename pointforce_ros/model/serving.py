@@ -21,7 +21,7 @@ import hashlib
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple, Optional, Tuple
+from typing import Callable, NamedTuple, Optional, Tuple
 
 import numpy as np
 
@@ -30,7 +30,7 @@ from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
 from pointforce_ros.contact.simulator import normalise_approach, poses_as_arrays
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
 from pointforce_ros.errors import InvalidInput, ModelNotReady
-from pointforce_ros.model.files import ContactModel, latest_model_path, load_model
+from pointforce_ros.model.files import ContactModel, load_latest_model, load_model
 from pointforce_ros.types import ContactQuery, Pose
 
 BYTES_PER_SAMPLE_POSE = 256
@@ -188,12 +188,23 @@ class WrenchServer:
         self.loaded_path = Path(path)
         return model
 
-    def load_latest(self, directory) -> bool:
-        """Load the newest model in ``directory`` if it is newer than the current one."""
-        path = latest_model_path(directory)
-        if path is None or path == self.loaded_path:
+    def load_latest(self, directory, log: Optional[Callable[[str], None]] = None) -> bool:
+        """Load the newest valid model in ``directory`` if it is newer than the current one.
+
+        Unreadable files are quarantined beside the models (``log`` gets one line each) and
+        the next older version is tried, so a restarted server serves the last good model.
+        Returns whether a model was swapped in.
+
+        Raises:
+            InvalidInput: the model's effects are malformed.
+
+        """
+        found = load_latest_model(directory, newer_than=self.version, log=log)
+        if found is None:
             return False
-        self.load(path)
+        model, path = found
+        self.swap(model)
+        self.loaded_path = Path(path)
         return True
 
     def _snapshot(self) -> Tuple[ContactModel, ContactSimulator, ForwardTerms, _Bounds]:

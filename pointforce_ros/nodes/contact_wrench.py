@@ -97,7 +97,7 @@ class ContactWrenchNode(Node):
         if not self.model_dir:
             return
         try:
-            if self.server.load_latest(self.model_dir):
+            if self.server.load_latest(self.model_dir, log=self.get_logger().error):
                 self.get_logger().info(f'loaded model v{self.server.version} from '
                                        f'{self.server.loaded_path}{self._terms()}')
         except PointforceError as exc:

@@ -283,3 +283,32 @@ def test_stored_effects_add_their_forward_terms(ros_graph, tmp_path):
                                                  approach=[0, 0, -1],
                                                  torque_centre=[0.5, 0.0, 0.06 - depth]))
         assert force < 0.9 * scale * plain.wrench.force[2]
+
+
+# --------------------------------------------------------------------------- corrupt model files
+
+
+@pytest.mark.parametrize('corrupt', ['truncated', 'empty'])
+def test_a_restarted_service_with_a_corrupt_newest_file_serves_the_last_good_one(
+        ros_graph, tmp_path, corrupt):
+    """Issue 16: BadZipFile or EOFError crashed the node at each restart while it was there."""
+    models = tmp_path / 'models'
+    good = patch_contact_model(spacing=0.003)
+    save_model(good, models)
+    bad = save_model(patch_contact_model(spacing=0.003, version=2), models)
+    bad.write_bytes(bad.read_bytes()[:1000] if corrupt == 'truncated' else b'')
+    node = ros_graph.add(ContactWrenchNode(
+        context=ros_graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(models)),
+                             Parameter('poll_period', value=0.1)]))
+    client_node = ros_graph.add(Node('restart_planner', context=ros_graph.context))
+    single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    assert single.wait_for_service(timeout_sec=15.0)
+    response = ros_graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'after restart')
+    assert response.success and response.model_version == 1
+    assert node.server.version == 1 and not bad.exists()
+    assert (models / 'quarantine' / bad.name).is_file()
+    # a good newer model is still picked up by the poll, under a fresh version
+    path = save_model(patch_contact_model(spacing=0.003, version=2), models)
+    assert path.name == 'model-v000003.npz'
+    ros_graph.wait_for(lambda: node.server.version == 3, 10, 'model v3')

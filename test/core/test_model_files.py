@@ -1,0 +1,159 @@
+"""Model files: every read error quarantined with a reason, versions never reused or lowered.
+
+Issue 16: a truncated model file crashed ``contact_wrench`` (``zipfile.BadZipFile``; an empty one
+``EOFError``) at every restart; a restarted service served nothing although older valid versions
+were on disk; after a restart ``model-v000004.npz`` was overwritten by a different model.
+"""
+
+import json
+import logging
+import zipfile
+
+import numpy as np
+import pytest
+
+from pointforce_ros.errors import DataError
+from pointforce_ros.lab.synthetic_contact import patch_contact_model
+from pointforce_ros.model.files import (content_digest, ContactModel, highest_version,
+                                        load_latest_model, load_model, model_path, QUARANTINE,
+                                        save_model)
+from pointforce_ros.model.serving import WrenchServer
+
+MODEL = patch_contact_model(spacing=0.006)
+
+
+def _other(version, c=0.005):
+    """The same surface and table with another shape constant: different content."""
+    return ContactModel(surface=MODEL.surface, response=MODEL.response, shape_constant=c,
+                        version=version)
+
+
+def _truncate(path):
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def _empty(path):
+    path.write_bytes(b'')
+
+
+def _garbage(path):
+    path.write_bytes(np.random.default_rng(16).bytes(4096))
+
+
+def _missing_array(path):
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files if k != 'forces'}
+    with open(path, 'wb') as fh:
+        np.savez(fh, **arrays)
+
+
+def _bad_header(path):
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays['header'] = np.frombuffer(b'{"format": "pointforce-contact-model/1", "vers',
+                                     dtype=np.uint8)
+    with open(path, 'wb') as fh:
+        np.savez(fh, **arrays)
+
+
+def _altered(path):
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays['forces'] = arrays['forces'] * 1.01   # same layout, header hash now wrong
+    with open(path, 'wb') as fh:
+        np.savez(fh, **arrays)
+
+
+def _header_list(path):
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays['header'] = np.frombuffer(b'[1, 2]', dtype=np.uint8)
+    with open(path, 'wb') as fh:
+        np.savez(fh, **arrays)
+
+
+BREAKAGES = [_truncate, _empty, _garbage, _missing_array, _bad_header, _altered, _header_list]
+
+
+@pytest.mark.parametrize('breakage', BREAKAGES)
+def test_every_read_error_is_a_data_error(tmp_path, breakage):
+    path = save_model(MODEL, tmp_path)
+    breakage(path)
+    with pytest.raises(DataError, match=str(path.name)):
+        load_model(path)
+
+
+@pytest.mark.parametrize('breakage', BREAKAGES)
+def test_a_corrupt_newest_file_is_quarantined_and_the_last_good_one_loaded(
+        tmp_path, breakage, caplog):
+    good = save_model(MODEL, tmp_path)
+    bad = save_model(_other(2), tmp_path)
+    breakage(bad)
+    with caplog.at_level(logging.ERROR, logger='pointforce_ros.model.files'):
+        model, path = load_latest_model(tmp_path)
+    assert path == good and model.version == 1
+    moved = tmp_path / QUARANTINE / bad.name
+    assert not bad.exists() and moved.is_file()
+    reason = (tmp_path / QUARANTINE / f'{bad.name}.reason.txt').read_text()
+    assert bad.name in reason and 'DataError' not in reason and len(reason) > 40
+    assert any(bad.name in r.getMessage() for r in caplog.records)
+    # a server restarted on the folder serves the last good model
+    server = WrenchServer()
+    assert server.load_latest(tmp_path) and server.version == 1
+    # a later save does not reuse the quarantined version
+    assert save_model(_other(2, c=0.006), tmp_path) == model_path(tmp_path, 3)
+
+
+def test_the_server_keeps_its_model_and_reports_a_corrupt_newer_file(tmp_path):
+    save_model(MODEL, tmp_path)
+    server = WrenchServer()
+    assert server.load_latest(tmp_path) and server.version == 1
+    bad = save_model(_other(2), tmp_path)
+    _truncate(bad)
+    notes = []
+    assert not server.load_latest(tmp_path, log=notes.append)
+    assert server.version == 1 and len(notes) == 1 and bad.name in notes[0]
+    assert not server.load_latest(tmp_path, log=notes.append) and len(notes) == 1
+
+
+def test_a_version_never_names_two_models_and_never_goes_down(tmp_path):
+    v4 = save_model(_other(4), tmp_path)
+    original = v4.read_bytes()
+    # the same content again (a restarted learner): the same file, nothing written
+    assert save_model(_other(4), tmp_path) == v4 and v4.read_bytes() == original
+    # different content under a taken version: the next free version, v4 untouched
+    v5 = save_model(_other(4, c=0.006), tmp_path)
+    assert v5 == model_path(tmp_path, 5) and v4.read_bytes() == original
+    assert load_model(v5).version == 5 and load_model(v5).shape_constant == 0.006
+    # a lower version than the highest (a restart that lost a shape-constant update)
+    v6 = save_model(_other(3, c=0.007), tmp_path)
+    assert v6 == model_path(tmp_path, 6)
+    # persisted: files removed, the highest version survives in versions.json
+    v5.unlink()
+    v6.unlink()
+    assert json.loads((tmp_path / 'versions.json').read_text()) == {'highest': 6}
+    assert highest_version(tmp_path) == 6
+    assert save_model(_other(5, c=0.008), tmp_path) == model_path(tmp_path, 7)
+    # and every file's header carries its content hash
+    with np.load(v4) as z:
+        header = json.loads(bytes(z['header']).decode())
+    assert header['content_sha256'] == content_digest(_other(4))
+    assert content_digest(_other(4)) != content_digest(_other(4, c=0.006))
+    assert content_digest(_other(4)) == content_digest(_other(9))
+
+
+def test_files_without_a_hash_still_load_and_compare_by_content(tmp_path):
+    """Files written before the hash existed load, and an identical save reuses them."""
+    path = save_model(MODEL, tmp_path)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(bytes(arrays['header']).decode())
+    del header['content_sha256']
+    arrays['header'] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    with open(path, 'wb') as fh:
+        np.savez(fh, **arrays)
+    (tmp_path / 'versions.json').unlink()
+    before = path.read_bytes()
+    np.testing.assert_array_equal(load_model(path).response.forces, MODEL.response.forces)
+    assert save_model(MODEL, tmp_path) == path and path.read_bytes() == before
+    assert zipfile.is_zipfile(path)

@@ -23,7 +23,7 @@ evaluation. Units SI, frame ``base``.
 
 from dataclasses import dataclass, field
 import time
-from typing import Sequence, Tuple
+from typing import Optional, Sequence, Tuple
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
@@ -107,8 +107,10 @@ class ElasticityFit:
         residual_rms: RMS point-to-plane residual over every poke at the fit, metres.
         points: cloud points used.
         evaluations: objective evaluations (nu values tried, or Nelder-Mead calls).
-        seconds: wall time.
+        seconds: wall time, all included.
         error: the minimised objective (method-specific: sum of squares m^2 or eq. 7).
+        factorise_seconds: of ``seconds``, the time spent factorising the stiffness (the model
+            built for the call when none was given, and the final model at the found nu).
 
     """
 
@@ -119,6 +121,7 @@ class ElasticityFit:
     evaluations: int
     seconds: float
     error: float
+    factorise_seconds: float = 0.0
 
 
 def _loads(mesh: TetMesh, pokes: Sequence[Poke], radius: float) -> np.ndarray:
@@ -158,13 +161,12 @@ class ReducedPoissonFamily:
         k_mu = fem._k_mu_g[free][:, free]
         scale = fem.young
         vecs = []
-        for j in range(loads.shape[1]):
-            v = fem.solve_linear(loads[:, j])[free] * scale
-            for _ in range(int(krylov)):
-                vecs.append(v)
-                full = np.zeros(fem.ndof)
-                full[free] = k_lam @ v
-                v = fem.solve_linear(full)[free] * scale
+        v = fem.solve_linear(loads)[free] * scale  # every load at once: (n_free, n)
+        full = np.zeros((fem.ndof, loads.shape[1]))
+        for _ in range(int(krylov)):
+            vecs.append(v)
+            full[free] = k_lam @ v
+            v = fem.solve_linear(full)[free] * scale
         basis, _ = np.linalg.qr(np.column_stack(vecs))
         self.basis = basis
         self.k_lam = basis.T @ (k_lam @ basis)
@@ -201,7 +203,8 @@ def _best_compliance(matches, unit, corr) -> Tuple[float, float, int]:
 
 def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
                         config: IdentifyConfig = IdentifyConfig(), rest_offset=None,
-                        young_guess: float = 5e4) -> Tuple[ElasticityFit, CorotationalFem]:
+                        young_guess: float = 5e4, fem: Optional[CorotationalFem] = None
+                        ) -> Tuple[ElasticityFit, CorotationalFem]:
     """Identify (E, nu): closed-form E per nu, bounded 1-D search over nu, co-rotation refine.
 
     Args:
@@ -210,6 +213,9 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
         config: settings.
         rest_offset: (N,) rest-scan offsets (:func:`.observe.rest_offsets`).
         young_guess: scale of the reference factorisation, Pa (only conditions the numbers).
+        fem: the object's model as built when its surface was scanned (factorised at its
+            own nu, which becomes the reference nu); built here at ``reference_poisson`` when
+            None. It is refactorised at the found (E, nu) and returned.
 
     Returns:
         ``(fit, fem)``: the fit and the model factorised at it (for force estimates).
@@ -223,7 +229,13 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
     pokes = _check_pokes(pokes)
     matchers = [SurfaceMatcher(mesh, p.contact_point, p.cloud, config.match,
                                rest_offset=rest_offset) for p in pokes]
-    fem = CorotationalFem(mesh, young_guess, config.reference_poisson)
+    t_fact = 0.0
+    if fem is None:
+        t1 = time.perf_counter()
+        fem = CorotationalFem(mesh, young_guess, config.reference_poisson)
+        t_fact += time.perf_counter() - t1
+    elif fem.mesh is not mesh:
+        raise InvalidInput('identify: the given model was built on another mesh')
     loads = _loads(mesh, pokes, config.load_radius)
     family = ReducedPoissonFamily(fem, loads, config.krylov)
     corr = np.zeros_like(loads)
@@ -245,7 +257,9 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
             raise InvalidInput(f'identify: fitted compliance {s:.3g} 1/Pa is not positive: the '
                                f'clouds do not move with the measured forces')
         state['matches'] = [m.match(unit[:, j] * s) for j, m in enumerate(matchers)]
+    t1 = time.perf_counter()
     fem.set_material(1.0 / s, nu)
+    t_fact += time.perf_counter() - t1
     unit = fem.solve_linear(loads) * fem.young  # exact unit-modulus solutions at nu
     for _ in range(int(config.refine_iter)):
         u = unit * s + corr
@@ -261,7 +275,7 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
     fem.set_material(1.0 / s, nu)
     fit = ElasticityFit(young=1.0 / s, poisson=nu, residual_rms=float(np.sqrt(sse / npts)),
                         points=npts, evaluations=state['evals'],
-                        seconds=time.perf_counter() - t0, error=sse)
+                        seconds=time.perf_counter() - t0, error=sse, factorise_seconds=t_fact)
     return fit, fem
 
 

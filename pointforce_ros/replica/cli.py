@@ -1,0 +1,37 @@
+"""Argument parsing of ``pointforce replica``.
+
+Wired into the ``pointforce`` command as::
+
+    from pointforce_ros.replica import cli as replica_cli
+    replica_cli.add_parser(sub)          # in build_parser, beside the other sub-commands
+
+``main`` of the ``pointforce`` command turns a ``PointforceError`` into a one-line error.
+"""
+
+import argparse
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``replica`` sub-command to ``subparsers``; returns its parser."""
+    p = subparsers.add_parser('replica', help='calibrate a PyBullet replica of the poked '
+                              'object to measured pokes (seed 002) and write it')
+    p.add_argument('--engine', default='pybullet', help='simulation engine (pybullet)')
+    p.add_argument('--data', required=True, help='poke store, generated data set, or poke '
+                   'fixture .npz')
+    p.add_argument('--out', required=True, help='replica directory')
+    p.add_argument('--h', type=float, default=0.01, help='mesh edge length, m (recorded)')
+    p.add_argument('--train', type=int, default=3, help='training pokes')
+    p.add_argument('--held-out', type=int, default=3, help='held-out pokes')
+    p.add_argument('--no-damping', action='store_true', help='skip the damping step')
+    p.add_argument('--seed', type=int, default=0, help='train/held-out split seed')
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> int:
+    """Run ``pointforce replica`` with parsed ``args``; returns the exit status."""
+    # pybullet and scikit-learn load in seconds; only this sub-command needs them
+    from pointforce_ros.replica.build import build_replica
+    build_replica(args.data, args.out, engine=args.engine, h=args.h, train=args.train,
+                  held_out=args.held_out, damping=not args.no_damping, seed=args.seed)
+    return 0

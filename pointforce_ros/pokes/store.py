@@ -4,6 +4,9 @@ Layout of a store directory::
 
     <store>/index.json                 one entry per poke (id, point, normal, samples, outcome)
     <store>/poke-000017/               a rosbag2 bag (metadata.yaml + poke-000017_0.mcap)
+    <store>/ids.json                   the last poke id handed out (written atomically)
+    <store>/quarantine/poke-000016/    a bag that could not be read, with a .reason.txt
+    <store>/recovery/poke-000018.npz   the samples of a poke the store failed to write
 
 Each bag holds the topics the poke server publishes, so Foxglove and ``ros2 bag`` read it:
 
@@ -16,13 +19,23 @@ Each bag holds the topics the poke server publishes, so Foxglove and ``ros2 bag`
 A bag is written into a hidden temporary directory and renamed into place, so a poke is either
 wholly on disk or absent; a crash mid-write leaves only a ``.tmp-*`` directory that the next
 open removes. Pure Python (``rosbags``), no rclpy.
+
+Ids are never reused: :meth:`PokeStore.next_id` hands out one more than the highest of the
+persisted counter, the index, every ``poke-*`` folder, the quarantine and the recovery folder,
+and persists it before returning. A bag that cannot be read when the store is opened is moved
+to ``quarantine/`` with a logged reason that names it. A poke whose bag cannot be written
+(after the arm moved) is kept whole by :meth:`PokeStore.save_recovery` and read back by
+:func:`load_recovery`.
 """
 
 import json
+import logging
 import os
+import re
 import shutil
 import tempfile
 import threading
+import time
 from pathlib import Path
 from typing import Dict, Iterator, List, Optional
 
@@ -41,6 +54,9 @@ POSE_TOPIC = '/poke_server/tcp_pose'
 WRENCH_TOPIC = '/poke_server/wrench'
 RECORD_TOPIC = '/poke_server/poke_record'
 RECORD_FORMAT = 'pointforce-poke/1'
+RECOVERY_FORMAT = 'pointforce-poke-recovery/1'
+LOG = logging.getLogger(__name__)
+_ID = re.compile(r'^poke-(\d+)')
 
 _T = TYPESTORE.types
 _Time = _T['builtin_interfaces/msg/Time']
@@ -119,7 +135,7 @@ def write_poke_bag(record: PokeRecord, path) -> Path:
     tmp_root = Path(tempfile.mkdtemp(dir=path.parent, prefix=f'.tmp-{path.name}-'))
     tmp_bag = tmp_root / path.name
     try:
-        rot = rotvec_to_matrix(record.tcp_pose[:, 3:])
+        rot = rotvec_to_matrix(np.array(record.tcp_pose[:, 3:]))  # a writable copy for scipy
         quats = matrix_to_quaternion(rot)
         # ur_rtde's actual_TCP_force is base-oriented; the UR driver publishes it in the tool
         # frame: f_tool = R^T f_base, same for the torque
@@ -202,6 +218,31 @@ def read_poke_bag(path) -> PokeRecord:
         raise DataError(f'{path}: invalid poke record: {exc}') from exc
 
 
+def load_recovery(path) -> PokeRecord:
+    """Read a recovery file written by :meth:`PokeStore.save_recovery` back into a record.
+
+    Raises:
+        DataError: not a recovery file, or unreadable.
+
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(bytes(z['header']).decode())
+            if header.get('recovery_format') != RECOVERY_FORMAT:
+                raise DataError(f'{path}: not a poke recovery file')
+            return PokeRecord(poke_id=header['poke_id'], point=header['point'],
+                              normal=header['normal'], t=z['t'],
+                              t_controller=z['t_controller'], tcp_pose=z['tcp_pose'],
+                              wrench=z['wrench'], speed=header['speed'], probe=header['probe'],
+                              outcome=header['outcome'], meta=header.get('meta', {}))
+    except DataError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - zipfile, numpy, json: many error types
+        raise DataError(f'{path}: unreadable recovery file: {type(exc).__name__}: '
+                        f'{exc}') from exc
+
+
 class PokeStore:
     """A directory of poke bags with an index; safe for one writer and many readers.
 
@@ -211,9 +252,15 @@ class PokeStore:
     """
 
     INDEX = 'index.json'
+    IDS = 'ids.json'
+    QUARANTINE = 'quarantine'
+    RECOVERY = 'recovery'
 
     def __init__(self, root):
-        """Open (and create) the store at ``root``; removes leftovers of interrupted writes."""
+        """Open (and create) the store at ``root``; removes leftovers of interrupted writes.
+
+        Bags that cannot be read are moved to ``quarantine/`` (logged with the reason).
+        """
         self.root = Path(root)
         if self.root.exists() and not self.root.is_dir():
             raise DataError(f'poke store {self.root} is a file, not a directory')
@@ -221,11 +268,42 @@ class PokeStore:
         self._lock = threading.Lock()
         for leftover in self.root.glob('.tmp-*'):
             shutil.rmtree(leftover, ignore_errors=True)
+        self.quarantined: List[Path] = []
         self._index = self._load_index()
 
+    def _quarantine(self, path: Path, reason: str) -> Optional[Path]:
+        """Move a bad bag (folder or file) to ``quarantine/`` with ``<name>.reason.txt``."""
+        folder = self.root / self.QUARANTINE
+        folder.mkdir(exist_ok=True)
+        target = folder / path.name
+        n = 0
+        while target.exists():
+            n += 1
+            target = folder / f'{path.name}.{n}'
+        try:
+            os.replace(path, target)
+        except FileNotFoundError:
+            return None  # another reader moved it
+        except OSError as exc:
+            LOG.error('poke store %s: cannot quarantine %s (%s): %s', self.root, path.name,
+                      exc, reason)
+            return None
+        note = f'{time.strftime("%Y-%m-%dT%H:%M:%S%z")} {path.name}: {reason}\n'
+        (folder / f'{target.name}.reason.txt').write_text(note)
+        LOG.error('poke store %s: quarantined %s as %s: %s', self.root, path.name, target,
+                  reason)
+        self.quarantined.append(target)
+        return target
+
     def _load_index(self) -> Dict[str, dict]:
-        bags = {p.name for p in self.root.iterdir() if p.is_dir() and p.name.startswith('poke-')
-                and (p / 'metadata.yaml').exists()}
+        bags = set()
+        for p in self.root.iterdir():
+            if not (p.name.startswith('poke-') and _ID.match(p.name)):
+                continue
+            if p.is_dir() and (p / 'metadata.yaml').exists():
+                bags.add(p.name)
+            else:  # a poke-* entry that is no bag would block its id and hide a problem
+                self._quarantine(p, 'not a rosbag2 bag (no metadata.yaml)')
         index: Dict[str, dict] = {}
         path = self.root / self.INDEX
         if path.exists():
@@ -238,8 +316,8 @@ class PokeStore:
             for name in sorted(bags - set(index)):
                 try:
                     index[name] = self._entry(read_poke_bag(self.root / name))
-                except DataError:
-                    continue  # a corrupt bag is skipped, never fatal to the store
+                except DataError as exc:  # never fatal to the store; moved aside, logged
+                    self._quarantine(self.root / name, str(exc))
             self._write_index(index)
         return index
 
@@ -251,18 +329,95 @@ class PokeStore:
                 'meta': dict(record.meta)}
 
     def _write_index(self, index: Dict[str, dict]) -> None:
-        fd, tmp = tempfile.mkstemp(dir=self.root, prefix='.tmp-index-')
-        with os.fdopen(fd, 'w') as fh:
-            json.dump({'pokes': [index[k] for k in sorted(index)]}, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.root / self.INDEX)
+        self._write_json(self.INDEX, {'pokes': [index[k] for k in sorted(index)]})
+
+    def _highest_number(self) -> int:
+        """Highest poke number ever used here: counter, index, folders, quarantine, recovery."""
+        names = list(self._index)
+        for folder in (self.root, self.root / self.QUARANTINE, self.root / self.RECOVERY):
+            if folder.is_dir():
+                names.extend(p.name for p in folder.iterdir())
+        numbers = [int(m.group(1)) for m in map(_ID.match, names) if m]
+        try:
+            numbers.append(int(json.loads((self.root / self.IDS).read_text())['last']))
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # a lost or damaged counter: the names on disk still bound it
+        return max(numbers, default=0)
 
     def next_id(self) -> str:
-        """Return a fresh poke id (``poke-000001``, ...)."""
+        """Return a fresh poke id (``poke-000001``, ...); an id is never handed out twice.
+
+        The new id is one more than the highest ever used in this store (the persisted
+        counter, the index, every ``poke-*`` folder, the quarantine and the recovery folder)
+        and is persisted atomically before it is returned, so a corrupt or removed bag, a
+        failed write or a restart cannot bring an id back.
+
+        Raises:
+            OSError: the counter cannot be written.
+
+        """
         with self._lock:
-            numbers = [int(k.split('-')[1]) for k in self._index if k.split('-')[-1].isdigit()]
-            return f'poke-{(max(numbers) + 1) if numbers else 1:06d}'
+            number = self._highest_number() + 1
+            self._write_json(self.IDS, {'last': number})
+            return f'poke-{number:06d}'
+
+    def _write_json(self, name: str, content) -> None:
+        fd, tmp = tempfile.mkstemp(dir=self.root, prefix=f'.tmp-{name}-')
+        try:
+            with os.fdopen(fd, 'w') as fh:
+                json.dump(content, fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.root / name)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    def save_recovery(self, record: PokeRecord, error: BaseException) -> Path:
+        """Keep every sample of ``record`` when its bag could not be stored; return the path.
+
+        Writes ``<store>/recovery/<poke_id>.npz`` (or, if the store cannot be written, the
+        same name under the system temporary folder's ``pointforce-recovery/``) atomically,
+        with the record header and ``error``. :func:`load_recovery` reads it back.
+
+        Raises:
+            OSError: neither place can be written.
+
+        """
+        header = dict(record_header(record), recovery_format=RECOVERY_FORMAT,
+                      error=f'{type(error).__name__}: {error}')
+        arrays = dict(t=record.t, t_controller=record.t_controller, tcp_pose=record.tcp_pose,
+                      wrench=record.wrench,
+                      header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8))
+        places = [self.root / self.RECOVERY,
+                  Path(tempfile.gettempdir()) / 'pointforce-recovery']
+        for i, folder in enumerate(places):
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+                fd, tmp = tempfile.mkstemp(dir=folder, prefix='.tmp-', suffix='.npz')
+                try:
+                    with os.fdopen(fd, 'wb') as fh:
+                        np.savez(fh, **arrays)
+                        fh.flush()
+                        os.fsync(fh.fileno())
+                    path = folder / f'{record.poke_id}.npz'
+                    n = 0
+                    while path.exists():
+                        n += 1
+                        path = folder / f'{record.poke_id}.{n}.npz'
+                    os.replace(tmp, path)
+                finally:
+                    if os.path.exists(tmp):
+                        os.unlink(tmp)
+            except OSError:
+                if i == len(places) - 1:
+                    raise
+                continue
+            LOG.error('poke store %s: %s not stored (%s); its %d samples are kept in %s',
+                      self.root, record.poke_id, header['error'], len(record), path)
+            return path
+        raise OSError('unreachable')  # pragma: no cover
 
     def add(self, record: PokeRecord) -> Path:
         """Persist ``record`` (atomically) and index it; returns the bag path."""

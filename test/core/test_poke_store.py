@@ -101,3 +101,63 @@ def test_corrupt_bag_is_a_clear_error_and_the_store_skips_it(tmp_path):
     shutil.copytree(tmp_path / 'poke-000002', tmp_path / 'copy' / 'poke-000002')
     (tmp_path / 'copy' / 'poke-000001').mkdir()
     assert st.PokeStore(tmp_path / 'copy').ids() == []
+
+
+def _store_of(root, count):
+    store = st.PokeStore(root)
+    for seed in range(count):
+        store.add(make_record(store.next_id(), n=30, seed=seed))
+    return store
+
+
+def test_a_corrupt_newest_bag_is_quarantined_by_name_and_its_id_never_reused(tmp_path, caplog):
+    """Issue 16: the next poke reused a corrupt bag's id and its storing failed after the poke."""
+    _store_of(tmp_path, 3)
+    mcap = next((tmp_path / 'poke-000003').glob('*.mcap'))
+    mcap.write_bytes(mcap.read_bytes()[:200])
+    (tmp_path / 'index.json').unlink()
+    with caplog.at_level('ERROR', logger='pointforce_ros.pokes.store'):
+        reopened = st.PokeStore(tmp_path)
+    assert reopened.ids() == ['poke-000001', 'poke-000002']
+    moved = tmp_path / 'quarantine' / 'poke-000003'
+    assert reopened.quarantined == [moved] and (moved / 'metadata.yaml').is_file()
+    reason = (tmp_path / 'quarantine' / 'poke-000003.reason.txt').read_text()
+    assert 'poke-000003' in reason and 'cannot read bag' in reason
+    assert any('poke-000003' in r.getMessage() and 'quarantined' in r.getMessage()
+               for r in caplog.records)
+    new_id = reopened.next_id()
+    assert new_id == 'poke-000004'
+    reopened.add(make_record(new_id, n=30, seed=9))   # the arm's poke is stored
+    assert reopened.ids()[-1] == 'poke-000004'
+
+
+def test_ids_survive_a_lost_counter_a_removed_bag_and_unused_ids(tmp_path):
+    store = _store_of(tmp_path, 2)
+    unused = store.next_id()          # handed out, never stored (a poke with no sample)
+    assert unused == 'poke-000003' and store.next_id() == 'poke-000004'
+    shutil.rmtree(tmp_path / 'poke-000002')
+    (tmp_path / 'index.json').unlink()
+    assert st.PokeStore(tmp_path).next_id() == 'poke-000005'   # the persisted counter
+    assert json.loads((tmp_path / 'ids.json').read_text()) == {'last': 5}
+    (tmp_path / 'ids.json').write_text('{broken')
+    (tmp_path / 'quarantine').mkdir()
+    (tmp_path / 'quarantine' / 'poke-000011').mkdir()
+    assert st.PokeStore(tmp_path).next_id() == 'poke-000012'   # names on disk bound it
+
+
+def test_a_failed_store_keeps_every_sample_in_a_recovery_file(tmp_path):
+    store = _store_of(tmp_path, 1)
+    record = make_record('poke-000001', n=40, seed=3)   # an id that exists: the write fails
+    with pytest.raises(DataError, match='unique') as failed:
+        store.add(record)
+    path = store.save_recovery(record, failed.value)
+    assert path == tmp_path / 'recovery' / 'poke-000001.npz'
+    back = st.load_recovery(path)
+    for name in ('t', 't_controller', 'tcp_pose', 'wrench', 'point', 'normal'):
+        np.testing.assert_array_equal(getattr(back, name), getattr(record, name))
+    assert back.meta == record.meta and back.outcome == record.outcome
+    # a second failure of the same id does not overwrite the first file
+    assert store.save_recovery(record, failed.value).name == 'poke-000001.1.npz'
+    assert store.next_id() == 'poke-000002'
+    with pytest.raises(DataError, match='recovery'):
+        st.load_recovery(next((tmp_path / 'poke-000001').glob('*.mcap')))

@@ -95,12 +95,16 @@ def fail(resp, message: str):
 def poke_goal_from_msg(goal: Poke.Goal) -> PokeGoal:
     """Convert a Poke goal message to a :class:`PokeGoal`.
 
-    The normal must be unit length unless ``surface_index`` selects a surface point.
+    The normal must be unit length unless ``surface_index`` selects a surface point;
+    ``surface_index`` is -1 (none) or an index >= 0, nothing else.
 
     Raises:
-        InvalidInput: NaN fields or a non-unit normal.
+        InvalidInput: NaN fields, a non-unit normal, or ``surface_index`` below -1.
 
     """
+    if goal.surface_index < -1:
+        raise InvalidInput(f'surface_index {goal.surface_index}: must be -1 (use point and '
+                           'normal) or a surface point index >= 0')
     normal = vec(goal.normal)
     if goal.surface_index < 0:
         normal = unit_vector(goal.normal, 'normal')

@@ -11,6 +11,10 @@ connection or a stalled F/T stream aborts with a message, after retracting where
 Every poke, completed, canceled or aborted, is written to the poke store (rosbag2 MCAP) before
 the result is sent, and published as ``~/poke_record`` (the bag's JSON header, so a remote
 recorder can rebuild it from the streams); completed ones are announced on ``~/poke_landed``.
+If the store cannot write it, the samples are kept in a recovery file and the goal aborts with
+a message that says where. The busy check and the one-goal lock are one atomic step in the goal
+callback (the lock is held from acceptance to the end of execution), and no callback lets an
+exception escape into the executor.
 """
 
 import json
@@ -43,10 +47,16 @@ from pointforce_ros.drivers.ur_arm import UrArm
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 STREAM = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+REQUESTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+"""Goal and cancel requests: the default depth of 10 dropped goals of a burst unanswered."""
 
 
 class PokeServerNode(Node):
     """The Poke action server on a UR arm."""
+
+    START_TIMEOUT = 10.0
+    """Seconds an accepted goal may take to start executing before its lock is taken back."""
 
     def __init__(self, arm_factory=None, **kwargs):
         """Declare parameters, connect the arm (retried per goal), create the action server.
@@ -68,7 +78,13 @@ class PokeServerNode(Node):
                               bounds=(0.0001, 0.05)),
             surface_tolerance=declare(self, 'surface_tolerance', 0.003,
                                       'Largest goal distance from the equilibrium surface, m',
-                                      bounds=(0.0, 0.05)))
+                                      bounds=(0.0, 0.05)),
+            max_normal_angle=declare(self, 'max_normal_angle', 30.0,
+                                     'Largest angle between a goal normal and the surface '
+                                     'normal at the goal point, deg', bounds=(1.0, 89.0)),
+            max_tilt=declare(self, 'max_tilt', 80.0,
+                             'Largest angle between a goal normal and base +z, deg',
+                             bounds=(0.0, 89.0)))
         self.retract_speed = declare(self, 'retract_speed', 0.01, 'Retract speed, m/s',
                                      bounds=(0.0005, 0.1))
         self.approach_speed = declare(self, 'approach_speed', 0.05,
@@ -79,7 +95,10 @@ class PokeServerNode(Node):
         self._arm_factory = arm_factory or self._default_arm
         self._arm = None
         self._arm_lock = threading.Lock()
-        self._busy = threading.Lock()
+        self._busy = threading.Lock()     # one goal from acceptance to the end of execution
+        self._goal_mutex = threading.Lock()
+        self._accepted_at = 0.0
+        self._executing = False
         self.samples_streamed = 0
         self.surface = None
         group = ReentrantCallbackGroup()
@@ -92,7 +111,8 @@ class PokeServerNode(Node):
         self.create_service(Trigger, '~/zero_ftsensor', self._on_zero, callback_group=group)
         self._server = ActionServer(self, Poke, '~/poke', execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
-                                    callback_group=group)
+                                    callback_group=group, goal_service_qos_profile=REQUESTS,
+                                    cancel_service_qos_profile=REQUESTS)
         try:
             self._connect()
         except PointforceError as exc:
@@ -148,37 +168,71 @@ class PokeServerNode(Node):
             self.get_logger().error(f'ignoring surface: {exc}')
 
     def _on_zero(self, request, response):
+        if not self._busy.acquire(blocking=False):
+            response.success = False
+            response.message = 'a poke is running: the F/T sensor is not zeroed while pressed'
+            return response
         try:
             self._connect().tare()
             response.success, response.message = True, 'F/T sensor zeroed'
         except PointforceError as exc:
             response.success, response.message = False, str(exc)
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            response.success = False
+            response.message = f'cannot zero the F/T sensor: {type(exc).__name__}: {exc}'
+        finally:
+            self._busy.release()
         return response
 
     # ------------------------------------------------------------------ action callbacks
     def _on_goal(self, goal_msg):
-        if self._busy.locked():
-            self.get_logger().warn('poke goal rejected: another poke is running')
-            return GoalResponse.REJECT
-        try:
-            check_goal(poke_goal_from_msg(goal_msg), self.limits, self.surface)
-        except PointforceError as exc:
-            self.get_logger().warn(f'poke goal rejected: {exc}')
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
+        """Accept a good goal only if the one-goal lock is free, taking it in the same step.
+
+        The lock stays held until :meth:`_execute` of the accepted goal ends, so a second goal
+        is rejected here rather than accepted and then aborted. Should an accepted goal never
+        start executing (rclpy failed to create its handle), the lock is taken back after
+        ``START_TIMEOUT`` seconds.
+        """
+        with self._goal_mutex:
+            if not self._busy.acquire(blocking=False):
+                stale = (not self._executing
+                         and time.monotonic() - self._accepted_at > self.START_TIMEOUT)
+                if not stale:
+                    self.get_logger().warn('poke goal rejected: another poke is running')
+                    return GoalResponse.REJECT
+                self.get_logger().error(f'the last accepted poke goal did not start within '
+                                        f'{self.START_TIMEOUT:g} s; taking its lock back')
+            try:
+                check_goal(poke_goal_from_msg(goal_msg), self.limits, self.surface)
+            except Exception as exc:  # noqa: BLE001 - every bad goal is rejected with a reason
+                self._busy.release()
+                reason = str(exc) if isinstance(exc, PointforceError) else (
+                    f'{type(exc).__name__}: {exc}')
+                self.get_logger().warn(f'poke goal rejected: {reason}')
+                return GoalResponse.REJECT
+            self._accepted_at = time.monotonic()
+            self._executing = False
+            return GoalResponse.ACCEPT
 
     def _on_cancel(self, goal_handle):
         self.get_logger().info('poke cancel requested')
         return CancelResponse.ACCEPT
 
     def _execute(self, goal_handle):
-        if not self._busy.acquire(blocking=False):
-            goal_handle.abort()
-            return poke_result_msg('', 0, 0.0, 0.0, 'aborted', 'another poke is running')
+        self._executing = True
         try:
             return self._run_poke(goal_handle)
+        except Exception as exc:  # noqa: BLE001 - every exit ends in abort() with a message
+            message = f'poke failed: {type(exc).__name__}: {exc}'
+            self.get_logger().error(message)
+            try:
+                goal_handle.abort()
+            except Exception:  # noqa: BLE001 - a state already final stays as it is
+                pass
+            return poke_result_msg('', 0, 0.0, 0.0, 'aborted', message)
         finally:
-            self._busy.release()
+            self._executing = False
+            self._busy.release()   # taken by _on_goal when this goal was accepted
 
     def _run_poke(self, goal_handle):
         try:
@@ -229,11 +283,16 @@ class PokeServerNode(Node):
                                       'depth_limit': goal.depth_limit,
                                       'surface_index': goal.surface_index,
                                       'robot_ip': self.robot_ip})
-            self.store.add(record)  # on disk before any result is sent
-            self.record_pub.publish(String(data=json.dumps(record_header(record))))
-            saved_id, samples = poke_id, len(record)
+            samples = len(record)
             peak = float(np.max(record.normal_force()))
             depth = float(np.max(record.displacement()))
+            stored = self._store(record)  # on disk before any result is sent
+            if stored is not None:
+                self.get_logger().error(f'poke aborted: {stored}')
+                goal_handle.abort()
+                return poke_result_msg('', samples, peak, depth, 'aborted', stored)
+            self.record_pub.publish(String(data=json.dumps(record_header(record))))
+            saved_id = poke_id
         if fault is not None:
             kind = getattr(fault, 'kind', 'device_fault')
             message = (f'{kind}: {fault} (the {samples} samples recorded are stored as '
@@ -250,6 +309,24 @@ class PokeServerNode(Node):
         self.get_logger().info(f'{saved_id}: {result.outcome}, peak {peak:.2f} N at '
                                f'{1e3 * depth:.1f} mm, {samples} samples')
         return poke_result_msg(saved_id, samples, peak, depth, result.outcome, '')
+
+    def _store(self, record: PokeRecord):
+        """Store ``record``; on failure keep its samples in a recovery file.
+
+        Returns ``None`` when stored, else the abort message (what failed and where the
+        samples are).
+        """
+        try:
+            self.store.add(record)
+            return None
+        except Exception as exc:  # noqa: BLE001 - the arm moved: the samples must survive
+            error = f'{type(exc).__name__}: {exc}'
+            try:
+                where = f'kept in {self.store.save_recovery(record, exc)}'
+            except OSError as lost:
+                where = f'could not be kept either ({lost})'
+            return (f'{record.outcome}: the poke ran but storing {record.poke_id} failed '
+                    f'({error}); its {len(record)} samples are {where}')
 
     def destroy_node(self):
         """Close the arm connection with the node."""

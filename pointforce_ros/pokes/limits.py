@@ -1,4 +1,11 @@
-"""Safety limits of a poke and the check every goal passes before the arm moves."""
+"""Safety limits of a poke and the check every goal passes before the arm moves.
+
+Beyond the force, depth, speed and workspace limits, the geometry must keep the arm out of the
+object: the normal must point up out of the table (``max_tilt``) and, when the equilibrium
+surface is known, agree with the surface normal at the point (``max_normal_angle``), and the
+stand-off pose (where the arm tares the F/T sensor and retracts to) must lie outside the
+surface by at least half the stand-off.
+"""
 
 from dataclasses import dataclass
 from typing import Optional, Tuple
@@ -21,6 +28,11 @@ class PokeLimits:
         surface_tolerance: largest distance of a goal point from the equilibrium surface, m
             (checked when a surface is known).
         workspace_min, workspace_max: (3,) box the whole motion must stay in, m.
+        max_normal_angle: largest angle between the goal normal and the surface normal at the
+            goal point (mean of its ``normal_neighbours`` nearest surface points), degrees.
+        max_tilt: largest angle between the goal normal and ``up`` (base +z), degrees; a
+            horizontal or downward normal is refused even with no surface known.
+        normal_neighbours: surface points whose normals are averaged at the goal point.
 
     """
 
@@ -31,6 +43,31 @@ class PokeLimits:
     surface_tolerance: float = 0.003
     workspace_min: Tuple[float, float, float] = (0.2, -0.4, 0.0)
     workspace_max: Tuple[float, float, float] = (0.8, 0.4, 0.5)
+    max_normal_angle: float = 30.0
+    max_tilt: float = 80.0
+    normal_neighbours: int = 5
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between unit vectors ``a`` and ``b``, degrees."""
+    return float(np.degrees(np.arccos(np.clip(float(a @ b), -1.0, 1.0))))
+
+
+def _surface_side(surface: Surface, p: np.ndarray, k: int) -> Tuple[float, np.ndarray, float]:
+    """(distance to the nearest point, mean unit normal of the k nearest, signed height).
+
+    The signed height is ``p``'s mean height over the k nearest points along their normals
+    (m; > 0 outside the object).
+    """
+    distance = np.linalg.norm(surface.points - p, axis=1)
+    k = min(k, len(distance))
+    near = np.argpartition(distance, k - 1)[:k]
+    normal = surface.normals[near].sum(axis=0)
+    length = float(np.linalg.norm(normal))
+    normal = normal / length if length > 0 else surface.normals[near[0]]
+    height = float(np.mean(np.einsum('ij,ij->i', p - surface.points[near],
+                                     surface.normals[near])))
+    return float(distance.min()), normal, height
 
 
 def check_goal(goal: PokeGoal, limits: PokeLimits,
@@ -38,17 +75,25 @@ def check_goal(goal: PokeGoal, limits: PokeLimits,
     """Validate ``goal``; return the (point, unit normal) to poke, ``base``.
 
     Raises:
-        InvalidInput: a surface index with no surface or out of range, a non-unit normal.
-        UnsafeCommand: force, depth, speed or stand-off outside ``limits``; a point farther
-            than ``surface_tolerance`` from the surface; motion leaving the workspace box.
+        InvalidInput: a surface index other than -1 (none) or 0..N-1 of a known surface, a
+            non-unit normal.
+        UnsafeCommand: force, depth, speed or stand-off outside ``limits``; a normal tilted
+            more than ``max_tilt`` from up; with a surface: a point farther than
+            ``surface_tolerance`` from it, a normal more than ``max_normal_angle`` from its
+            normal, a stand-off less than half the stand-off outside it; motion leaving the
+            workspace box.
 
     """
-    if goal.surface_index >= 0:
+    index = goal.surface_index
+    if index != -1 and not (surface is not None and 0 <= index < len(surface)):
+        if index < -1:
+            raise InvalidInput(f'surface_index {index}: must be -1 (use point and normal) or '
+                               'a surface point index >= 0')
         if surface is None:
             raise InvalidInput('surface_index given but no equilibrium surface is known yet')
-        if goal.surface_index >= len(surface):
-            raise InvalidInput(f'surface_index {goal.surface_index} out of range: the surface '
-                               f'has {len(surface)} points')
+        raise InvalidInput(f'surface_index {index} out of range: the surface has '
+                           f'{len(surface)} points (0..{len(surface) - 1})')
+    if goal.surface_index >= 0:
         point = surface.points[goal.surface_index].copy()
         normal = surface.normals[goal.surface_index].copy()
     else:
@@ -68,12 +113,30 @@ def check_goal(goal: PokeGoal, limits: PokeLimits,
     s_lo, s_hi = limits.standoff_range
     if not s_lo <= goal.standoff <= s_hi:
         raise UnsafeCommand(f'standoff {goal.standoff:g} m outside [{s_lo:g}, {s_hi:g}] m')
-    if surface is not None and goal.surface_index < 0:
-        distance = float(np.min(np.linalg.norm(surface.points - point, axis=1)))
-        if distance > limits.surface_tolerance:
+    tilt = _angle(normal, np.array([0.0, 0.0, 1.0]))
+    if tilt > limits.max_tilt:
+        raise UnsafeCommand(f'normal {np.round(normal, 3).tolist()} is {tilt:.0f} deg from up '
+                            f'(limit {limits.max_tilt:g} deg): the probe would push sideways '
+                            'or upwards')
+    if surface is not None:
+        distance, surface_normal, _ = _surface_side(surface, point, limits.normal_neighbours)
+        if goal.surface_index < 0 and distance > limits.surface_tolerance:
             raise UnsafeCommand(f'point is {1e3 * distance:.1f} mm from the equilibrium surface '
                                 f'(tolerance {1e3 * limits.surface_tolerance:.1f} mm): not on '
                                 'the object')
+        angle = _angle(normal, surface_normal)
+        if angle > limits.max_normal_angle:
+            raise UnsafeCommand(f'normal is {angle:.0f} deg from the surface normal '
+                                f'{np.round(surface_normal, 3).tolist()} at the point (limit '
+                                f'{limits.max_normal_angle:g} deg): it must point out of the '
+                                'surface')
+        standoff = point + goal.standoff * normal
+        _, _, height = _surface_side(surface, standoff, limits.normal_neighbours)
+        if height < 0.5 * goal.standoff:
+            raise UnsafeCommand(f'the stand-off {np.round(standoff, 4).tolist()} m is '
+                                f'{1e3 * height:.1f} mm outside the surface (needs at least '
+                                f'{0.5e3 * goal.standoff:.1f} mm): the arm would tare and '
+                                'retract inside the object')
     lo, hi = np.array(limits.workspace_min), np.array(limits.workspace_max)
     for label, p in (('stand-off', point + goal.standoff * normal),
                      ('deepest', point - goal.depth_limit * normal)):

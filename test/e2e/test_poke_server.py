@@ -86,6 +86,11 @@ def test_poke_end_to_end_with_feedback_and_a_250hz_bag(cell):
     ({'speed': 0.05}, 'speed above max_speed'),
     ({'depth_limit': -0.001}, 'negative depth'),
     ({'point': [0.5, 0.0, 0.07]}, 'point 30 mm above the surface'),
+    # issue 16: accepted; the inverted one tared the sensor 6 mm inside the object
+    ({'normal': [0.0, 0.0, -1.0]}, 'inverted normal'),
+    ({'normal': [1.0, 0.0, 0.0]}, 'horizontal normal'),
+    ({'surface_index': -2}, 'surface_index below -1'),
+    ({'surface_index': 30}, 'surface_index past the last point'),
 ])
 def test_bad_goals_are_rejected_and_nothing_moves(cell, overrides, reason):
     graph, emulator, server, client_node, client, _ = cell

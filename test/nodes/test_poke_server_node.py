@@ -1,0 +1,183 @@
+"""poke_server over DDS with a scripted arm: atomic busy check, no poke lost when storing fails.
+
+Issue 16: of 20 simultaneous goals, 3 were accepted and then aborted (the busy check ran before
+the lock); when storing failed after the arm moved, the data was gone and the client got ABORTED
+with an empty message.
+"""
+
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from pointforce_interfaces.action import Poke
+from rclpy.action import ActionClient
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from msg_adapters.interfaces import poke_goal_to_msg
+from pointforce_ros.drivers.ur_arm import PushResult
+from pointforce_ros.errors import DataError
+from pointforce_ros.nodes.poke_server import PokeServerNode, REQUESTS
+from pointforce_ros.pokes.store import load_recovery, PokeStore
+from pointforce_ros.types import PokeGoal
+
+pytestmark = pytest.mark.ros
+
+
+class ScriptedArm:
+    """Stands in for UrArm: ``samples`` samples into a 1000 N/m spring over ``duration`` s."""
+
+    def __init__(self, host, duration=0.6, samples=150):
+        self.duration, self.samples = duration, samples
+        self.pushes = 0
+        self.tares = 0
+
+    def add_sample_callback(self, callback):
+        pass
+
+    def is_connected(self):
+        return True
+
+    def close(self):
+        pass
+
+    def latest(self):
+        return None
+
+    def tare(self):
+        self.tares += 1
+
+    def push_until(self, standoff, direction, *, force_limit, travel_limit, speed,
+                   approach_speed, retract_speed, cancel, max_force, max_travel):
+        self.pushes += 1
+        deadline = time.monotonic() + self.duration
+        while time.monotonic() < deadline:
+            if cancel():
+                break
+            time.sleep(0.01)
+        n = self.samples
+        travel = np.linspace(0.0, travel_limit, n)
+        direction = np.asarray(direction, float)
+        pose = np.tile(np.asarray(standoff, float), (n, 1))
+        pose[:, :3] += travel[:, None] * direction
+        force = 1000.0 * np.maximum(travel - 0.008, 0.0)
+        wrench = np.zeros((n, 6))
+        wrench[:, :3] = -force[:, None] * direction
+        t = 1000.0 + np.arange(n) * 0.004
+        return PushResult(t_wall=t, t_controller=t - 990.0, tcp_pose=pose, wrench=wrench,
+                          outcome='force_limit', peak_force=float(force.max()),
+                          max_travel=float(travel.max()), standoff=np.asarray(standoff, float),
+                          direction=direction)
+
+
+def _goal():
+    return poke_goal_to_msg(PokeGoal(point=[0.5, 0.0, 0.04], normal=[0.0, 0.0, 1.0],
+                                     force_limit=3.0, depth_limit=0.008, speed=0.005,
+                                     standoff=0.008))
+
+
+@pytest.fixture
+def scripted(ros_graph, tmp_path):
+    arms = []
+
+    def factory(host):
+        arms.append(ScriptedArm(host))
+        return arms[-1]
+    server = ros_graph.add(PokeServerNode(
+        arm_factory=factory, context=ros_graph.context,
+        parameter_overrides=[Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
+    client_node = ros_graph.add(Node('scripted_client', context=ros_graph.context))
+    client = ActionClient(client_node, Poke, '/poke_server/poke')
+    assert client.wait_for_server(timeout_sec=15.0)
+    return ros_graph, server, client, arms, tmp_path
+
+
+class Burst:
+    """A client in its own, not yet spinning, context: goals sent together reach the server
+    together, and no goal response can arrive before rclpy registers its future (its
+    ActionClient has no lock between sending and registering).
+    """
+
+    def __init__(self):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = Node('burst_client', context=self.context)
+        self.client = ActionClient(self.node, Poke, '/poke_server/poke',
+                                   goal_service_qos_profile=REQUESTS)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def wait(self, futures, timeout, what):
+        deadline = time.monotonic() + timeout
+        while not all(f.done() for f in futures):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f'timed out after {timeout} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.05)
+        return [f.result() for f in futures]
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=5.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def test_twenty_simultaneous_goals_one_accepted_none_accepted_then_aborted(scripted):
+    graph, server, _, arms, tmp_path = scripted
+    burst = Burst()
+    try:
+        assert burst.client.wait_for_server(timeout_sec=15.0)
+        handles = burst.wait([burst.client.send_goal_async(_goal()) for _ in range(20)], 30,
+                             'goal responses')
+        accepted = [h for h in handles if h.accepted]
+        assert len(accepted) == 1, f'{len(accepted)} of 20 accepted'
+        result, = burst.wait([accepted[0].get_result_async()], 30, 'result')
+    finally:
+        burst.close()
+    assert result.status == 4 and result.result.outcome == 'force_limit'   # SUCCEEDED
+    assert arms[0].pushes == 1
+    # the lock is free again: the next goal is accepted and runs
+    again = graph.wait_future(scripted[2].send_goal_async(_goal()), 20, 'next goal')
+    assert again.accepted
+    assert graph.wait_future(again.get_result_async(), 30, 'next result').status == 4
+    assert PokeStore(tmp_path / 'pokes').ids() == ['poke-000001', 'poke-000002']
+
+
+@pytest.mark.parametrize('error', [OSError(28, 'No space left on device'),
+                                   DataError('poke ids must be unique')])
+def test_a_storing_failure_after_the_arm_moved_keeps_the_samples_and_says_where(
+        scripted, monkeypatch, error):
+    graph, server, client, arms, tmp_path = scripted
+
+    def refuse(record):
+        raise error
+    monkeypatch.setattr(server.store, 'add', refuse)
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal')
+    assert handle.accepted
+    got = graph.wait_future(handle.get_result_async(), 30, 'result')
+    result = got.result
+    assert got.status == 6 and arms[0].pushes == 1        # ABORTED, after the arm moved
+    path = tmp_path / 'pokes' / 'recovery' / 'poke-000001.npz'
+    assert str(path) in result.message and type(error).__name__ in result.message
+    record = load_recovery(path)
+    assert len(record) == arms[0].samples == result.samples
+    assert record.outcome == 'force_limit' and result.peak_force > 0.0
+    monkeypatch.undo()
+    # the recovered id is not handed out again
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal after')
+    after = graph.wait_future(handle.get_result_async(), 30, 'result after').result
+    assert after.poke_id == 'poke-000002'
+
+
+def test_an_unexpected_error_in_execution_aborts_with_a_message_and_frees_the_lock(
+        scripted, monkeypatch):
+    graph, server, client, arms, _ = scripted
+    monkeypatch.setattr(server, '_run_poke', lambda handle: 1 / 0)
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal')
+    got = graph.wait_future(handle.get_result_async(), 30, 'result')
+    assert got.status == 6 and 'ZeroDivisionError' in got.result.message
+    monkeypatch.undo()
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal after')
+    assert handle.accepted
+    assert graph.wait_future(handle.get_result_async(), 30, 'result after').status == 4

@@ -64,6 +64,13 @@ def build_replica(data, out, *, engine: str = 'pybullet', h: float = 0.01, train
         static_errors = summary(evaluate(mesh, calib.static, test_set, config))
         if damping:
             calib = damping_step(mesh, calib, fit_set, test_set, config, say=say)
+            if calib.damping_accepted and calib.name == 'paper':
+                # the paper's third step: (lambda, mu) again on a grid at the new damping
+                again = calibrate_paper(mesh, fit_set, config, damping=calib.final.damping,
+                                        say=say)
+                calib.final = again.final
+                calib.simulations += again.simulations
+                calib.seconds += again.seconds
         final_errors = (summary(evaluate(mesh, calib.final, test_set, config))
                         if calib.damping_accepted else static_errors)
         figures[calib.name] = {'held_out_static': static_errors,

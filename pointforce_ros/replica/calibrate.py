@@ -36,8 +36,16 @@ from pointforce_ros.replica.scene import Material, ReplicaScene, SceneConfig
 STATIC_SPEED = 0.008
 """Push speed of the quasi-static simulations, m/s (4x the cell's default poke speed)."""
 
-FEATURE_DEPTHS = np.array([2.0, 4.0, 6.0, 8.0]) * 1e-3
-"""Depths (m) at which the paper's network reads the steady force (the paper: every 5 mm)."""
+FEATURE_COUNT = 4
+"""Depths at which the paper's network reads the steady force (the paper: every 5 mm), spread
+evenly over the depth range every training poke covers."""
+
+
+def feature_depths(pokes: Sequence[MeasuredPoke]) -> np.ndarray:
+    """Return the :data:`FEATURE_COUNT` depths (m) covered by every poke of ``pokes``."""
+    lo = max(max(float(p.depth.min()), 0.2 * float(p.depth.max())) for p in pokes)
+    hi = min(float(p.depth.max()) for p in pokes)
+    return np.linspace(lo, hi, FEATURE_COUNT)
 
 
 @dataclass
@@ -53,8 +61,9 @@ def simulate_loading(mesh: TetMesh, material: Material, poke: MeasuredPoke,
                      counter: Optional[SimCounter] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Simulate the loading of ``poke`` on the replica; return ``(depth, force)`` (T,) each.
 
-    Depth in metres past the undeformed top at the poke's x-y, force in newtons; only the
-    push (no hold, no retraction).
+    Depth in metres past the simulated contact onset (:func:`onset_depth`), force in newtons;
+    only the push (no hold, no retraction). The push goes 1.5 mm past the poke's deepest point
+    so that the onset shift leaves the whole measured range covered.
 
     Raises:
         NotConverged: the engine went unstable.
@@ -62,12 +71,33 @@ def simulate_loading(mesh: TetMesh, material: Material, poke: MeasuredPoke,
     """
     started = time.monotonic()
     with ReplicaScene(mesh, material, config) as scene:
-        trace = scene.poke(poke.xy, float(poke.depth.max()), speed, hold=0.0, retract=False)
+        trace = scene.poke(poke.xy, float(poke.depth.max()) + 0.0015, speed, hold=0.0,
+                           retract=False)
     if counter is not None:
         counter.simulations += 1
         counter.seconds += time.monotonic() - started
     moving = trace.target > 0
-    return trace.depth[moving], trace.force[moving]
+    return onset_depth(trace.depth[moving], trace.force[moving]), trace.force[moving]
+
+
+ONSET_FRACTION = 0.01
+"""A simulated contact starts where the force first exceeds this fraction of its peak."""
+
+
+def onset_depth(depth: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """Return ``depth`` (T,) measured from the simulated contact onset, metres.
+
+    The measured curves count depth from their fitted contact onset
+    (:func:`pointforce_ros.pokes.curves.extract_curve`); the engine's contact starts about a
+    collision margin before the mesh's top, and the top under the tip is known only to the
+    mesh's resolution. So the simulated depth is counted from where the simulated force first
+    exceeds :data:`ONSET_FRACTION` of its peak, the same definition for every calibrator.
+    """
+    peak = float(force.max()) if len(force) else 0.0
+    if peak <= 0:
+        return depth
+    first = int(np.argmax(force > ONSET_FRACTION * peak))
+    return depth - float(depth[first])
 
 
 def force_at(sim_depth: np.ndarray, sim_force: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -204,13 +234,13 @@ def calibrate_scaling(mesh: TetMesh, train: Sequence[MeasuredPoke], config: Scen
                        seconds=time.monotonic() - started, trace=notes)
 
 
-def _features(pred_depths: Sequence[Tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """Mean steady force over pokes at :data:`FEATURE_DEPTHS`, (len(FEATURE_DEPTHS),)."""
-    return np.mean([force_at(d, f, FEATURE_DEPTHS) for d, f in pred_depths], axis=0)
+def _features(pred_depths: Sequence[Tuple[np.ndarray, np.ndarray]], at) -> np.ndarray:
+    """Mean steady force over pokes at depths ``at``, (len(at),)."""
+    return np.mean([force_at(d, f, at) for d, f in pred_depths], axis=0)
 
 
-def _measured_features(pokes: Sequence[MeasuredPoke]) -> np.ndarray:
-    return np.mean([np.interp(FEATURE_DEPTHS, p.depth, p.force) for p in pokes], axis=0)
+def _measured_features(pokes: Sequence[MeasuredPoke], at) -> np.ndarray:
+    return np.mean([np.interp(at, p.depth, p.force) for p in pokes], axis=0)
 
 
 def _mlp(seed: int):
@@ -238,7 +268,7 @@ def _static_grid(mesh, train, config, mus, lams, damping, counter, say):
             mat = Material(mu, lam, damping)
             sims = [simulate_loading(mesh, mat, p, config, STATIC_SPEED, counter)
                     for p in train]
-            rows.append(_features(sims))
+            rows.append(_features(sims, feature_depths(train)))
             targets.append((lam, mu))
     say(f'[paper] grid of {len(rows)} (lambda, mu) at damping {damping:g}: '
         f'{counter.simulations} simulations so far')
@@ -252,7 +282,7 @@ def calibrate_paper(mesh: TetMesh, train: Sequence[MeasuredPoke], config: SceneC
     """Seed 002's static step: an MLP [32, 8] sigmoid from force features to (lambda, mu).
 
     The grid (``mus`` x ``lams``, Pa) is simulated on every training poke; features are the
-    mean steady force at :data:`FEATURE_DEPTHS`; the network maps measured features back.
+    mean steady force at :func:`feature_depths`; the network maps measured features back.
 
     Raises:
         InvalidInput: no training pokes.
@@ -263,22 +293,26 @@ def calibrate_paper(mesh: TetMesh, train: Sequence[MeasuredPoke], config: SceneC
     counter = SimCounter()
     started = time.monotonic()
     x, y = _static_grid(mesh, train, config, mus, lams, damping, counter, say)
-    lam, mu = _fit_predict(x, y, _measured_features(train), seed)
+    measured = _measured_features(train, feature_depths(train))
+    lam, mu = _fit_predict(x, y, measured, seed)
     mat = Material(mu=float(mu), lam=float(lam), damping=damping)
     say(f'[paper] MLP -> lambda={lam:.4g} Pa, mu={mu:.4g} Pa (E={mat.young:.4g} Pa, '
         f'nu={mat.poisson:.3f})')
     return Calibration('paper', mat, mat, simulations=counter.simulations,
                        seconds=time.monotonic() - started,
                        trace=[{'grid_mu': list(mus), 'grid_lambda': list(lams),
-                               'features_measured': _measured_features(train).tolist()}])
+                               'feature_depths': feature_depths(train).tolist(),
+                               'features_measured': measured.tolist()}])
 
 
 def force_time_errors(mesh, material, pokes, config, counter=None) -> List[float]:
-    """RMS force-time error (N) per poke, simulated at each poke's own speed."""
+    """Return the RMS force-time error (N) per poke, simulated at each poke's own speed."""
     out = []
     for p in pokes:
         d, f = simulate_loading(mesh, material, p, config, p.speed, counter)
-        t_sim = np.arange(1, len(d) + 1) * config.time_step
+        # both clocks from the contact onset (depth 0), so only the force's timing differs
+        t_sim = np.arange(len(d)) * config.time_step
+        t_sim = t_sim - t_sim[int(np.argmax(d >= 0))]
         t_meas = (p.t - p.t[0]) + p.depth[0] / max(p.speed, 1e-9)
         out.append(float(np.sqrt(np.mean((np.interp(t_meas, t_sim, f) - p.force) ** 2))))
     return out

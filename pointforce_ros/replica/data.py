@@ -8,6 +8,7 @@ onset, the force and the time, in metres, newtons and seconds, frame ``base``.
 """
 
 from dataclasses import dataclass
+import glob
 from pathlib import Path
 from typing import List, Sequence, Tuple
 
@@ -68,12 +69,14 @@ class PokeSet:
         pokes: the pokes, in store order.
         surface_points: (P, 3) equilibrium-surface points, metres, ``base``.
         source: where it was read from.
+        held_out_ids: poke ids the source marks as held out (then :meth:`split` uses them).
 
     """
 
     pokes: Tuple[MeasuredPoke, ...]
     surface_points: np.ndarray
     source: str
+    held_out_ids: Tuple[str, ...] = ()
 
     def split(self, held_out: float = 0.5, seed: int = 0
               ) -> Tuple[List[MeasuredPoke], List[MeasuredPoke]]:
@@ -86,6 +89,9 @@ class PokeSet:
         if len(self.pokes) < 2:
             raise InvalidInput(f'{self.source}: need at least 2 pokes to hold some out, got '
                                f'{len(self.pokes)}')
+        if self.held_out_ids:
+            return ([p for p in self.pokes if p.poke_id not in self.held_out_ids],
+                    [p for p in self.pokes if p.poke_id in self.held_out_ids])
         order = np.random.default_rng(seed).permutation(len(self.pokes))
         n_out = int(np.clip(round(held_out * len(order)), 1, len(order) - 1))
         return ([self.pokes[i] for i in sorted(order[n_out:])],
@@ -144,14 +150,49 @@ def _dataset(root: Path) -> PokeSet:
     return PokeSet(tuple(pokes), np.asarray(surface.points), str(root))
 
 
+def _static_pushes(pattern: str) -> PokeSet:
+    """Read the static pushes of the deformation fixtures (``push_<object>_*.npz``, ``rest_*``).
+
+    Each file holds the force vector at a few depths of one vertical push from the surface;
+    the rest scan beside them is the surface. Roles ``heldout`` become the held-out pokes.
+    """
+    files = sorted(glob.glob(pattern))
+    if not files:
+        raise InvalidInput(f'{pattern}: no push files match')
+    pokes, held = [], []
+    for f in files:
+        try:
+            with np.load(f, allow_pickle=False) as z:
+                depth = np.asarray(z['depths'], float)
+                force = np.asarray(z['force'], float) @ np.asarray(z['direction'], float)
+                poke = MeasuredPoke(Path(f).stem, np.asarray(z['xy'], float), depth, force,
+                                    depth / 0.002)
+                if str(z['role']) == 'heldout':
+                    held.append(poke.poke_id)
+        except (OSError, KeyError, ValueError) as exc:
+            raise DataError(f'{f}: unreadable push file: {exc}') from exc
+        pokes.append(poke)
+    name = Path(files[0]).stem.split('_', 1)[1].rsplit('_', 1)[0]
+    rest = Path(files[0]).parent / f'rest_{name}.npz'
+    if not rest.is_file():
+        raise DataError(f'{pattern}: the pushes come without a surface (no {rest.name})')
+    with np.load(rest, allow_pickle=False) as z:
+        points = np.asarray(z['points'], float)
+    return PokeSet(tuple(pokes), points, pattern, tuple(held))
+
+
 def load_pokes(path) -> PokeSet:
     """Read measured pokes from a generated data set, a poke store or a poke fixture ``.npz``.
+
+    A glob pattern (``.../push_foam_block_*.npz``) reads the deformation wing's static pushes.
 
     Raises:
         DataError: missing path, unreadable store or file, no surface beside the pokes.
         InvalidInput: no pokes, or none with a usable loading curve.
 
     """
+    if '*' in str(path):
+        return _static_pushes(str(path))
     path = Path(path)
     if not path.exists():
         raise DataError(f'{path}: no such poke store or file')
@@ -161,6 +202,7 @@ def load_pokes(path) -> PokeSet:
 
 
 def subset(pokes: Sequence[MeasuredPoke], every: int) -> List[MeasuredPoke]:
-    """Every ``every``-th sample of each poke (for cheap comparisons)."""
-    return [MeasuredPoke(p.poke_id, p.xy, p.depth[::every], p.force[::every], p.t[::every])
+    """Return every ``every``-th sample of each poke (pokes of <= 20 samples are kept whole)."""
+    return [p if len(p.depth) <= 20 else
+            MeasuredPoke(p.poke_id, p.xy, p.depth[::every], p.force[::every], p.t[::every])
             for p in pokes]

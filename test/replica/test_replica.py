@@ -1,6 +1,7 @@
 """Replica files: written, reloaded with one call, and reproducing their own figures; bad input."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +12,8 @@ from pointforce_ros.replica.data import load_pokes, MeasuredPoke
 from pointforce_ros.replica.mesh import box_tet_mesh
 from pointforce_ros.replica.replica import load_replica, write_replica
 from pointforce_ros.replica.scene import Material, SceneConfig
+
+PUSHES = Path(__file__).resolve().parents[1] / 'data' / 'deformation'
 
 
 def _pokes():
@@ -72,3 +75,15 @@ def test_bad_pokes_get_one_line_errors(tmp_path):
     (store / 'index.json').write_text(json.dumps({'pokes': []}))
     with pytest.raises(InvalidInput, match='no pokes'):
         load_pokes(store)
+
+
+def test_static_pushes_of_the_deformation_fixtures_keep_their_roles():
+    data = load_pokes(str(PUSHES / 'push_foam_block_*.npz'))
+    train, held = data.split()
+    assert len(train) == 3 and len(held) == 3
+    assert {p.poke_id for p in held} == set(data.held_out_ids)
+    for poke in data.pokes:
+        assert np.all(np.diff(poke.force) > 0) and poke.force[0] > 0.1  # pushed back, N
+    assert abs(data.surface_points[:, 2].max() - 0.04) < 0.002
+    with pytest.raises(InvalidInput, match='no push files'):
+        load_pokes(str(PUSHES / 'push_nothing_*.npz'))

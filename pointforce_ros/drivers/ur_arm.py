@@ -152,6 +152,31 @@ class PushResult:
         return (self.tcp_pose[:, :3] - self.standoff[:3]) @ self.direction
 
 
+def active_fault_message(events: Sequence[ArmEvent], active: Sequence[str]) -> str:
+    """Describe the faults in ``active`` by their newest event, most fundamental first.
+
+    A condition that has cleared since (its newest event is ``<kind>_cleared``) is not named,
+    so the message never reports a fault and its recovery together (issue 16: "no new
+    controller sample for 0.050 s; controller samples flowing again; RTDE connection lost").
+
+    Args:
+        events: fault and recovery events, oldest first (:meth:`UrArm.events`).
+        active: fault kinds active now.
+
+    Returns:
+        The active faults' messages joined by ``'; '``, or their kinds when no event of them
+        is left in ``events``.
+
+    """
+    newest = {}
+    for event in events:
+        kind = event.kind[:-len('_cleared')] if event.kind.endswith('_cleared') else event.kind
+        newest[kind] = event
+    parts = [newest[k].message for k in FAULT_KINDS
+             if k in active and k in newest and newest[k].kind == k]
+    return '; '.join(parts) if parts else ', '.join(k for k in FAULT_KINDS if k in active)
+
+
 class PushFault(DeviceFault):
     """A push ended on a device fault. The samples recorded up to then are kept.
 
@@ -775,7 +800,7 @@ class UrArm:
                     break
                 if active:
                     fault = (active[0], f'push on {self.host} aborted: '
-                             + '; '.join(e.message for e in self.events()[-3:]), time.time())
+                             + active_fault_message(self.events(), active), time.time())
                     break
                 if cancel is not None and cancel():
                     outcome = 'canceled'

@@ -6,7 +6,8 @@ import time
 import numpy as np
 import pytest
 
-from pointforce_ros.drivers.ur_arm import (EVENT_CONNECTION_LOST, EVENT_FT_FROZEN,
+from pointforce_ros.drivers.ur_arm import (active_fault_message, ArmEvent,
+                                           EVENT_CONNECTION_LOST, EVENT_FT_FROZEN,
                                            EVENT_PROTECTIVE_STOP, EVENT_STALL, PushFault, UrArm)
 from pointforce_ros.errors import DeviceFault, InvalidInput, UnsafeCommand
 
@@ -196,3 +197,20 @@ def test_dropped_connection_raises(cell):
     assert not arm.is_connected()
     with pytest.raises(DeviceFault, match='connection lost'):
         arm.tare()
+
+
+def test_an_abort_message_names_only_the_faults_still_active():
+    """Issue 16: 'no new controller sample for 0.050 s; controller samples flowing again; RTDE
+    connection ... lost' named a stall and its recovery beside the fault that ended the push.
+    """
+    events = [ArmEvent(EVENT_STALL, 1.0, 'no new controller sample for 0.050 s'),
+              ArmEvent(EVENT_STALL + '_cleared', 1.1, 'controller samples flowing again'),
+              ArmEvent(EVENT_CONNECTION_LOST, 1.2, 'RTDE connection to 127.0.0.2 lost')]
+    message = active_fault_message(events, [EVENT_CONNECTION_LOST])
+    assert message == 'RTDE connection to 127.0.0.2 lost'
+    # a stall that came back is named again, after the more fundamental fault
+    events.append(ArmEvent(EVENT_STALL, 1.3, 'no new controller sample for 0.060 s'))
+    assert active_fault_message(events, [EVENT_STALL, EVENT_CONNECTION_LOST]) == (
+        'RTDE connection to 127.0.0.2 lost; no new controller sample for 0.060 s')
+    # an active fault whose events fell out of the log is still named by its kind
+    assert active_fault_message(events[-1:], [EVENT_FT_FROZEN]) == EVENT_FT_FROZEN

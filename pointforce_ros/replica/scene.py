@@ -108,6 +108,8 @@ class SceneConfig:
         time_step: seconds per engine step.
         solver_iterations: ``numSolverIterations`` of the engine.
         probe_radius: tip sphere radius, metres (the cell's point probe: 2 mm).
+        probe_half_angle: half-angle of the probe's cone behind the tip, degrees (the cell's
+            point probe: 25); 0 makes the probe a bare sphere.
         collision_margin: soft-body collision margin, metres (contact starts this early).
         friction: soft-body friction coefficient.
         density: body density, kg/m^3 (sets the nodal masses).
@@ -122,6 +124,7 @@ class SceneConfig:
     time_step: float = 0.004
     solver_iterations: int = 50
     probe_radius: float = 0.002
+    probe_half_angle: float = 25.0
     collision_margin: float = 0.0005
     friction: float = 0.5
     density: float = 1000.0
@@ -140,11 +143,51 @@ class SceneConfig:
             raise InvalidInput('SceneConfig.solver_iterations: must be >= 1')
 
 
-def pusher_urdf(probe_radius: float, tip_mass: float, travel: float) -> str:
-    """URDF text of the pusher: fixed ``base``, prismatic ``push`` joint along +z, sphere tip.
+def probe_obj(radius: float, half_angle_deg: float, length: float, segments: int = 24) -> str:
+    """Wavefront OBJ text of the tapered point probe (convex): spherical tip, cone behind it.
+
+    The tip's leading point is the origin, the push direction +z, the cone opens towards -z
+    (the cell's :func:`pointforce_ros.sim.fem.probes.point_probe` geometry). Engine units.
+    """
+    alpha = np.radians(half_angle_deg)
+    ang = np.linspace(0.0, np.pi / 2 - alpha, 8)[1:]
+    ring_r = radius * np.sin(ang)
+    ring_z = -(radius - radius * np.cos(ang))
+    r_top = ring_r[-1] + (length + ring_z[-1]) * np.tan(alpha)
+    ring_r = np.append(ring_r, r_top)
+    ring_z = np.append(ring_z, -length)
+    theta = 2 * np.pi * np.arange(segments) / segments
+    verts = [(0.0, 0.0, 0.0)]
+    for r, z in zip(ring_r, ring_z):
+        verts += [(r * np.cos(t), r * np.sin(t), z) for t in theta]
+    verts.append((0.0, 0.0, -length))
+    lines = [f'v {x:.9g} {y:.9g} {z:.9g}' for x, y, z in verts]
+    ring = [1 + 1 + k * segments + np.arange(segments) for k in range(len(ring_r))]
+    for j in range(segments):
+        lines.append(f'f 1 {ring[0][j]} {ring[0][(j + 1) % segments]}')
+    for a, b in zip(ring[:-1], ring[1:]):
+        for j in range(segments):
+            k = (j + 1) % segments
+            lines.append(f'f {a[j]} {b[j]} {b[k]}')
+            lines.append(f'f {a[j]} {b[k]} {a[k]}')
+    for j in range(segments):
+        lines.append(f'f {len(verts)} {ring[-1][(j + 1) % segments]} {ring[-1][j]}')
+    return '\n'.join(lines) + '\n'
+
+
+def pusher_urdf(probe_radius: float, tip_mass: float, travel: float,
+                mesh_file: Optional[str] = None) -> str:
+    """URDF text of the pusher: fixed ``base``, prismatic ``push`` joint along +z, probe tip.
 
     Lengths in engine units. The joint's +z is the push direction once the base is oriented.
+    The tip's collision is ``mesh_file`` (a :func:`probe_obj`, leading point at the link
+    origin) or, without one, a sphere whose leading point is at the link origin.
     """
+    if mesh_file:
+        geometry = f'<origin xyz="0 0 0"/><geometry><mesh filename="{mesh_file}"/></geometry>'
+    else:
+        geometry = (f'<origin xyz="0 0 {-probe_radius:.9g}"/>'
+                    f'<geometry><sphere radius="{probe_radius:.9g}"/></geometry>')
     inertia = 0.4 * tip_mass * probe_radius ** 2
     return f'''<?xml version="1.0"?>
 <robot name="pusher">
@@ -156,7 +199,7 @@ def pusher_urdf(probe_radius: float, tip_mass: float, travel: float) -> str:
     <inertial><mass value="{tip_mass:.9g}"/>
       <inertia ixx="{inertia:.9g}" ixy="0" ixz="0" iyy="{inertia:.9g}" iyz="0"
                izz="{inertia:.9g}"/></inertial>
-    <collision><geometry><sphere radius="{probe_radius:.9g}"/></geometry></collision>
+    <collision>{geometry}</collision>
   </link>
   <joint name="push" type="prismatic">
     <parent link="base"/><child link="tip"/><axis xyz="0 0 1"/>
@@ -278,8 +321,14 @@ class ReplicaScene:
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix='replica-')
         path = Path(self._tmp.name) / 'pusher.urdf'
-        path.write_text(pusher_urdf(cfg.probe_radius * s, cfg.tip_mass, travel * s))
-        base = (start - cfg.probe_radius * direction) * s
+        mesh_file = None
+        if cfg.probe_half_angle > 0:
+            mesh_file = str(Path(self._tmp.name) / 'probe.obj')
+            Path(mesh_file).write_text(probe_obj(cfg.probe_radius * s, cfg.probe_half_angle,
+                                                 0.03 * s))
+        path.write_text(pusher_urdf(cfg.probe_radius * s, cfg.tip_mass, travel * s,
+                                    mesh_file))
+        base = start * s
         self.pusher_id = pb.loadURDF(str(path), basePosition=base.tolist(),
                                      baseOrientation=_quat_z_to(direction), useFixedBase=True,
                                      physicsClientId=c)
@@ -393,3 +442,13 @@ class ReplicaScene:
     def __exit__(self, *exc):
         """Close the scene."""
         self.close()
+
+
+def deformed_nodes(scene: ReplicaScene) -> np.ndarray:
+    """Return the soft body's current node positions (N, 3), metres, ``base`` (cell units).
+
+    The order is the mesh's node order (PyBullet keeps the VTK's node order).
+    """
+    _, nodes = pb.getMeshData(scene.body_id, flags=pb.MESH_DATA_SIMULATION_MESH,
+                              physicsClientId=scene.client)
+    return np.asarray(nodes, dtype=float) / scene.config.scale

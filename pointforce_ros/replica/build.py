@@ -52,7 +52,7 @@ def build_replica(data, out, *, engine: str = 'pybullet', h: float = 0.01, train
     pokes = load_pokes(data)
     fit_set, test_set = pokes.split(held_out / (train + held_out), seed=seed)
     fit_set, test_set = subset(fit_set[:train], thin), subset(test_set[:held_out], thin)
-    mesh = heightfield_tet_mesh(pokes.surface_points, h)
+    mesh = heightfield_tet_mesh(pokes.surface_points, h, surface_normals=pokes.surface_normals)
     config = SceneConfig()
     say(f'[replica] {len(pokes.pokes)} pokes ({len(fit_set)} train, {len(test_set)} held '
         f'out); mesh {h * 1e3:g} mm: {len(mesh.nodes)} nodes, {len(mesh.tets)} tets')

@@ -30,7 +30,8 @@ def top_nodes(mesh: TetMesh, tol: float = 1e-6) -> np.ndarray:
 
 
 def contour_error(mesh: TetMesh, material: Material, config: SceneConfig, xy, depth: float,
-                  cloud: np.ndarray, band: float = 0.0025, hold: float = 0.2) -> Dict:
+                  cloud: np.ndarray, band: float = 0.0025, reach: float = 0.02,
+                  hold: float = 0.2) -> Dict:
     """Hold the replica at ``depth`` under ``xy`` and compare its top with ``cloud``.
 
     Args:
@@ -39,6 +40,8 @@ def contour_error(mesh: TetMesh, material: Material, config: SceneConfig, xy, de
         depth: metres past the undeformed top.
         cloud: (P, 3) camera points of the measured object at that depth, metres, ``base``.
         band: half-width of the section, metres.
+        reach: the section is compared within this x-distance of the probe, metres (the
+            loaded region; the scan's side points make the mesh's outer edge low).
         hold: seconds held before the comparison.
 
     Returns:
@@ -52,7 +55,7 @@ def contour_error(mesh: TetMesh, material: Material, config: SceneConfig, xy, de
         scene.poke(xy, depth, 0.008, hold=hold, retract=False)
         nodes = deformed_nodes(scene)
     top = nodes[top_nodes(mesh)]
-    section = np.abs(cloud[:, 1] - xy[1]) < band
+    section = (np.abs(cloud[:, 1] - xy[1]) < band) & (np.abs(cloud[:, 0] - xy[0]) < reach)
     pts = cloud[section]
     z_rep = LinearNDInterpolator(top[:, :2], top[:, 2])(pts[:, :2])
     keep = np.isfinite(z_rep) & (pts[:, 2] > 0.5 * mesh.nodes[:, 2].max())
@@ -60,6 +63,6 @@ def contour_error(mesh: TetMesh, material: Material, config: SceneConfig, xy, de
         raise InvalidInput(f'contour_error: {int(keep.sum())} camera points in the section '
                            'over the replica (need 10)')
     rms = float(np.sqrt(np.mean((pts[keep, 2] - z_rep[keep]) ** 2)))
-    width = float(np.ptp(mesh.nodes[:, 0]))
+    width = float(np.ptp(mesh.nodes[:, 0]))  # the section's width: the body's x extent
     return {'rms_m': rms, 'width_m': width, 'error_pct': 100 * rms / width,
             'points': int(keep.sum())}

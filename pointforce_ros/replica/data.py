@@ -10,7 +10,7 @@ onset, the force and the time, in metres, newtons and seconds, frame ``base``.
 from dataclasses import dataclass
 import glob
 from pathlib import Path
-from typing import List, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -70,6 +70,7 @@ class PokeSet:
         surface_points: (P, 3) equilibrium-surface points, metres, ``base``.
         source: where it was read from.
         held_out_ids: poke ids the source marks as held out (then :meth:`split` uses them).
+        surface_normals: (P, 3) unit normals of the surface points, or None.
 
     """
 
@@ -77,6 +78,7 @@ class PokeSet:
     surface_points: np.ndarray
     source: str
     held_out_ids: Tuple[str, ...] = ()
+    surface_normals: Optional[np.ndarray] = None
 
     def split(self, held_out: float = 0.5, seed: int = 0
               ) -> Tuple[List[MeasuredPoke], List[MeasuredPoke]]:
@@ -122,7 +124,9 @@ def _fixture(path: Path) -> PokeSet:
         pokes.append(MeasuredPoke(str(poke_id), np.asarray(data['curve_points'][k][:2], float),
                                   d, np.asarray(data['curve_f'][s], float),
                                   np.asarray(data['curve_t'][s], float)).in_contact())
-    return PokeSet(tuple(pokes), np.asarray(data['surface_points'], float), str(path))
+    normals = data.get('surface_normals')
+    return PokeSet(tuple(pokes), np.asarray(data['surface_points'], float), str(path),
+                   surface_normals=None if normals is None else np.asarray(normals, float))
 
 
 def _dataset(root: Path) -> PokeSet:
@@ -147,7 +151,8 @@ def _dataset(root: Path) -> PokeSet:
             continue  # a poke without contact or loading phase adds nothing to calibrate
     if not pokes:
         raise InvalidInput(f'{store_dir}: no poke with a usable loading curve')
-    return PokeSet(tuple(pokes), np.asarray(surface.points), str(root))
+    return PokeSet(tuple(pokes), np.asarray(surface.points), str(root),
+                   surface_normals=np.asarray(surface.normals))
 
 
 def _static_pushes(pattern: str) -> PokeSet:
@@ -178,7 +183,8 @@ def _static_pushes(pattern: str) -> PokeSet:
         raise DataError(f'{pattern}: the pushes come without a surface (no {rest.name})')
     with np.load(rest, allow_pickle=False) as z:
         points = np.asarray(z['points'], float)
-    return PokeSet(tuple(pokes), points, pattern, tuple(held))
+        normals = np.asarray(z['normals'], float) if 'normals' in z.files else None
+    return PokeSet(tuple(pokes), points, pattern, tuple(held), surface_normals=normals)
 
 
 def load_pokes(path) -> PokeSet:

@@ -1,18 +1,24 @@
-"""Lab script: both calibrators on measured pokes, held-out errors, simulations and wall time.
+"""Lab script: a written replica's held-out figures, contour error and resolution sensitivity.
 
-Usage::
+Usage (after ``pointforce replica ... --out DIR``)::
 
-    nice .venv/bin/python -m pointforce_ros.replica.evaluate data/figures/pokes_plush.npz \
-        --h 0.01 --train 3 --held-out 3 --out out/replica_plush
+    nice .venv/bin/python -m pointforce_ros.replica.evaluate DIR --h-fine 0.0075 \
+        [--clouds 'test/data/deformation/push_foam_block_*.npz']
 
-Prints one JSON object (also written to ``OUT/evaluation.json``): per calibrator the material,
-simulations, wall time, and the median held-out errors (at the largest compression, over the
-curve, RMS in N); the mesh resolution; and how far the calibrated replica moves when the mesh
-is refined (``resolution``: the force at the deepest point of the first held-out poke at
-``h`` and ``h_fine``).
+Prints one JSON object (also written to ``DIR/evaluation.json``):
+
+* ``figures``: the figures ``replica.json`` reported, per calibrator (held-out steady-force
+  errors at the largest compression and over the curve, before/after the damping step,
+  simulations, wall time);
+* ``reproduced``: the chosen replica's held-out errors recomputed from the files;
+* ``resolution``: the force of the replica's material at the deepest point of each held-out
+  poke at the replica's mesh and at ``--h-fine`` (how far a replica moves with resolution);
+* ``contour``: with ``--clouds`` (push files that hold the camera cloud under load), the
+  replica's top along the section through the probe against the camera's, % of the width.
 """
 
 import argparse
+import glob
 import json
 from pathlib import Path
 import sys
@@ -20,66 +26,71 @@ import time
 
 import numpy as np
 
-from pointforce_ros.replica.calibrate import (calibrate_paper, calibrate_scaling,
-                                              damping_step, evaluate, force_at,
-                                              simulate_loading, summary)
+from pointforce_ros.replica.calibrate import evaluate, force_at, simulate_loading, summary
+from pointforce_ros.replica.contour import contour_error
 from pointforce_ros.replica.data import load_pokes, subset
-from pointforce_ros.replica.mesh import heightfield_tet_mesh
-from pointforce_ros.replica.scene import SceneConfig
+from pointforce_ros.replica.mesh import heightfield_tet_mesh, read_vtk
+from pointforce_ros.replica.replica import read_description
+from pointforce_ros.replica.scene import Material, SceneConfig
 
 
 def main(argv=None) -> int:
     """Run the evaluation; print and write the JSON."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('data')
-    ap.add_argument('--h', type=float, default=0.01, help='mesh edge length, m')
-    ap.add_argument('--h-fine', type=float, default=0.0075, help='refined mesh for the '
-                    'resolution check, m (0: skip)')
-    ap.add_argument('--train', type=int, default=3)
-    ap.add_argument('--held-out', type=int, default=3)
-    ap.add_argument('--damping', action='store_true', help='run the damping step too')
-    ap.add_argument('--seed', type=int, default=0)
-    ap.add_argument('--out', default=None)
+    ap.add_argument('replica', help='replica directory')
+    ap.add_argument('--h-fine', type=float, default=0.0075, help='refined mesh, m (0: skip)')
+    ap.add_argument('--clouds', default=None, help='glob of push files with camera clouds')
     args = ap.parse_args(argv)
     started = time.monotonic()
-    data = load_pokes(args.data)
-    train, held = data.split(0.5, seed=args.seed)
-    train, held = subset(train[:args.train], 5), subset(held[:args.held_out], 5)
-    config = SceneConfig()
-    mesh = heightfield_tet_mesh(data.surface_points, args.h)
-    result = {'data': args.data, 'h': args.h, 'nodes': len(mesh.nodes),
-              'tets': len(mesh.tets), 'config': config.__dict__,
-              'train': [p.poke_id for p in train], 'held_out': [p.poke_id for p in held]}
-    for name, run in (('scaling', calibrate_scaling), ('paper', calibrate_paper)):
-        calib = run(mesh, train, config)
-        if args.damping:
-            calib = damping_step(mesh, calib, train, held, config)
-        errs = summary(evaluate(mesh, calib.final, held, config))
-        result[name] = dict(calib.to_json(), held_out=errs)
-        print(f'[evaluate] {name}: {errs}, {calib.simulations} simulations, '
-              f'{calib.seconds:.0f} s', flush=True)
+    root = Path(args.replica)
+    desc = read_description(root)
+    figures = desc['figures']
+    material = Material(**desc['material'])
+    config = SceneConfig(**desc['config'])
+    h = desc['mesh']['resolution_m']
+    mesh = read_vtk(root / 'body.vtk', h)
+    data = load_pokes(figures['data'])
+    held = subset([p for p in data.pokes if p.poke_id in figures['held_out']], 5)
+    result = {'replica': str(root), 'chosen': figures.get('chosen'),
+              'material': desc['material'], 'young_Pa': desc['young_Pa'],
+              'poisson': desc['poisson'], 'h_m': h,
+              'figures': {k: figures[k] for k in ('scaling', 'paper') if k in figures},
+              'reproduced': summary(evaluate(mesh, material, held, config))}
     if args.h_fine:
-        best = result['scaling']['final']
-        from pointforce_ros.replica.scene import Material
-        mat = Material(**best)
-        p = held[0]
-        out = {}
-        for h in (args.h, args.h_fine):
-            m = heightfield_tet_mesh(data.surface_points, h)
-            d, f = simulate_loading(m, mat, p, config)
-            out[f'{h:g}'] = {'nodes': len(m.nodes),
-                             'force_at_deepest_N': float(force_at(d, f, p.depth[-1:])[0]),
-                             'measured_N': float(p.force[-1])}
-        result['resolution'] = out
+        coarse, fine = (heightfield_tet_mesh(data.surface_points, size,
+                                             surface_normals=data.surface_normals)
+                        for size in (h, args.h_fine))
+        rows = []
+        for p in held:
+            row = {'poke': p.poke_id, 'measured_N': float(p.force[-1])}
+            for label, m in (('h', coarse), ('h_fine', fine)):
+                d, f = simulate_loading(m, material, p, config)
+                row[label] = float(force_at(d, f, p.depth[-1:])[0])
+            rows.append(row)
+        change = [r['h_fine'] / r['h'] - 1 for r in rows]
+        result['resolution'] = {'h_m': h, 'h_fine_m': args.h_fine, 'nodes': len(coarse.nodes),
+                                'nodes_fine': len(fine.nodes), 'pokes': rows,
+                                'median_change_pct': 100 * float(np.median(change))}
+    if args.clouds:
+        rows = []
+        for f in sorted(glob.glob(args.clouds)):
+            with np.load(f, allow_pickle=False) as z:
+                if Path(f).stem not in figures['held_out']:
+                    continue
+                start = z['cloud_start']
+                cloud = np.asarray(z['cloud'][start[-2]:start[-1]], float)
+                depth = float(z['depths'][-1])
+                row = contour_error(mesh, material, config, np.asarray(z['xy'], float), depth,
+                                    cloud)
+            rows.append(dict(row, poke=Path(f).stem, depth_m=depth))
+        result['contour'] = {'pokes': rows, 'median_error_pct':
+                             float(np.median([r['error_pct'] for r in rows])) if rows else None}
     result['seconds'] = time.monotonic() - started
     text = json.dumps(result, indent=1, default=float)
-    if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        (Path(args.out) / 'evaluation.json').write_text(text)
+    (root / 'evaluation.json').write_text(text)
     print(text)
     return 0
 
 
 if __name__ == '__main__':
-    np.set_printoptions(precision=4, suppress=True)
     sys.exit(main())

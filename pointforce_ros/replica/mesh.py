@@ -107,7 +107,7 @@ def _compact(nodes: np.ndarray, tets: np.ndarray):
 
 def heightfield_tet_mesh(surface_points, h: float, *, layers: Optional[int] = None,
                          footprint_tol: Optional[float] = None,
-                         min_top_fraction: float = 0.25) -> TetMesh:
+                         min_top_fraction: float = 0.25, surface_normals=None) -> TetMesh:
     """Tet mesh of the body between the table (``z = 0``) and a scanned top surface.
 
     The footprint is the set of grid columns whose centre lies within ``footprint_tol`` of a
@@ -123,6 +123,9 @@ def heightfield_tet_mesh(surface_points, h: float, *, layers: Optional[int] = No
         footprint_tol: largest distance (x-y) from a column centre to the nearest surface
             point, metres (default ``0.75 h``).
         min_top_fraction: lowest column top as a fraction of the body's height.
+        surface_normals: (P, 3) unit normals of the points; when given, only upward-facing
+            points (n_z > 0.5) set the top height (the scan's side points would pull the
+            outer columns down).
 
     Returns:
         The mesh, oriented, with ``resolution = h``.
@@ -142,6 +145,11 @@ def heightfield_tet_mesh(surface_points, h: float, *, layers: Optional[int] = No
         raise InvalidInput('heightfield_tet_mesh: the surface lies on the table (top below '
                            '2 mm): nothing to mesh')
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    heights = pts
+    if surface_normals is not None:
+        normals = as_array(surface_normals, 'surface_normals', (len(pts), 3))
+        if np.count_nonzero(normals[:, 2] > 0.5) >= 10:
+            heights = pts[normals[:, 2] > 0.5]
     n_xy = np.maximum(np.round((hi - lo) / h).astype(int), 1) + 1
     xs = np.linspace(lo[0], hi[0], n_xy[0])
     ys = np.linspace(lo[1], hi[1], n_xy[1])
@@ -160,10 +168,10 @@ def heightfield_tet_mesh(surface_points, h: float, *, layers: Optional[int] = No
     xy = np.stack([gx.ravel(), gy.ravel()], -1)
     # A scan is noisy: the top at a node is the Gaussian-weighted mean height of the points
     # within one element (nearest point where none), so the top has no sub-element bumps.
-    dist, idx = tree.query(xy, k=min(32, len(pts)))
+    dist, idx = cKDTree(heights[:, :2]).query(xy, k=min(32, len(heights)))
     weight = np.exp(-0.5 * (dist / (0.5 * h)) ** 2) * (dist <= h)
     weight[:, 0] = np.where(weight.sum(axis=1) > 0, weight[:, 0], 1.0)
-    top = ((weight * pts[idx, 2]).sum(axis=1) / weight.sum(axis=1)).reshape(gx.shape)
+    top = ((weight * heights[idx, 2]).sum(axis=1) / weight.sum(axis=1)).reshape(gx.shape)
     # Columns that thin out to the table make flat slivers that blow up under contact: the
     # body keeps at least ``min_top_fraction`` of its height (a short vertical side instead).
     top = np.maximum(top, min_top_fraction * top_height)

@@ -3,14 +3,23 @@
 Simulated (default): the RTDE controller emulator runs as its own process with the object's
 contact physics and the scenario's sensor effects; ``sim_camera`` renders the object; the four
 product nodes (``cloud_capture``, ``poke_server``, ``stiffness_learner``, ``contact_wrench``) run
-in this process on one executor. Real: ``--robot-ip`` points ``poke_server`` at a UR controller
-and ``--camera-topic`` points ``cloud_capture`` at a camera driver; nothing is simulated.
+in this process, each on its own supervised executor (a callback that raises is logged and the
+node keeps serving; a slow one cannot starve the others). Real: ``--robot-ip`` points
+``poke_server`` at a UR controller and ``--camera-topic`` points ``cloud_capture`` at a camera
+driver; nothing is simulated.
+
+Supervision (:meth:`CellSession.supervise`, every 0.5 s in ``pointforce cell``): an emulator that
+exits is restarted (up to ``EMULATOR_RESTARTS`` times, the poke server pointed at the new one);
+after that the cell degrades with a clear message and keeps serving capture, learning and contact
+queries while pokes abort. SIGTERM, SIGHUP and Ctrl-C stop the nodes and the emulator: no
+process is left holding the controller ports.
 
 :class:`CellSession` is also the demo's and the benchmarks' way to drive the cell: capture the
 surface, poke, ask for suggestions and query wrenches, all through the ROS interfaces.
 """
 
 import os
+import signal
 import time
 from pathlib import Path
 from typing import Optional
@@ -31,6 +40,8 @@ from pointforce_ros.sim.scenario import load_scenario
 from pointforce_ros.types import Mesh
 
 SIM_OBJECT_HALFSPACE = 'halfspace'
+EMULATOR_RESTARTS = 3
+"""Times a dead emulator is restarted before the cell degrades to running without it."""
 
 
 class CellSession:
@@ -62,6 +73,10 @@ class CellSession:
         self.spec = None
         self.launcher = None
         self.client_launcher = None
+        self._emulator_args = None
+        self.emulator_restarts = 0
+        self.degraded = ''
+        self._faults_seen = 0
         try:
             if robot_ip is None or camera_topic is None:
                 self.spec = _load_sim_object(object_name)
@@ -73,10 +88,11 @@ class CellSession:
                     kwargs['object_name'] = object_name
                 centre = self.spec.centre
                 log(f'[cell] starting the RTDE controller emulator ({object_name}, {scenario})')
-                self.emulator = start_emulator(
-                    self.out / 'logs', force_model='pointforce_ros.sim.scenario:make_force_model',
+                self._emulator_args = dict(
+                    force_model='pointforce_ros.sim.scenario:make_force_model',
                     force_model_kwargs=kwargs, ready_timeout=60.0,
                     initial_pose=[centre[0], centre[1], centre[2] + 0.08, np.pi, 0.0, 0.0])
+                self.emulator = start_emulator(self.out / 'logs', **self._emulator_args)
                 robot_ip = self.emulator.host
                 log(f'[cell] emulator ready on {robot_ip}')
             self.robot_ip = robot_ip
@@ -99,16 +115,16 @@ class CellSession:
                 context=ctx, parameter_overrides=[
                     Parameter('cloud_topic', value=camera_topic),
                     Parameter('roi', value=[float(v) for v in roi]),
-                    Parameter('surface_file', value=str(paths['surface']))]))
+                    Parameter('surface_file', value=str(paths['surface']))]), isolated=True)
             self.poke_node = self.launcher.add(PokeServerNode(context=ctx, parameter_overrides=[
                 Parameter('robot_ip', value=robot_ip),
-                Parameter('store_dir', value=str(paths['store']))]))
+                Parameter('store_dir', value=str(paths['store']))]), isolated=True)
             self.learner_node = self.launcher.add(StiffnessLearnerNode(
                 context=ctx, parameter_overrides=[
                     Parameter('store_dir', value=str(paths['store'])),
                     Parameter('model_dir', value=str(paths['models'])),
-                    Parameter('shape_constant', value=float(shape_constant))]))
-            self.wrench_node = self.launcher.add(ContactWrenchNode(context=ctx))
+                    Parameter('shape_constant', value=float(shape_constant))]), isolated=True)
+            self.wrench_node = self.launcher.add(ContactWrenchNode(context=ctx), isolated=True)
             # the driver's clients get their own context and executor, like a separate process:
             # clients sharing a busy server's executor can lose futures (rclpy 7.1.6)
             self.client_launcher = InProcessLauncher(threads=4)
@@ -234,6 +250,42 @@ class CellSession:
                                f'contact service on model v{version}')
         return self.models[-1]
 
+    # ------------------------------------------------------------------ supervision
+    def supervise(self):
+        """Check the cell's parts once; return what changed, one line each (empty if nothing).
+
+        A callback fault recorded by an executor is reported (the node keeps serving). A dead
+        emulator is restarted and ``poke_server`` pointed at it, at most ``EMULATOR_RESTARTS``
+        times; then the cell runs degraded (:attr:`degraded` says why) without it.
+        """
+        lines = []
+        faults = self.launcher.faults if self.launcher is not None else []
+        for _, where, exc in faults[self._faults_seen:]:
+            lines.append(f'[cell] {where}: a callback raised {type(exc).__name__}: {exc}; '
+                         'the node keeps serving')
+        self._faults_seen = len(faults)
+        if self.emulator is None or self.emulator.alive() or self.degraded:
+            return lines
+        code = self.emulator.process.returncode
+        tail = self.emulator.log()[-600:].strip()
+        self.emulator.stop()
+        if self.emulator_restarts >= EMULATOR_RESTARTS:
+            self.degraded = (f'the RTDE controller emulator exited (code {code}) after '
+                             f'{self.emulator_restarts} restarts; the cell keeps serving '
+                             'capture, learning and contact queries, pokes abort')
+            return lines + [f'[cell] DEGRADED: {self.degraded}. Its log ends:\n{tail}']
+        self.emulator_restarts += 1
+        lines.append(f'[cell] the emulator on {self.emulator.host} exited (code {code}); '
+                     f'restarting it ({self.emulator_restarts}/{EMULATOR_RESTARTS})')
+        try:
+            self.emulator = start_emulator(self.out / 'logs', **self._emulator_args)
+        except DeviceFault as exc:
+            self.degraded = f'the RTDE controller emulator could not be restarted: {exc}'
+            return lines + [f'[cell] DEGRADED: {self.degraded}']
+        self.robot_ip = self.emulator.host
+        self.poke_node.robot_ip = self.emulator.host   # the next goal reconnects there
+        return lines + [f'[cell] emulator back on {self.emulator.host}']
+
     def close(self):
         """Stop the nodes and the emulator."""
         if self.client_launcher is not None:
@@ -277,20 +329,40 @@ def _load_sim_object(name: str) -> _SimObject:
                       max_depth=float(spec.max_depth))
 
 
+_STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)
+
+
+def _raise_interrupt(signum, frame):
+    """Stop the cell on the first signal; later ones are ignored so the clean-up completes."""
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 def run_cell(out='out/cell', object_name='lamb', scenario='realistic', robot_ip=None,
              camera_topic=None, duration: Optional[float] = None) -> int:
-    """CLI body of ``pointforce cell``: start everything and serve until Ctrl-C."""
-    with CellSession(out, object_name=object_name, scenario=scenario, robot_ip=robot_ip,
-                     camera_topic=camera_topic) as cell:
-        print(f'[cell] running: poke action /poke_server/poke on {cell.robot_ip}, services '
-              '/contact_wrench/contact_wrench(_batch), /stiffness_learner/suggest_poke, '
-              '/cloud_capture/{add_scan,capture}. Ctrl-C to stop.')
-        start = time.monotonic()
-        try:
+    """CLI body of ``pointforce cell``: start everything and serve until Ctrl-C or SIGTERM.
+
+    SIGTERM, SIGHUP and Ctrl-C stop the cell (nodes, then the emulator), also during start-up;
+    a second signal during the clean-up is ignored. Every 0.5 s the cell supervises its parts
+    (:meth:`CellSession.supervise`).
+    """
+    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in _STOP_SIGNALS}
+    try:
+        with CellSession(out, object_name=object_name, scenario=scenario, robot_ip=robot_ip,
+                         camera_topic=camera_topic) as cell:
+            print(f'[cell] running: poke action /poke_server/poke on {cell.robot_ip}, '
+                  'services /contact_wrench/contact_wrench(_batch), '
+                  '/stiffness_learner/suggest_poke, /cloud_capture/{add_scan,capture}. '
+                  'Ctrl-C to stop.', flush=True)
+            start = time.monotonic()
             while duration is None or time.monotonic() - start < duration:
                 time.sleep(0.5)
-                if cell.emulator is not None and not cell.emulator.alive():
-                    raise DeviceFault(f'the emulator exited:\n{cell.emulator.log()[-1500:]}')
-        except KeyboardInterrupt:
-            print('[cell] stopping')
+                for line in cell.supervise():
+                    print(line, flush=True)
+    except KeyboardInterrupt as stop:
+        print(f'[cell] stopping ({stop or "Ctrl-C"})', flush=True)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return 0

@@ -2,11 +2,18 @@
 
 There is no ``launch`` wheel; ``pointforce cell``, ``pointforce demo`` and the node tests start the
 nodes with this instead.
+
+Spinning is supervised: an exception a callback lets escape (``MemoryError`` included) used to end
+the executor's thread, so every node in it stayed discoverable but never answered again. Now it is
+recorded in :attr:`InProcessLauncher.faults`, logged, and spinning goes on. A node added with
+``isolated=True`` gets its own executor and thread, so a slow or failing callback of one node
+cannot starve another.
 """
 
+import logging
 import threading
 import time
-from typing import List
+from typing import List, Tuple
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
@@ -25,26 +32,65 @@ class InProcessLauncher:
         rclpy.init(args=args, context=self.context)
         self.executor = MultiThreadedExecutor(num_threads=threads, context=self.context)
         self.nodes: List[Node] = []
-        self._thread = threading.Thread(target=self._spin, name='ros-executor', daemon=True)
-        self._thread.start()
+        self.faults: List[Tuple[float, str, BaseException]] = []
+        """(wall time, executor name, exception) of every exception a callback let escape."""
+        self._stopping = False
+        self._spinners: List[Tuple[MultiThreadedExecutor, threading.Thread]] = []
+        self._own: dict = {}
+        self._thread = self._start(self.executor, 'ros-executor')
 
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except (ExternalShutdownException, RuntimeError):
-            pass
+    def _start(self, executor: MultiThreadedExecutor, name: str) -> threading.Thread:
+        thread = threading.Thread(target=self._spin, args=(executor, name), name=name,
+                                  daemon=True)
+        self._spinners.append((executor, thread))
+        thread.start()
+        return thread
 
-    def add(self, node: Node) -> Node:
-        """Start spinning ``node``; returns it."""
+    def _spin(self, executor: MultiThreadedExecutor, name: str):
+        """Spin ``executor`` until shutdown; a callback's exception is recorded, not fatal."""
+        while not self._stopping and self.context.ok():
+            try:
+                executor.spin()
+                return
+            except ExternalShutdownException:
+                return
+            except Exception as exc:  # noqa: BLE001 - supervise: record, log, spin on
+                if self._stopping or not self.context.ok():
+                    return
+                self.faults.append((time.time(), name, exc))
+                logging.getLogger(__name__).error(
+                    '%s: a callback raised %s: %s; spinning on', name, type(exc).__name__, exc)
+                time.sleep(0.01)  # a fault that repeats at once must not spin the CPU
+
+    def add(self, node: Node, isolated: bool = False, threads: int = 4) -> Node:
+        """Start spinning ``node``; returns it.
+
+        With ``isolated``, the node gets its own executor of ``threads`` threads (one fault
+        domain per node), else it shares the launcher's executor.
+        """
         self.nodes.append(node)
-        self.executor.add_node(node)
+        if isolated:
+            executor = MultiThreadedExecutor(num_threads=threads, context=self.context)
+            executor.add_node(node)
+            self._own[id(node)] = executor
+            self._start(executor, f'ros-executor-{node.get_name()}')
+        else:
+            self.executor.add_node(node)
         return node
+
+    def alive(self) -> List[str]:
+        """Names of the executor threads that still spin (all of them unless shut down)."""
+        return [thread.name for _, thread in self._spinners if thread.is_alive()]
 
     def remove(self, node: Node) -> None:
         """Stop spinning ``node`` and destroy it (simulates a killed node)."""
         if node in self.nodes:
             self.nodes.remove(node)
-            self.executor.remove_node(node)
+            executor = self._own.pop(id(node), None)
+            if executor is not None:
+                executor.shutdown(timeout_sec=5.0)
+            else:
+                self.executor.remove_node(node)
             node.destroy_node()
 
     def wait_for(self, predicate, timeout: float, what: str, period: float = 0.01):
@@ -70,8 +116,11 @@ class InProcessLauncher:
         node whose timer or subscription the spinning thread was still waiting on aborted
         the process inside rcl once (a fresh-clone test run, poke server teardown).
         """
-        self.executor.shutdown(timeout_sec=5.0)
-        self._thread.join(timeout=5.0)
+        self._stopping = True
+        for executor, _ in self._spinners:
+            executor.shutdown(timeout_sec=5.0)
+        for _, thread in self._spinners:
+            thread.join(timeout=5.0)
         for node in list(self.nodes):
             self.nodes.remove(node)
             node.destroy_node()

@@ -1,5 +1,12 @@
 """The whole node suite on the simulated cell (analytic object): capture, poke, learn, query."""
 
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
 from geometry_msgs.msg import Vector3
@@ -36,3 +43,95 @@ def test_capture_poke_learn_and_query_on_the_simulated_cell(tmp_path):
             approach=Vector3(x=0.0, y=0.0, z=-1.0), torque_centre=to_point(pose.position)))
         assert answer.success and answer.model_version == 2
         assert answer.wrench.force.z > 0.5 and answer.contact_count > 0
+
+
+# --------------------------------------------------------------------------- supervision
+
+
+def _children(pid, needle):
+    """Pids of live processes whose parent is ``pid`` and whose command line has ``needle``."""
+    found = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat') as fh:
+                parent = int(fh.read().rsplit(')', 1)[1].split()[1])
+            with open(f'/proc/{entry}/cmdline', 'rb') as fh:
+                command = fh.read().replace(b'\0', b' ').decode(errors='replace')
+        except (OSError, ValueError, IndexError):
+            continue
+        if parent == pid and needle in command:
+            found.append(int(entry))
+    return found
+
+
+def _alive(pid):
+    try:
+        with open(f'/proc/{pid}/stat') as fh:
+            return fh.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+def test_a_dead_emulator_is_restarted_then_the_cell_degrades_and_keeps_serving(tmp_path):
+    """Issue 16: when the controller emulator died the whole cell exited."""
+    from pointforce_interfaces.srv import ContactWrench
+    with CellSession(tmp_path, object_name='halfspace', scenario='clean',
+                     log=lambda line: None) as cell:
+        first = cell.emulator
+        first.process.send_signal(signal.SIGKILL)
+        first.process.wait(10)
+        lines = cell.supervise()
+        assert any('restarting it (1/3)' in line for line in lines), lines
+        assert cell.emulator is not first and cell.emulator.alive()
+        assert cell.poke_node.robot_ip == cell.emulator.host and not cell.degraded
+        goal = PokeGoal(point=[0.5, 0.0, 0.04], normal=[0.0, 0.0, 1.0], force_limit=3.0,
+                        depth_limit=0.01, speed=0.005, standoff=0.006)
+        result = cell.poke(poke_goal_to_msg(goal))
+        assert result.outcome == 'force_limit', result.message
+        # out of restarts: degraded, with the reason, and the services still answer
+        cell.emulator_restarts = 3
+        cell.emulator.process.send_signal(signal.SIGKILL)
+        cell.emulator.process.wait(10)
+        lines = cell.supervise()
+        assert cell.degraded and any('DEGRADED' in line for line in lines)
+        assert cell.supervise() == []
+        pose = Pose(position=[0.5, 0.0, 0.057])
+        answer = cell.call(cell.wrench_client, ContactWrench.Request(
+            mesh=mesh_to_msg(icosphere(0.02, 2)), pose=pose_to_msg(pose),
+            approach=Vector3(x=0.0, y=0.0, z=-1.0), torque_centre=to_point(pose.position)),
+            20, 'contact_wrench while degraded')
+        assert not answer.success and 'model' in answer.message   # answered: no model yet
+
+
+@pytest.mark.parametrize('stop', [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_signal_ends_the_cell_and_leaves_no_emulator(tmp_path, stop):
+    """Issue 16: SIGTERM left the emulator running and holding its ports."""
+    cell = subprocess.Popen(
+        [sys.executable, '-m', 'pointforce_ros.bringup.cli', 'cell', '--object', 'halfspace',
+         '--scenario', 'clean', '--out', str(tmp_path)], stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, cwd=str(Path(__file__).resolve().parents[2]))
+    try:
+        deadline = time.monotonic() + 120
+        lines = []
+        while time.monotonic() < deadline:
+            line = cell.stdout.readline()
+            lines.append(line)
+            if line.startswith('[cell] running') or not line:
+                break
+        assert lines[-1].startswith('[cell] running'), ''.join(lines)
+        emulators = _children(cell.pid, 'pointforce_ros.sim.rtde.emulator')
+        assert len(emulators) == 1
+        cell.send_signal(stop)
+        assert cell.wait(30) == 0
+        rest = cell.stdout.read()
+        assert '[cell] stopping' in rest
+        deadline = time.monotonic() + 10
+        while _alive(emulators[0]) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _alive(emulators[0]), 'the emulator outlived the cell'
+    finally:
+        if cell.poll() is None:
+            cell.kill()
+            cell.wait(10)

@@ -67,7 +67,7 @@ def _cmd_cell(args) -> int:
 
 def _cmd_diagnose(args) -> int:
     run = _load('pointforce_ros.diagnose.run:run_diagnose')
-    return run(args.data, args.out, seed=args.seed)
+    return run(args.data, args.out, seed=args.seed, json_out=args.json)
 
 
 def _cmd_figures(args) -> int:
@@ -114,6 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     diagnose.add_argument('data', help='poke store directory, one poke bag, or a CSV table')
     diagnose.add_argument('--out', default='out/diagnose', help='report directory')
     diagnose.add_argument('--seed', type=int, default=0, help='train/held-out split seed')
+    diagnose.add_argument('--json', action='store_true',
+                          help='print the JSON summary on stdout (progress on stderr)')
     diagnose.set_defaults(func=_cmd_diagnose)
 
     figures = sub.add_parser('figures', help='the seed-method figures on the simulated cell '

@@ -128,18 +128,39 @@ def _threshold(rec: PokeRecord, d: np.ndarray, window: float) -> float:
     return min(-window, float(d[touch]) - window)
 
 
+def time_order(records: Sequence[PokeRecord]) -> Tuple[List[PokeRecord], bool]:
+    """Order pokes in time; return them and whether their times are one increasing clock.
+
+    Pokes are sorted by their first time (ties keep the given order) when every poke starts
+    after the one before it ended. When times overlap or restart (an imported table whose
+    ``t`` starts at 0 on every poke, as the import format allows) the given (file) order is
+    the poke order and each poke's time is its own clock: nothing (relaxation memory) may
+    run from one poke into the next.
+    """
+    records = list(records)
+    ranked = sorted(range(len(records)),
+                    key=lambda i: (float(records[i].t[0]) if len(records[i]) else 0.0, i))
+    ordered = [records[i] for i in ranked]
+    for a, b in zip(ordered[:-1], ordered[1:]):
+        if len(a) and len(b) and float(b.t[0]) < float(a.t[-1]):
+            return records, False
+    return ordered, True
+
+
 def make_batch(records: Sequence[PokeRecord], *, window: float = 0.002,
                max_rate: float = 100.0, radius: float = PLASTIC_RADIUS,
-               min_samples: int = 20) -> Tuple[PokeBatch, List[str]]:
+               min_samples: int = 5) -> Tuple[PokeBatch, List[str]]:
     """Prepare point pokes for the analysis; return the batch and notes on skipped records.
 
-    Pokes are ordered by their first ROS time. Each keeps the contiguous samples from the first
-    to the last one with displacement ``d >= -window``, or ``window`` before the depth where the
-    force first exceeds 10 % of its peak when contact starts earlier (a large camera bias); the
-    approach from far away carries no information. Samples are block-averaged to at most
-    ``max_rate`` Hz (time and force averaged alike, so no lag is introduced). Probe trials
+    Pokes are ordered by their first ROS time (:func:`time_order`: the given order when the
+    times overlap or restart per poke; a note says so). Each keeps the contiguous samples from
+    the first to the last one with displacement ``d >= -window``, or ``window`` before the
+    depth where the force first exceeds 10 % of its peak when contact starts earlier (a large
+    camera bias); the approach from far away carries no information. Samples are
+    block-averaged to at most ``max_rate`` Hz (time and force averaged alike, so no lag is
+    introduced). Probe trials
     (``probe != 'point'``) and pokes with fewer than ``min_samples`` samples are skipped with
-    a note.
+    a note. Quasi-static step data (5-20 samples per poke) are kept as they are.
 
     Raises:
         DataError: fewer than 4 usable point pokes.
@@ -147,7 +168,12 @@ def make_batch(records: Sequence[PokeRecord], *, window: float = 0.002,
     """
     notes = []
     usable = []
-    for rec in sorted(records, key=lambda r: (float(r.t[0]) if len(r) else 0.0, r.poke_id)):
+    ordered, one_clock = time_order(records)
+    if not one_clock:
+        notes.append('poke times overlap or restart (e.g. t starts at 0 on every poke): pokes '
+                     'are taken in table order and each poke\'s history is independent (no '
+                     'relaxation memory runs from one poke into the next)')
+    for rec in ordered:
         if rec.probe != 'point':
             notes.append(f'{rec.poke_id}: probe trial ({rec.probe}) not scored by point-poke '
                          'effects')

@@ -17,8 +17,10 @@ enter in the physical order
 2. ``surface_offset``, ``plastic_set``, ``series_compliance``: ``s = d + offset - set(n_i) -
    compliance * F_n`` (``F_n`` the model's own normal force, solved implicitly: the
    Oliver-Pharr frame-compliance correction without feeding measurement noise back).
-3. ``viscoelastic`` (Prony filter of ``phi`` over time, no adhesion, history carried from poke
-   to poke) and then ``hysteresis`` (branch factor along the tip path) shape ``phi``.
+3. ``viscoelastic`` (Prony filter of ``phi`` over time, no adhesion; history carried from a
+   poke to the next one only at the same spot and when the times say the next one came
+   later: tables whose per-poke time restarts at 0 give independent pokes) and then
+   ``hysteresis`` (branch factor along the tip path) shape ``phi``.
 4. ``friction``: ``F_hat = M (m_i - mu slip_dir)``, ``M`` the force magnitude, ``m_i = c_i /
    |c_i|`` the contact direction, the slip across it from the push motion.
 5. ``ft_bias`` and ``ft_drift``: ``+ bias + rate (t - t_tare)``.
@@ -28,6 +30,7 @@ when it explains the *shape* of the curves (onset, loading vs unloading, hold, t
 lateral force), which is what makes each effect leave its own signature.
 """
 
+import warnings
 from dataclasses import dataclass
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
@@ -35,15 +38,28 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pointforce_ros.diagnose.batch import PokeBatch, velocity
-from pointforce_ros.effects.library import (BASE_PARAMS, derived_values, hysteresis_branch,
-                                            hysteresis_factor, friction_direction, LIBRARY,
-                                            ParamSpec, plastic_depth, prony_filter, prony_terms,
+from pointforce_ros.effects.library import (BASE_PARAMS, derived_values, hereditary,
+                                            hysteresis_branch, hysteresis_factor,
+                                            friction_direction, LIBRARY, ParamSpec,
+                                            PLASTIC_RADIUS, plastic_depth, prony_terms,
                                             STICK_VELOCITY)
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.response.common import single_threaded_blas
 
 S_REF = 0.003
 """Reference depth of the per-poke amplitude, metres."""
+
+BIG_RESIDUAL = 1e6
+"""Residual, N, that replaces a non-finite model value inside a fit (the trust region then
+backs away from the parameters that produced it)."""
+
+
+class NumericalFailure(NotConverged):
+    """A candidate's fit failed for numerical reasons (non-finite model at every start).
+
+    Diagnose makes the verdict *inconclusive* for the effects the candidate competes with
+    instead of letting another effect take its place.
+    """
 
 
 @dataclass(frozen=True)
@@ -127,15 +143,15 @@ def _hereditary(batch: PokeBatch, phi: np.ndarray, tau: np.ndarray) -> np.ndarra
         grid = np.zeros((len(batch), int(cols.max()) + 1))
         grid[rows[take], cols[take]] = phi[take]
         for k, tk in enumerate(tau):
-            h[take, k] = prony_filter(grid.T, float(dt), [1.0], [tk]).T[rows[take], cols[take]]
+            h[take, k] = hereditary(grid.T, float(dt), float(tk)).T[rows[take], cols[take]]
     _HEREDITARY_CACHE.clear()
     _HEREDITARY_CACHE[key] = h
     return h
 
 
 def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.ndarray,
-           g: np.ndarray, tau: np.ndarray, scale: Optional[np.ndarray] = None
-           ) -> Tuple[np.ndarray, np.ndarray]:
+           g: np.ndarray, tau: np.ndarray, scale: Optional[np.ndarray] = None,
+           across: bool = False) -> Tuple[np.ndarray, np.ndarray]:
     """Prony-relaxed shape of every poke and the history carried in from earlier pokes.
 
     ``g`` (K,) and ``tau`` (K,) are the Prony weights and relaxation times.
@@ -160,7 +176,11 @@ def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.n
         return (own if scale is None else own * scale), carry
     first = batch.starts[:-1]
     last = batch.starts[1:] - 1
-    decay = np.exp(-(batch.t - batch.per_sample(batch.t[first]))[:, None] / tau)   # (N, K)
+    linked = carried_links(batch, across=across)
+    if not np.any(linked):
+        return (own if scale is None else own * scale), carry
+    since = np.maximum(batch.t - batch.per_sample(batch.t[first]), 0.0)
+    decay = np.exp(-since[:, None] / tau)                                         # (N, K)
     factor = np.ones_like(phi) if scale is None else scale
     act_own = np.where(active, own * factor, 0.0)
     s_oy = batch.sums(act_own * target_n)
@@ -168,7 +188,8 @@ def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.n
     s_oo = batch.sums(act_own * act_own)
     h_last = h[last]                                                              # (P, K)
     decay_last = decay[last]
-    gap = np.exp(-(batch.t[first[1:]] - batch.t[last[:-1]])[:, None] / tau)       # (P-1, K)
+    pause = np.maximum(batch.t[first[1:]] - batch.t[last[:-1]], 0.0)
+    gap = np.where(linked[:, None], np.exp(-pause[:, None] / tau), 0.0)          # (P-1, K)
     carried = np.zeros((len(batch), len(g)))
     h_in = np.zeros(len(g))
     for k in range(len(batch)):
@@ -179,6 +200,31 @@ def _relax(batch: PokeBatch, phi: np.ndarray, target_n: np.ndarray, active: np.n
     if scale is not None:
         own = own * scale
     return own, np.einsum('ik,ik->i', batch.per_sample(carried) * decay, g[None, :]) * factor
+
+
+def carried_links(batch: PokeBatch, radius: float = PLASTIC_RADIUS,
+                  across: bool = False) -> np.ndarray:
+    """(P - 1,) whether poke ``k``'s relaxation memory reaches poke ``k + 1``.
+
+    Memory is the material's under the tip: it carries only to the next poke at the same spot
+    (within ``radius`` across the axis), or to any next poke when ``across`` (one material
+    state for the whole object, as the simulated cell keeps it: the viscoelastic effect's
+    ``memory`` setting, chosen by the fit), and only when that poke starts after this one
+    ended. Times that overlap or restart (an imported table whose ``t`` starts at 0 on every
+    poke) leave each poke's history independent.
+    """
+    if len(batch) < 2:
+        return np.zeros(0, dtype=bool)
+    first = batch.starts[:-1]
+    last = batch.starts[1:] - 1
+    later = batch.t[first[1:]] >= batch.t[last[:-1]]
+    if across:
+        return later
+    rel = batch.point[1:] - batch.point[:-1]
+    along = np.einsum('ij,ij->i', rel, batch.normal[:-1])
+    across = rel - along[:, None] * batch.normal[:-1]
+    near = np.einsum('ij,ij->i', across, across) <= float(radius) ** 2
+    return later & near
 
 
 def _solve_amplitudes(batch: PokeBatch, phi: np.ndarray, carry: Optional[np.ndarray],
@@ -294,7 +340,8 @@ def forward(batch: PokeBatch, values: Mapping[str, Mapping[str, float]]
         if visco is not None:
             # relaxation acts on the elastic response, the hysteresis branch on the result
             g, tau = prony_terms(visco)
-            phi, carry = _relax(batch, phi_e, target_n, active, g, tau, scale=branch)
+            phi, carry = _relax(batch, phi_e, target_n, active, g, tau, scale=branch,
+                                across=float(visco.get('memory', 0.0)) > 0.5)
         else:
             phi = phi_e * branch if branch is not None else phi_e
         return _solve_amplitudes(batch, phi, carry, active, target, mu, stick, motion)
@@ -432,6 +479,39 @@ def _data_starts(batch: PokeBatch, effect: str, spec: ParamSpec) -> Tuple[float,
     return (float(np.clip(guess, spec.lower, spec.upper)),) if abs(guess) > 1e-4 else ()
 
 
+def unresolved(batch: PokeBatch, layout: Layout, reach: float = 1.0) -> np.ndarray:
+    """(k,) coordinates of ``layout`` the data cannot resolve; they stay at their lower bound.
+
+    A Prony term whose relaxation time exceeds ``reach`` times the stretch of time the data
+    follow the material (the median poke, or the longest chain of pokes at one spot whose
+    memory carries, :func:`carried_links`) only shows its initial slope ``g / tau``: its
+    weight, hence the relaxed fraction, would be a guess. Such weights are pinned at 0 (the
+    relaxation the data show is fitted by the resolved terms), so holds of tens of seconds
+    bring the tens-of-seconds terms in.
+    """
+    pinned = np.zeros(len(layout), dtype=bool)
+    if 'viscoelastic' not in layout.effects:
+        return pinned
+    first = batch.starts[:-1]
+    last = batch.starts[1:] - 1
+    span = batch.t[last] - batch.t[first]
+    horizon = float(np.median(span)) if len(span) else 0.0
+    links = carried_links(batch)
+    run = float(span[0]) if len(span) else 0.0
+    for k, linked in enumerate(links):
+        if linked:
+            run += float(batch.t[last[k + 1]] - batch.t[last[k]])
+            horizon = max(horizon, run)
+        else:
+            run = float(span[k + 1])
+    settings = LIBRARY['viscoelastic'].defaults()
+    for i, (name, p) in enumerate(layout.entries):
+        if name == 'viscoelastic' and p.zero_ok:
+            tau = settings.get('tau' + p.name[1:])
+            pinned[i] = tau is not None and tau > reach * horizon
+    return pinned
+
+
 def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
                start: Optional[Mapping[str, Mapping[str, float]]] = None,
                max_nfev: int = 60, multistart: bool = True) -> Fit:
@@ -446,8 +526,12 @@ def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
         max_nfev: most model evaluations per start.
         multistart: try every combination of library starts of the new parameters.
 
+    Non-finite model values (an overflow on extreme parameters) are replaced by a large
+    residual inside the fit, so the optimiser backs away from them; no warning is printed.
+
     Raises:
-        NotConverged: the optimiser failed on every start.
+        NumericalFailure: the model is not finite at any start, or the optimiser failed on
+            every start (a :class:`NotConverged`).
 
     """
     layout = Layout.of(effects)
@@ -456,6 +540,9 @@ def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
     upper = np.array([p.upper for _, p in layout.entries]) / scale
     start = start or {}
     base = layout.coordinates(start)
+    pinned = unresolved(batch, layout)
+    base = np.where(pinned, lower * scale, base)
+    free = np.flatnonzero(~pinned)
     fresh = [i for i, (name, p) in enumerate(layout.entries)
              if p.name not in start.get(name, {})]
     pokes = np.arange(len(batch)) if pokes is None else np.asarray(pokes, dtype=np.int64)
@@ -477,22 +564,63 @@ def fit_global(batch: PokeBatch, effects: Sequence[str], *, pokes=None,
         keep, weight, force = None, None, data.force
     n_samples = max(len(force), 1)
 
+    bad = {'count': 0}
+
+    def full(u):
+        x = lower.copy()
+        x[free] = u
+        return x
+
+    memory = {'value': None}
+
+    def values_of(x):
+        values = layout.values(x)
+        if memory['value'] is not None:
+            values['viscoelastic']['memory'] = memory['value']
+        return values
+
     def residual(u):
-        pred, _ = forward(data, layout.values(u * scale))
-        if keep is None:
-            return (force - pred).ravel()
-        return ((force - pred[keep]) * weight).ravel()
+        with np.errstate(all='ignore'):
+            pred, _ = forward(data, values_of(full(u) * scale))
+            if keep is None:
+                r = (force - pred).ravel()
+            else:
+                r = ((force - pred[keep]) * weight).ravel()
+        finite = np.isfinite(r)
+        if not np.all(finite):
+            # a guarded condition, not a warning: the trust region backs away from here
+            bad['count'] += 1
+            r = np.where(finite, r, BIG_RESIDUAL)
+        return r
 
     best = None
     last_error = None
-    with single_threaded_blas():
-        best, last_error = _solve_starts([x0 / scale for x0 in starts], residual, lower, upper,
-                                         max_nfev, n_samples)
+    scopes = [None]
+    if _coupled(batch, layout.effects) and not np.array_equal(
+            carried_links(batch), carried_links(batch, across=True)):
+        given = start.get('viscoelastic', {}).get('memory')
+        scopes = [float(given)] if given is not None else [0.0, 1.0]
+    chosen = scopes[0]
+    for scope in scopes:
+        memory['value'] = scope
+        with single_threaded_blas(), warnings.catch_warnings():
+            warnings.simplefilter('ignore', RuntimeWarning)
+            found, error = _solve_starts([(x0 / scale)[free] for x0 in starts], residual,
+                                         lower[free], upper[free], max_nfev, n_samples)
+        last_error = error if found is None else last_error
+        if found is not None and (best is None or found[1] < best[1]):
+            best, chosen = found, scope
+    memory['value'] = chosen
     if best is None:
-        raise NotConverged(f'effect fit {list(effects)} failed on every start: {last_error}')
+        raise NumericalFailure(f'effect fit {list(effects)} failed on every start: '
+                               f'{last_error}')
+    if not np.isfinite(best[1]) or best[1] >= BIG_RESIDUAL ** 2 * 1e-3:
+        raise NumericalFailure(f'effect fit {list(effects)}: the model is not finite at the '
+                               f'best of {len(starts)} start(s) ({bad["count"]} non-finite '
+                               'evaluations)')
     sol, cost = best
-    x = sol.x * scale
-    return Fit(layout=layout, x=x, values=layout.values(x), cost=cost, nfev=int(sol.nfev))
+    x = full(sol.x) * scale
+    return Fit(layout=layout, x=x, values=values_of(x), cost=cost, nfev=int(sol.nfev))
 
 
 def _solve_starts(starts, residual, lower, upper, max_nfev, n_samples):
@@ -512,7 +640,7 @@ def _solve_starts(starts, residual, lower, upper, max_nfev, n_samples):
             sol = least_squares(residual, u0, bounds=(lower, upper), x_scale=1.0,
                                 diff_step=1e-3, max_nfev=max_nfev, method='trf', ftol=1e-6,
                                 xtol=1e-6, gtol=1e-8)
-        except (ValueError, FloatingPointError) as exc:
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             last_error = exc
             continue
         cost = 2.0 * float(sol.cost) / n_samples

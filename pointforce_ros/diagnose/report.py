@@ -142,7 +142,11 @@ def _markdown(report) -> str:
              f'{s["resolution"]:.1%} of the median peak force, and '
              f'the penalised score `n ln(MSE) + k ln(n)` (n pokes, k parameters, MSE of the '
              f'{_rule_on(s)}) drops; '
-             'greedy forward selection with a backward check. Parameter uncertainty: '
+             'greedy forward selection with a backward check. The accepted set must then '
+             f'remove at least {s.get("explain", 0.5):.0%} of the systematic held-out model '
+             'RMSE (sensor noise removed), or it is named as not accepted and the residual '
+             'reported as unexplained; a candidate whose fit fails numerically makes the '
+             'verdict inconclusive between it and its rivals. Parameter uncertainty: '
              f'bootstrap over pokes ({s["bootstrap"]} resamples).', '',
              '## Result', '']
     if report.accepted:
@@ -160,6 +164,13 @@ def _markdown(report) -> str:
                              f'{units.get(k, "")} |')
     else:
         lines.append('No effect was accepted.')
+    for name, why in report.not_accepted.items():
+        lines += ['', f'**Not accepted: {name}**: {why}.']
+    if report.inconclusive:
+        lines += ['', f'**Inconclusive** between {", ".join(report.inconclusive)}: '
+                  f'{report.inconclusive_reason}.']
+    for name, why in report.not_applicable.items():
+        lines += ['', f'Does not apply to these data: {name}: {why}.']
     if report.onset is not None:
         lines += ['', f'Camera bias: {report.onset.describe()}.']
         caution = report.offset_disagreement()
@@ -228,13 +239,29 @@ def _rule_on(settings) -> str:
     return 'model RMSE' if settings.get('improvement_on', 'model') == 'model' else 'sample RMSE'
 
 
+SCHEMA = 'pointforce.diagnose.summary/1'
+"""Version of the JSON summary's schema (``summary.json``, ``pointforce diagnose --json``)."""
+
+
 def summary_dict(report) -> dict:
-    """Return the report's numbers as a JSON-ready mapping (``summary.json``)."""
+    """Return the report's numbers as a JSON-ready mapping (``summary.json``).
+
+    Stable keys (schema :data:`SCHEMA`): ``accepted`` (list of ``{name, params, std, low,
+    high}``: fitted values in SI with bootstrap standard deviation and 95 % range),
+    ``rmse`` (held-out ``sample_before/after``, ``model_before/after``, N), ``unexplained``
+    (bool) with ``unexplained_structure`` (the strongest structures seen), ``not_accepted``
+    (``{candidate: reason}``: the nearest candidate, or a set that explains too little),
+    ``inconclusive`` (effect names whose competition could not be decided, numerical
+    failure) with ``inconclusive_reason``, ``not_applicable`` (``{effect: reason}``),
+    ``explained`` (share of the systematic model RMSE the accepted set removes, or None).
+    Non-finite numbers are ``null``.
+    """
     def num(x):
         x = float(x)
         return x if np.isfinite(x) else None
 
     out = {
+        'schema': SCHEMA,
         'source': report.source, 'pokes': len(report.ids), 'settings': dict(report.settings),
         'accepted': [{'name': a.name, 'params': {k: num(v) for k, v in a.params.items()},
                       'std': {k: num(v) for k, v in a.std.items()},
@@ -249,7 +276,17 @@ def summary_dict(report) -> dict:
                  'systematic_before': num(report.systematic_before),
                  'systematic_after': num(report.systematic_after)},
         'halved': report.halved, 'halving_judged_on': 'model RMSE',
-        'unexplained': bool(report.unexplained), 'exponent': num(report.exponent),
+        'unexplained': bool(report.unexplained),
+        'unexplained_structure': [{'factor': f.factor, 'explained': num(f.explained),
+                                   'detail': f.detail}
+                                  for f in report.structure_after[:3]]
+        if report.unexplained else [],
+        'not_accepted': dict(report.not_accepted),
+        'inconclusive': list(report.inconclusive),
+        'inconclusive_reason': str(report.inconclusive_reason),
+        'not_applicable': dict(report.not_applicable),
+        'explained': num(report.explained),
+        'exponent': num(report.exponent),
         'notes': list(report.notes),
     }
     probe = report.probe

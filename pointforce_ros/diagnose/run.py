@@ -66,7 +66,9 @@ Procedure (``diagnose``):
    of inventing a cause.
 """
 
+import json
 import sys
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -82,14 +84,32 @@ from pointforce_ros.diagnose.probes import generated_files, ProbeScore, score_pr
 from pointforce_ros.pokes.trials import load_probe_trials
 from pointforce_ros.diagnose.model import (block_sse, Fit, fit_global, fold_indices,
                                            heldout_residual, MODEL_BLOCK, model_blocks,
-                                           residual_table)
+                                           NumericalFailure, residual_table)
 from pointforce_ros.errors import InvalidInput, NotConverged, PointforceError
-from pointforce_ros.diagnose.report import write_report
+from pointforce_ros.diagnose.report import summary_dict, write_report
 from pointforce_ros.effects.library import spec
 from pointforce_ros.model.files import load_surface
 from pointforce_ros.pokes.curves import extract_curve
 
 UNDERPOWERED = 'too few pokes to test'
+
+STEP_SAMPLES = 25
+"""Pokes with fewer analysed samples than this (median) are quasi-static step data."""
+
+NEEDS_STREAM = {
+    'time_offset': 'a pose/force time offset needs continuous streams: quasi-static steps '
+                   'are read at rest, where a lag changes nothing',
+    'viscoelastic': 'relaxation needs the force in time during a push or hold: quasi-static '
+                    'steps give one settled value per depth',
+}
+"""Library effects that do not apply to quasi-static step data, with the reason."""
+
+EXPLAIN = 0.5
+"""Least share of the systematic held-out model RMSE an accepted set must remove."""
+
+EXPLAIN_STEP = 0.3
+"""Least share of the systematic held-out model RMSE left by the current set that each
+accepted effect must remove when it joins."""
 
 
 @dataclass(frozen=True)
@@ -290,6 +310,12 @@ class DiagnoseReport:
     model_rmse_before: float = float('nan')
     model_rmse_after: float = float('nan')
     model_coverage: float = float('nan')
+    inconclusive: Tuple[str, ...] = ()
+    inconclusive_reason: str = ''
+    not_applicable: Dict[str, str] = field(default_factory=dict)
+    not_accepted: Dict[str, str] = field(default_factory=dict)
+    explained: float = float('nan')
+    warnings_seen: Tuple[str, ...] = ()
 
     @property
     def halved(self) -> bool:
@@ -349,6 +375,14 @@ class DiagnoseReport:
                     refused.setdefault(c.name, c.rejected)
         for name, why in refused.items():
             lines.append(f'not accepted: {name} passed the tests but {why}')
+        for name, why in self.not_accepted.items():
+            if name not in refused:
+                lines.append(f'NOT accepted: {name}: {why}')
+        if self.inconclusive:
+            lines.append(f'inconclusive between {", ".join(self.inconclusive)}: '
+                         f'{self.inconclusive_reason}')
+        for name, why in self.not_applicable.items():
+            lines.append(f'does not apply: {name}: {why}')
         if self.onset is not None:
             lines.append(self.onset.describe())
             note = self.offset_disagreement()
@@ -405,7 +439,7 @@ def _on_bound(fit: Fit, effects: Sequence[str], rel: float = 1e-3) -> set:
         if name not in effects:
             continue
         margin = rel * (p.upper - p.lower)
-        if (x <= p.lower + margin and not p.zero_ok) or x >= p.upper - margin:
+        if (x <= p.lower + margin and not (p.zero_ok or p.limit_ok)) or x >= p.upper - margin:
             out.add((name, p.name))
     return out
 
@@ -587,14 +621,35 @@ def _bootstrap(batch: PokeBatch, effects: Sequence[str], start: Dict, n_boot: in
     return out
 
 
-def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
-             min_improvement: float = 0.03, resolution: float = 0.001,
-             tolerance: float = 0.005, bootstrap: int = 20,
-             max_rate: float = 50.0, window: float = 0.002,
-             candidates: Optional[Sequence[str]] = None, onset_tolerance: float = 0.001,
-             probes=None, surface=None, shape_constant: float = 0.004,
-             improvement_on: str = 'model', log=None) -> DiagnoseReport:
+def diagnose(data, **kwargs) -> DiagnoseReport:
     """Find which library effects explain the residual of held-out pokes (module docstring).
+
+    Takes the arguments of :func:`_diagnose`. Numerical warnings (overflow, a degenerate test)
+    never reach the user as warning text: they are handled where they arise (a fit that is not
+    finite is a :class:`~pointforce_ros.diagnose.model.NumericalFailure`, which makes the
+    verdict inconclusive) and any that remain are listed in ``report.warnings_seen`` and the
+    notes.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        report = _diagnose(data, **kwargs)
+    seen = sorted({f'{w.category.__name__}: {w.message}' for w in caught})
+    if seen:
+        report.warnings_seen = tuple(seen)
+        report.notes.append(f'{len(seen)} numerical warning(s) handled during the analysis '
+                            f'(first: {seen[0][:120]})')
+    return report
+
+
+def _diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
+              min_improvement: float = 0.03, resolution: float = 0.001,
+              tolerance: float = 0.005, bootstrap: int = 20,
+              max_rate: float = 50.0, window: float = 0.002,
+              candidates: Optional[Sequence[str]] = None, onset_tolerance: float = 0.001,
+              probes=None, surface=None, shape_constant: float = 0.004,
+              improvement_on: str = 'model', explain: float = EXPLAIN,
+              explain_step: float = EXPLAIN_STEP, log=None) -> DiagnoseReport:
+    """Run the diagnosis (see :func:`diagnose`).
 
     Args:
         data: a PokeStore directory, a bag directory, a CSV table or a sequence of
@@ -624,6 +679,9 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
             learner's ``shape_constant`` parameter).
         improvement_on: ``'model'`` states the relative-improvement rule
             (``min_improvement``) on the held-out model RMSE, ``'sample'`` on the sample RMSE.
+        explain: least share of the systematic held-out model RMSE (sensor noise removed)
+            the accepted set must remove; a set that removes less is not accepted: the
+            residual is reported as unexplained and the set named as not accepted.
         log: ``log(str)`` progress callback (e.g. ``print``), or None.
 
     Raises:
@@ -648,6 +706,15 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     source = str(data) if not isinstance(data, (list, tuple)) else f'{len(records)} records'
     probes_in_records = sum(1 for r in records if r.probe != 'point')
     batch, notes = make_batch(records, window=window, max_rate=max_rate)
+    not_applicable: Dict[str, str] = {}
+    per_poke = float(np.median(np.diff(batch.starts)))
+    if per_poke < STEP_SAMPLES:
+        notes.append(f'quasi-static step data ({per_poke:.0f} samples per poke, median): '
+                     'scored with the effects that apply to it')
+        not_applicable = {k: v for k, v in NEEDS_STREAM.items() if k in names}
+        names = [n for n in names if n not in not_applicable]
+        for name, why in not_applicable.items():
+            say(f'{name} does not apply: {why}')
     found = generated_files(data)
     trials = probes if probes is not None else found.get('probes')
     if isinstance(trials, (str, Path)):
@@ -682,26 +749,44 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     fits = _cross_fit(batch, groups, current)
     sse, msse = _heldout(batch, fits, blocks)
     first_fits, first_sse, first_msse = fits, sse, msse
+    resid_before = residual_table(batch, first_fits)
+    noise = noise_rms(batch, resid_before)
+    model_noise = noise / np.sqrt(max(_block_size(batch), 1.0))
     say(f'base model: held-out RMSE {_pooled_rmse(batch, sse):.4g} N')
     rounds: List[SelectionRound] = []
+    failed: Dict[str, str] = {}
+    inconclusive: Tuple[str, ...] = ()
+    inconclusive_reason = ''
     while True:
         results = []
         trial = {}
+        failed.clear()
         for name in names:
             if name in current:
                 continue
             try:
                 cand_fits = _cross_fit(batch, groups, current + [name],
                                        starts=[f.values for _, f in fits])
+                cand_sse, cand_msse = _heldout(batch, cand_fits, blocks)
+                if not (np.all(np.isfinite(cand_sse)) and np.all(np.isfinite(cand_msse))):
+                    raise NumericalFailure(f'held-out prediction of {name} is not finite')
+            except NumericalFailure as exc:
+                failed[name] = str(exc)
+                notes.append(f'{name}: fit failed numerically ({exc})')
+                say(notes[-1])
+                continue
             except NotConverged as exc:
                 notes.append(f'{name}: fit failed ({exc})')
                 continue
-            cand_sse, cand_msse = _heldout(batch, cand_fits, blocks)
             rmse, imp, p_value, delta, improved, sig, model_rmse, model_imp = _compare(
-                batch, sse, cand_sse, LIBRARY[name].n_params, alpha, min_improvement, min_drop,
-                msse, cand_msse, covered, improvement_on == 'model')
+                batch, sse, cand_sse, _effective_params(name, cand_fits), alpha,
+                min_improvement, min_drop, msse, cand_msse, covered,
+                improvement_on == 'model')
             trial[name] = (cand_fits, cand_sse, cand_msse)
             why = _plausibility(name, cand_fits, fits, onset, onset_tolerance) if sig else ''
+            if sig and not why:
+                why = _explains(_systematic(_model_rmse(msse, covered), model_noise),
+                                _systematic(model_rmse, model_noise), explain_step)
             if why:
                 say(f'{name}: significant but not accepted: {why}')
             results.append(CandidateResult(name, LIBRARY[name].n_params, rmse, imp, p_value,
@@ -710,6 +795,18 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
                                            model_rmse, model_imp))
         results.sort(key=lambda c: (not c.significant, c.delta_score))
         chosen = results[0].name if results and results[0].significant else None
+        if failed and chosen is not None:
+            # a candidate that could not be evaluated may be the better explanation: no
+            # other effect takes its place
+            rivals = [c.name for c in results if c.significant]
+            inconclusive = tuple(sorted(failed)) + tuple(rivals)
+            inconclusive_reason = (f'{", ".join(sorted(failed))} could not be evaluated '
+                                   f'(numerical failure) while {", ".join(rivals)} passed the '
+                                   'tests: which effect explains the residual is undecided')
+            say(f'inconclusive: {inconclusive_reason}')
+            rounds.append(SelectionRound(tuple(current), _pooled_rmse(batch, sse),
+                                         tuple(results), None))
+            break
         rounds.append(SelectionRound(tuple(current), _pooled_rmse(batch, sse), tuple(results),
                                      chosen))
         if chosen is None:
@@ -733,8 +830,9 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
                     continue
                 rest_sse, rest_msse = _heldout(batch, rest_fits, blocks)
                 _, _, _, delta, _, sig, _, _ = _compare(
-                    batch, rest_sse, sse, LIBRARY[name].n_params, alpha, min_improvement,
-                    min_drop, rest_msse, msse, covered, improvement_on == 'model')
+                    batch, rest_sse, sse, _effective_params(name, fits), alpha,
+                    min_improvement, min_drop, rest_msse, msse, covered,
+                    improvement_on == 'model')
                 if not sig and (weakest is None or delta > weakest[1]):
                     weakest = (name, delta, rest_fits, rest_sse, rest_msse)
             if weakest is None:
@@ -746,12 +844,33 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         if removed:
             rounds[-1] = SelectionRound(rounds[-1].current, rounds[-1].rmse,
                                         rounds[-1].candidates, chosen, tuple(removed))
+    model_before = _model_rmse(first_msse, covered)
+    sys_model_before = _systematic(model_before, model_noise)
+    not_accepted: Dict[str, str] = {}
+    explained = float('nan')
+    if current:
+        sys_model_after = _systematic(_model_rmse(msse, covered), model_noise)
+        explained = 1.0 - sys_model_after / sys_model_before if sys_model_before > 0 else 0.0
+        if explained < explain:
+            label = ' + '.join(current)
+            why = (f'removes only {max(explained, 0.0):.0%} of the systematic held-out model '
+                   f'RMSE ({sys_model_before:.3g} -> {sys_model_after:.3g} N, sensor noise '
+                   f'{model_noise:.2g} N removed), less than the {explain:.0%} an explanation '
+                   'must remove')
+            not_accepted[label] = why
+            say(f'not accepted: {label} {why}')
+            current = []
+            fits, sse, msse = first_fits, first_sse, first_msse
     ordered = [name for name in LIBRARY if name in current]
     start = {}
     for _, f in fits:
         for eff, params in f.values.items():
             start.setdefault(eff, {}).update(params)
-    final = fit_global(batch, ordered, start=start, multistart=False)
+    try:
+        final = fit_global(batch, ordered, start=start, multistart=False)
+    except NumericalFailure as exc:
+        notes.append(f'final fit failed numerically ({exc}): the training-fold fits stand')
+        final = fits[0][1]
     boots = _bootstrap(batch, ordered, final.values, bootstrap, seed) if current else []
     accepted = []
     for name in current:
@@ -763,11 +882,9 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
             {k: float(np.std(v, ddof=1)) for k, v in samples.items() if len(v) > 1},
             {k: float(np.quantile(v, 0.025)) for k, v in samples.items() if len(v) > 1},
             {k: float(np.quantile(v, 0.975)) for k, v in samples.items() if len(v) > 1}))
-    resid_before = residual_table(batch, first_fits)
     resid_after = residual_table(batch, fits)
-    noise = noise_rms(batch, resid_after)
     rmse_before, rmse_after = _pooled_rmse(batch, first_sse), _pooled_rmse(batch, sse)
-    model_before, model_after = _model_rmse(first_msse, covered), _model_rmse(msse, covered)
+    model_after = _model_rmse(msse, covered)
     sys_before = float(np.sqrt(max(rmse_before ** 2 - noise ** 2, 0.0)))
     sys_after = float(np.sqrt(max(rmse_after ** 2 - noise ** 2, 0.0)))
     tol = max(float(tolerance) * float(np.median(batch.peak)), noise)
@@ -776,17 +893,33 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     if unexplained:
         say(f'unexplained residual: {sys_after:.3g} N systematic (tolerance {tol:.3g} N); '
             f'strongest structure: {structure_after[0].detail}')
+        if not current and not not_accepted:
+            nearest = _nearest(rounds)
+            if nearest is not None:
+                not_accepted[nearest.name] = (
+                    f'nearest candidate, not accepted: held-out model RMSE '
+                    f'{model_before:.3g} -> {nearest.model_rmse:.3g} N'
+                    + (f' ({nearest.rejected})' if nearest.rejected else ''))
+    if inconclusive:
+        for name in inconclusive:
+            not_accepted.setdefault(name, 'inconclusive: ' + inconclusive_reason)
     probe = None
     if trials and surface is not None:
         say(f'probe trials: learning the point model without and with '
             f'{", ".join(current) or "no effect"}, answering {len(trials)} trial(s)')
-        probe = score_probe_trials(records, trials, surface,
-                                   {a.name: dict(a.params) for a in accepted},
-                                   shape_constant=shape_constant, alpha=alpha,
-                                   min_improvement=min_improvement)
-        for line in probe.describe().splitlines():
-            say(line)
-        accepted += _probe_accepted(probe)
+        try:
+            probe = score_probe_trials(records, trials, surface,
+                                       {a.name: dict(a.params) for a in accepted},
+                                       shape_constant=shape_constant, alpha=alpha,
+                                       min_improvement=min_improvement)
+        except InvalidInput as exc:
+            notes.append(f'probe trials not scored: the point model cannot be learned from '
+                         f'these pokes ({exc})')
+            say(notes[-1])
+        if probe is not None:
+            for line in probe.describe().splitlines():
+                say(line)
+            accepted += _probe_accepted(probe)
     lengths = np.diff(batch.starts)
     return DiagnoseReport(
         source=source,
@@ -796,7 +929,8 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
                   'onset_tolerance': float(onset_tolerance),
                   'bootstrap': int(bootstrap), 'max_rate': float(max_rate),
                   'window': float(window), 'shape_constant': float(shape_constant),
-                  'improvement_on': str(improvement_on), 'model_block': MODEL_BLOCK},
+                  'improvement_on': str(improvement_on), 'model_block': MODEL_BLOCK,
+                  'explain': float(explain), 'explain_step': float(explain_step)},
         ids=batch.ids, points=batch.point.copy(), notes=notes, rounds=rounds,
         accepted=accepted, exponent=float(final.values['base']['exponent']),
         rmse_before=rmse_before, rmse_after=rmse_after, noise_rms=noise,
@@ -808,7 +942,57 @@ def diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
         residual_after=resid_after, probe_trials=len(trials) + probes_in_records,
         not_testable=dict(NOT_TESTABLE_ON_POKES), onset=onset, probe=probe,
         model_rmse_before=model_before, model_rmse_after=model_after,
-        model_coverage=covered / batch.n_samples)
+        model_coverage=covered / batch.n_samples, inconclusive=inconclusive,
+        inconclusive_reason=inconclusive_reason, not_applicable=not_applicable,
+        not_accepted=not_accepted, explained=explained)
+
+
+def _explains(before: float, after: float, least: float) -> str:
+    """Return why a candidate explains too little of the structure it joins, or ''."""
+    share = 1.0 - after / before if before > 0 else 0.0
+    if share >= least:
+        return ''
+    return (f'it removes only {max(share, 0.0):.0%} of the systematic held-out model RMSE '
+            f'left ({before:.3g} -> {after:.3g} N; at least {least:.0%} for a cause): '
+            'it soaks up part of a structure it does not explain')
+
+
+def _block_size(batch: PokeBatch) -> float:
+    """Return the samples per model-RMSE block (:func:`model_blocks`)."""
+    return float(max(int(round(MODEL_BLOCK / float(np.median(batch.dt)))), 1))
+
+
+def _systematic(model_rmse: float, model_noise: float) -> float:
+    """Model RMSE less the sensor noise left in block means (quadrature), N."""
+    return float(np.sqrt(max(model_rmse ** 2 - model_noise ** 2, 0.0)))
+
+
+def _nearest(rounds: Sequence[SelectionRound]) -> Optional[CandidateResult]:
+    """Return the first round's candidate of lowest held-out model RMSE (None: no candidate)."""
+    if not rounds or not rounds[0].candidates:
+        return None
+    return min(rounds[0].candidates,
+               key=lambda c: c.model_rmse if np.isfinite(c.model_rmse) else np.inf)
+
+
+def _effective_params(name: str, fits) -> int:
+    """Parameters of ``name`` the penalty counts: those not left at a ``zero_ok`` bound.
+
+    A non-negative weight the data leave at zero is not fitted in effect (the count of a
+    non-negative least-squares fit's active coefficients); the largest count over the folds,
+    at least one.
+    """
+    specs = LIBRARY[name].params
+    counts = []
+    for _, fit in fits:
+        k = 0
+        for (eff, p), x in zip(fit.layout.entries, fit.x):
+            if eff != name:
+                continue
+            at_zero = p.zero_ok and x <= p.lower + 1e-6 * (p.upper - p.lower)
+            k += 0 if at_zero else 1
+        counts.append(k)
+    return max(max(counts) if counts else len(specs), 1)
 
 
 def _probe_accepted(probe: ProbeScore) -> List[AcceptedEffect]:
@@ -825,20 +1009,30 @@ def _probe_accepted(probe: ProbeScore) -> List[AcceptedEffect]:
     return out
 
 
-def run_diagnose(data, out_dir, seed: int = 0, **kwargs) -> int:
+def run_diagnose(data, out_dir, seed: int = 0, json_out: bool = False, **kwargs) -> int:
     """CLI entry: diagnose ``data``, write the report into ``out_dir``, print progress.
+
+    With ``json_out`` stdout carries only the JSON summary (:func:`~pointforce_ros.diagnose.
+    report.summary_dict`, one object); progress goes to stderr.
 
     Returns:
         0 on success (whatever was found), 2 when the data cannot be diagnosed (the reason is
         printed to stderr).
 
     """
+    def to_stderr(message):
+        print(message, file=sys.stderr)
+
     try:
-        report = diagnose(data, seed=seed, log=print, **kwargs)
+        report = diagnose(data, seed=seed, log=to_stderr if json_out else print, **kwargs)
         path = write_report(report, out_dir)
     except PointforceError as exc:
         print(f'pointforce diagnose: {exc}', file=sys.stderr)
         return 2
+    if json_out:
+        print(json.dumps(summary_dict(report), indent=1))
+        to_stderr(f'report: {Path(path)}')
+        return 0
     print(report.summary())
     print(f'report: {Path(path)}')
     return 0

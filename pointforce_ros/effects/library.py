@@ -39,7 +39,10 @@ class ParamSpec:
         description: one line for reports.
         zero_ok: a fitted value on the lower bound is an estimate, not a failed fit (a
             non-negative weight that the data put at zero); the bound check of diagnose
-            ignores that bound.
+            ignores that bound, and the parameter penalty does not count a weight left there.
+        limit_ok: the lower bound is a physical limit, not the edge of a search box (e.g. a
+            hysteresis switch sharper than one analysis sample): a fit there is a sharp
+            effect, not a misfit; the bound check of diagnose ignores that bound.
 
     """
 
@@ -52,6 +55,7 @@ class ParamSpec:
     log: bool = False
     description: str = ''
     zero_ok: bool = False
+    limit_ok: bool = False
 
     def to_value(self, x: float) -> float:
         """Return the parameter value for the optimised coordinate ``x``."""
@@ -132,7 +136,7 @@ def _add(spec: EffectSpec) -> None:
 
 _add(EffectSpec(
     'surface_offset', 'displacement offset (camera depth bias)',
-    (ParamSpec('offset', 'm', -0.01, 0.01, (0.0,), 1e-3,
+    (ParamSpec('offset', 'm', -0.03, 0.03, (0.0,), 1e-3,
                description='true surface lies this far outside the observed one along n'),),
     signature='force starts before (offset > 0) or after d = 0 by the same amount on every '
               'poke: low-depth residual of one sign',
@@ -165,10 +169,11 @@ _add(EffectSpec(
               'slope; transients at the turning point',
     correction='re-sample the force at t + offset'))
 
-PRONY_TAUS = (0.1, 0.3, 1.0, 3.0, 10.0)
-"""Fixed relaxation times of the library's Prony series, seconds (log-spaced; from a few
-analysis samples to a few pokes, what holds of about a second and the gaps between pokes can
-resolve)."""
+PRONY_TAUS = (0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
+"""Fixed relaxation times of the library's Prony series, seconds (half-decade spacing, from
+about one analysis sample to tens of seconds; a relaxation faster than one analysis sample is
+part of the instantaneous response, one slower than 30 s a slow drift of the hold). Weights
+the data leave at zero are not counted by the parameter penalty."""
 
 _add(EffectSpec(
     'viscoelastic', 'rate dependence and relaxation (Prony series, fixed relaxation times)',
@@ -179,14 +184,19 @@ _add(EffectSpec(
     signature='force decays during a hold, unloading below loading, stiffer at higher speed',
     correction='deconvolve the force with the inverse Prony filter (elastic response)',
     needs='holds or different speeds',
-    settings=tuple((f'tau{i + 1}', tau) for i, tau in enumerate(PRONY_TAUS)),
+    settings=tuple((f'tau{i + 1}', tau) for i, tau in enumerate(PRONY_TAUS))
+    + (('memory', 0.0),),
     derived=('g',)))
+"""``memory``: 0 when the relaxation memory stays with the material under the tip (it carries
+only to the next poke at the same spot), 1 when one material state carries from every poke
+to the next (as the simulated cell keeps it); diagnose picks the one that fits."""
 
 _add(EffectSpec(
     'hysteresis', 'rate-independent loading/unloading hysteresis',
-    (ParamSpec('eta', '1', 0.0, 0.9, (0.05,), 0.05, description='unloading force deficit'),
-     ParamSpec('transition', 'm', -5.0, -2.3, (-3.3,), 0.3, log=True,
-               description='depth over which the branch switches')),
+    (ParamSpec('eta', '1', 0.0, 0.95, (0.05,), 0.05, description='unloading force deficit'),
+     ParamSpec('transition', 'm', -5.3, -2.0, (-3.3, -4.5), 0.3, log=True, limit_ok=True,
+               description='depth over which the branch switches (the lower bound, 5 um, '
+                           'is a sharp switch: below one analysis sample of depth)')),
     signature='unloading force a constant fraction below loading at any speed; no change '
               'during a hold',
     correction='divide the force by the branch factor 1 - eta (1 - z) / 2'))
@@ -205,9 +215,10 @@ _add(EffectSpec(
 
 _add(EffectSpec(
     'plastic_set', 'plastic set with repeated pokes',
-    (ParamSpec('max_set', 'm', 0.0, 5e-3, (5e-4,), 2e-4, description='saturation set'),
-     ParamSpec('n0', 'pokes', -1.0, 2.0, (0.3,), 0.3, log=True,
-               description='pokes to reach 63 % of the saturation')),
+    (ParamSpec('max_set', 'm', 0.0, 2e-2, (5e-4,), 2e-4, description='saturation set'),
+     ParamSpec('n0', 'pokes', -1.0, 3.0, (0.3, 1.5), 0.3, log=True, limit_ok=True,
+               description='pokes to reach 63 % of the saturation (small: all set by the '
+                           'first poke; large: the set grows in equal steps per repeat)')),
     signature='onset moves deeper at a spot each time it is poked again',
     correction='move the poke point by -set(n) along the normal (n earlier pokes within '
                'radius)',
@@ -216,7 +227,7 @@ _add(EffectSpec(
 
 _add(EffectSpec(
     'friction', 'Coulomb friction on oblique contact',
-    (ParamSpec('mu', '1', 0.0, 2.0, (0.1,), 0.05, description='friction coefficient'),),
+    (ParamSpec('mu', '1', 0.0, 5.0, (0.1,), 0.05, description='friction coefficient'),),
     signature='lateral force flips with the direction of motion (loading vs unloading) when '
               'the push is not along the contact normal',
     correction='keep only the force along the per-poke contact normal',
@@ -287,7 +298,8 @@ def check_params(name: str, params: Mapping) -> Dict[str, float]:
     """Validate a parameter mapping of effect ``name``; return it as floats with settings.
 
     Derived values (``EffectSpec.derived``) are recomputed from the parameters. A viscoelastic
-    effect may also be given as one term ``{'g': fraction in [0, 1), 'tau': seconds > 0}``.
+    effect may also be given as one term ``{'g': fraction in [0, 1), 'tau': seconds > 0}``, or
+    as a series on other relaxation times when every ``e<i>`` comes with its ``tau<i>``.
 
     Raises:
         InvalidInput: unknown effect, missing/unknown parameters, non-finite values, a
@@ -303,6 +315,12 @@ def check_params(name: str, params: Mapping) -> Dict[str, float]:
     derived = set(entry.derived)
     if name == 'viscoelastic' and 'tau' in params:
         wanted, settings, derived = {'g', 'tau'}, {}, set()
+    elif name == 'viscoelastic' and isinstance(params, Mapping):
+        moduli = {k for k in params if k.startswith('e') and k[1:].isdigit()}
+        if moduli and moduli != wanted and all('tau' + k[1:] in params for k in moduli):
+            # a series on other relaxation times (e.g. a model file written with the
+            # earlier five-term grid 0.1-10 s): its own times, given with it
+            wanted, settings = moduli | {'tau' + k[1:] for k in moduli}, {}
     unknown = set(params) - wanted - set(settings) - derived
     if unknown:
         raise InvalidInput(f'effect {name}: unknown parameter(s) {sorted(unknown)}; expected '
@@ -340,12 +358,10 @@ def check_params(name: str, params: Mapping) -> Dict[str, float]:
 
 
 def _prony_coefficients(dt: float, g, tau):
-    """Numerator and denominator (in ``z^-1``) of the Prony filter ``f_e -> f``."""
+    """Numerator and denominator (in ``z^-1``) of the Prony filter ``f_e -> f`` (the inverse)."""
     g = np.atleast_1d(np.asarray(g, dtype=np.float64))
     tau = np.atleast_1d(np.asarray(tau, dtype=np.float64))
-    ratio = dt / tau
-    a = np.exp(-ratio)
-    r = np.where(ratio > 1e-8, -np.expm1(-ratio) / np.maximum(ratio, 1e-300), 1.0 - 0.5 * ratio)
+    a, r = _prony_step(dt, tau)
     g_inf = 1.0 - float(g.sum())
     den = np.array([1.0])
     for ai in a:
@@ -360,11 +376,43 @@ def _prony_coefficients(dt: float, g, tau):
     return num, den
 
 
+def _prony_step(dt: float, tau) -> Tuple[np.ndarray, np.ndarray]:
+    """Per-sample decay ``exp(-dt / tau)`` and ramp weight ``(1 - exp(-x)) / x``, x = dt / tau.
+
+    Both lie in [0, 1] for any ``dt >= 0`` and ``tau > 0`` (no overflow: the exponent is never
+    positive; ``tau`` from milliseconds to hours).
+    """
+    tau = np.maximum(np.atleast_1d(np.asarray(tau, dtype=np.float64)), 1e-12)
+    ratio = max(float(dt), 0.0) / tau
+    a = np.exp(-ratio)
+    r = np.where(ratio > 1e-8, -np.expm1(-ratio) / np.maximum(ratio, 1e-300), 1.0 - 0.5 * ratio)
+    return a, r
+
+
+def hereditary(f_e: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """Return the hereditary integral ``h(t) = int exp(-(t - s) / tau) df_e(s)`` (at rest before).
+
+    The stable first-order recursion ``h_n = a h_{n-1} + r (f_n - f_{n-1})`` with ``a`` and
+    ``r`` of :func:`_prony_step` (both in [0, 1]: bounded for bounded input, whatever ``tau``).
+    Exact for ``f_e`` piecewise linear in time.
+
+    Args:
+        f_e: (T,) or (T, k) uniformly sampled series, along axis 0.
+        dt: sample spacing, seconds.
+        tau: relaxation time, seconds, > 0.
+
+    """
+    a, r = _prony_step(dt, tau)
+    f_e = np.asarray(f_e, dtype=np.float64)
+    return lfilter([float(r[0]), -float(r[0])], [1.0, -float(a[0])], f_e, axis=0)
+
+
 def prony_filter(f_e: np.ndarray, dt: float, g, tau) -> np.ndarray:
     """Relax an elastic force series: ``f = g_inf f_e + sum_i g_i h_i`` (material at rest before).
 
-    ``h_i`` is the hereditary integral ``int exp(-(t - s) / tau_i) df_e(s)``, updated exactly
-    for ``f_e`` piecewise linear between samples ``dt`` apart.
+    ``h_i`` is the hereditary integral ``int exp(-(t - s) / tau_i) df_e(s)`` (:func:`hereditary`:
+    one stable first-order recursion per term, summed, instead of one high-order polynomial
+    filter whose coefficients lose precision when relaxation times span decades).
 
     Args:
         f_e: (T,) or (T, k) elastic force, uniformly sampled, newtons.
@@ -376,8 +424,14 @@ def prony_filter(f_e: np.ndarray, dt: float, g, tau) -> np.ndarray:
         Array shaped like ``f_e`` (not clamped).
 
     """
-    num, den = _prony_coefficients(dt, g, tau)
-    return lfilter(num, den, f_e, axis=0)
+    g = np.atleast_1d(np.asarray(g, dtype=np.float64))
+    tau = np.atleast_1d(np.asarray(tau, dtype=np.float64))
+    f_e = np.asarray(f_e, dtype=np.float64)
+    out = (1.0 - float(g.sum())) * f_e
+    for gi, ti in zip(g, tau):
+        if gi != 0.0:
+            out = out + gi * hereditary(f_e, dt, ti)
+    return out
 
 
 def prony_inverse(f: np.ndarray, dt: float, g, tau) -> np.ndarray:

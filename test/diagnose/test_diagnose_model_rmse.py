@@ -15,7 +15,7 @@ import pytest
 
 from pointforce_ros.diagnose import diagnose
 from pointforce_ros.diagnose.batch import make_batch
-from pointforce_ros.effects.library import check_params, prony_terms
+from pointforce_ros.effects.library import check_params, PRONY_TAUS, prony_terms
 from pointforce_ros.diagnose.model import block_sse, model_blocks
 from pointforce_ros.errors import InvalidInput
 
@@ -95,15 +95,23 @@ def test_two_term_relaxation_total_fraction_is_recovered_by_the_prony_series():
     assert report.halved
     g, tau = prony_terms(accepted.params)
     assert np.all(g >= 0) and g.sum() == pytest.approx(accepted.params['g'])
-    np.testing.assert_allclose(tau, [0.1, 0.3, 1.0, 3.0, 10.0])
+    np.testing.assert_allclose(tau, PRONY_TAUS)
 
 
 def test_prony_parameters_are_checked_and_the_total_is_derived():
-    params = {'e1': 0.0, 'e2': 0.5, 'e3': 0.0, 'e4': 0.25, 'e5': 0.0, 'g': 99.0}
+    # issue 20: the grid spans 0.03-30 s (seven terms); a five-term series written with the
+    # earlier 0.1-10 s grid still loads when it carries its relaxation times
+    params = {'e1': 0.0, 'e2': 0.5, 'e3': 0.0, 'e4': 0.25, 'e5': 0.0, 'e6': 0.0, 'e7': 0.0,
+              'g': 99.0}
     checked = check_params('viscoelastic', params)
     assert checked['g'] == pytest.approx(0.75 / 1.75)     # recomputed, not taken
-    assert checked['tau2'] == 0.3
+    assert checked['tau2'] == 0.1
     g, tau = prony_terms(checked)
+    np.testing.assert_allclose(g, [0.0, 0.5 / 1.75, 0.0, 0.25 / 1.75, 0.0, 0.0, 0.0])
+    old = {f'e{i + 1}': v for i, v in enumerate([0.0, 0.5, 0.0, 0.25, 0.0])}
+    old.update({f'tau{i + 1}': v for i, v in enumerate([0.1, 0.3, 1.0, 3.0, 10.0])})
+    g, tau = prony_terms(check_params('viscoelastic', old))
+    np.testing.assert_allclose(tau, [0.1, 0.3, 1.0, 3.0, 10.0])
     np.testing.assert_allclose(g, [0.0, 0.5 / 1.75, 0.0, 0.25 / 1.75, 0.0])
     with pytest.raises(InvalidInput, match='>= 0'):
         check_params('viscoelastic', {**params, 'e1': -0.1})

@@ -23,8 +23,17 @@ Scenario of each file (all lengths metres, forces newtons, frame ``base``):
   ``identify`` or ``heldout``.
 
 The objects: ``foam_block`` (this folder's ``foam_block.yaml``: homogeneous, E 50 kPa,
-nu 0.30) and the cell's heterogeneous ``plush`` and ``dome``. Measured wall times are printed
-per push (shared 2-core machine).
+nu 0.30) and the cell's heterogeneous ``plush`` and ``dome``. Measured wall times per push on
+the shared, overloaded 2-core machine (load 8-10): foam_block 38-66 s, plush 80-265 s, dome
+255-843 s (plush + dome 2309 s in all).
+
+Known defect (to fix before trusting the dome): the rest cloud is rendered from a uniform 2 mm
+mesh, each push from its own graded mesh (2 mm at the push, up to 8 mm away). On a curved top
+the coarse bilinear faces sag below the true surface (dome: 0.26 mm mean, 1.56 mm worst at the
+face centres; plush 0.2 mm worst; foam_block 0, flat), and the estimator reads that static
+difference as deformation: the dome's identification fails (E 0.5 MPa, nu 0). The fix is to
+render both states from one discretisation (map the fine rest surface through the FE
+displacement field) and regenerate.
 """
 
 import argparse

@@ -28,7 +28,7 @@ from pointforce_ros.deformation.force import estimate_force, ForceConfig
 from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
 from pointforce_ros.deformation.mesh import volume_mesh_from_surface
 from pointforce_ros.deformation.observe import rest_offsets
-from pointforce_ros.errors import DataError
+from pointforce_ros.errors import DataError, InvalidInput
 
 FIXTURES = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', 'test', 'data',
                                         'deformation'))
@@ -146,8 +146,13 @@ def main(argv=None):
                                   for p in glob.glob(os.path.join(FIXTURES, 'rest_*.npz')))
     results = []
     for name in names:
-        res = evaluate_object(name, args.element_size, args.layers, args.identify_depth,
-                              args.corotational)
+        try:
+            res = evaluate_object(name, args.element_size, args.layers, args.identify_depth,
+                                  args.corotational)
+        except InvalidInput as exc:  # a failed identification is a result, not a crash
+            results.append(dict(object=name, failed=str(exc)))
+            print(f'### {name}: FAILED: {exc}', flush=True)
+            continue
         results.append(res)
         print(table(res), flush=True)
     if args.json:

@@ -14,7 +14,10 @@ from scipy.spatial.transform import Rotation
 
 def _flat(a, tail: int):
     a = np.asarray(a, dtype=np.float64)
-    return a.reshape((-1,) + a.shape[a.ndim - tail:]), a.shape[:a.ndim - tail]
+    flat = a.reshape((-1,) + a.shape[a.ndim - tail:])
+    if not flat.flags.writeable:  # scipy's Cython views refuse read-only buffers
+        flat = flat.copy()
+    return flat, a.shape[:a.ndim - tail]
 
 
 def rotvec_to_matrix(rotvec) -> np.ndarray:

@@ -40,6 +40,10 @@ def test_round_trips_over_random_and_edge_rotations(seed):
                                atol=1e-12)
     np.testing.assert_allclose(rot.rotvec_to_matrix(rot.quaternion_to_rotvec(q)), matrices,
                                atol=1e-12)
+    # read-only arrays (memory-mapped or from a bag reader) are accepted
+    frozen = rotvecs.copy()
+    frozen.flags.writeable = False
+    np.testing.assert_allclose(rot.rotvec_to_matrix(frozen), matrices, atol=0)
     # leading axes are kept
     assert rot.rotvec_to_matrix(rotvecs.reshape(2, -1, 3)[:, :3]).shape == (2, 3, 3, 3)
 

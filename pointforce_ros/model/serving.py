@@ -19,6 +19,7 @@ about the request.
 import dataclasses
 import hashlib
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple, Optional, Tuple
@@ -27,7 +28,8 @@ import numpy as np
 
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
-from pointforce_ros.contact.simulator import normalise_approach, poses_as_arrays
+from pointforce_ros.contact.simulator import (BatchContactResult, normalise_approach,
+                                              poses_as_arrays)
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.model.files import ContactModel, load_latest_model, load_model
@@ -58,12 +60,14 @@ class RequestLimits:
             1e8 is a few seconds of one core).
         max_memory: largest working-memory estimate of one request, bytes. Batches are cut
             into chunks of poses that fit; a request whose single pose does not fit is refused.
+            256 MiB keeps the service within its 600 MB RSS goal.
         max_distance: largest distance of a pose position or the torque centre from the
             surface's bounding box, and of a mesh vertex from the mesh origin, metres.
         max_depth: largest depth of a mesh vertex (over the surface, in the projection along
             the approach) past the deepest surface point, metres.
         max_torque_arm: largest distance from the torque centre to a pose position, metres.
         chunk: most poses solved together (memory permitting).
+        max_seconds: time budget of one batch, s; checked between chunks of poses.
 
     Raises:
         InvalidInput: a limit that is not a positive finite number.
@@ -71,15 +75,16 @@ class RequestLimits:
     """
 
     max_sample_poses: int = 100_000_000
-    max_memory: int = 2 ** 30
+    max_memory: int = 2 ** 28
     max_distance: float = 10.0
     max_depth: float = 0.1
     max_torque_arm: float = 5.0
     chunk: int = 1024
+    max_seconds: float = 30.0
 
     def __post_init__(self):
         for name in ('max_sample_poses', 'max_memory', 'max_distance', 'max_depth',
-                     'max_torque_arm', 'chunk'):
+                     'max_torque_arm', 'chunk', 'max_seconds'):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise InvalidInput(f'RequestLimits.{name}: must be a positive number, got '
@@ -236,7 +241,8 @@ class WrenchServer:
         pose = query.poses[0]
         chunk = self._admit(query, simulator, bounds, (pose,))
         if terms.compliance > 0:
-            shift = self._retreat(simulator, terms, query, query.poses[:1], chunk)[0]
+            shift = self._retreat(simulator, terms, query, query.poses[:1], chunk,
+                                  time.monotonic() + self.limits.max_seconds)[0]
             pose = Pose(position=pose.position - shift * normalise_approach(query.approach),
                         orientation=pose.orientation, frame=pose.frame)
         try:
@@ -262,20 +268,24 @@ class WrenchServer:
     def answer_batch(self, query: ContactQuery):
         """Answer every pose of ``query``: returns (BatchContactResult, model version).
 
+        Poses are solved in chunks; a batch still unfinished after ``max_seconds`` is refused
+        at the next chunk boundary (the answer would come too late to plan with).
+
         Raises:
             ModelNotReady: no model loaded.
-            InvalidInput: as :meth:`answer`; the message names the first offending pose.
+            InvalidInput: as :meth:`answer`; the message names the first offending pose; or
+                the batch ran out of its time budget.
 
         """
         model, simulator, terms, bounds = self._snapshot()
+        deadline = time.monotonic() + self.limits.max_seconds
         poses = list(query.poses)
         chunk = self._admit(query, simulator, bounds, poses)
         if terms.compliance > 0:
-            shift = self._retreat(simulator, terms, query, poses, chunk)
+            shift = self._retreat(simulator, terms, query, poses, chunk, deadline)
             poses = _shifted(poses, simulator.surface.frame, shift,
                              normalise_approach(query.approach))
-        batch = simulator.query_batch(query.mesh, poses, query.approach, query.torque_centre,
-                                      chunk=chunk)
+        batch = self._solve_in_time(simulator, query, poses, chunk, deadline)
         if terms.force_scale != 1.0:
             batch = dataclasses.replace(batch, wrenches=batch.wrenches * terms.force_scale)
         positions = np.array([p.position for p in query.poses])
@@ -425,9 +435,10 @@ class WrenchServer:
                       positions: np.ndarray) -> None:
         """Refuse an answer that is not finite or more than the model's table can give.
 
-        The bound on a pose's force is the per-contact ceiling of the table times its contact
-        count; on its torque, that force times the farthest a mesh point can be from the
-        torque centre.
+        The surface may be pressed in by at most ``max_depth`` (the up-front check sees mesh
+        vertices only: a large flat mesh can reach deep between them). The bound on a pose's
+        force is the per-contact ceiling of the table times its contact count; on its
+        torque, that force times the farthest a mesh point can be from the torque centre.
 
         Raises:
             InvalidInput: naming the pose of the request, not the output.
@@ -444,6 +455,13 @@ class WrenchServer:
         reach = np.linalg.norm(positions - np.asarray(query.torque_centre), axis=1) + radius
         force = np.linalg.norm(wrenches[:, :3], axis=1)
         torque = np.linalg.norm(wrenches[:, 3:], axis=1)
+        deep = np.asarray(displacement, dtype=np.float64) > self.limits.max_depth
+        if np.any(deep):
+            i = int(np.flatnonzero(deep)[0])
+            raise InvalidInput(
+                f'{_where(count, i)}: the mesh presses the surface in by '
+                f'{float(displacement[i]):.3g} m (limit {self.limits.max_depth:g} m): it would '
+                'be inside the object; check the pose and the mesh')
         bad = (force > force_cap * (1 + 1e-6) + 1e-9) | (
             torque > force_cap * reach * (1 + 1e-6) + 1e-9)
         if np.any(bad):
@@ -454,15 +472,44 @@ class WrenchServer:
                 f'{bounds.contact_force:.3g} N each): the mesh is deeper than the model '
                 'knows; check the pose')
 
-    @staticmethod
-    def _retreat(simulator: ContactSimulator, terms: ForwardTerms, query: ContactQuery,
-                 poses, chunk: int = 1024) -> np.ndarray:
+    def _solve_in_time(self, simulator: ContactSimulator, query: ContactQuery, poses,
+                       chunk: int, deadline: float) -> BatchContactResult:
+        """``simulator.query_batch`` chunk by chunk, refusing once ``deadline`` has passed.
+
+        Each chunk is the call ``query_batch`` itself would make, so the rows are the same.
+        """
+        parts = []
+        for start in range(0, len(poses), chunk):
+            self._in_time(deadline, start, len(poses))
+            parts.append(simulator.query_batch(query.mesh, poses[start:start + chunk],
+                                               query.approach, query.torque_centre,
+                                               chunk=chunk))
+        if len(parts) == 1:
+            return parts[0]
+        return BatchContactResult(
+            wrenches=np.concatenate([p.wrenches for p in parts]),
+            contact_count=np.concatenate([p.contact_count for p in parts]),
+            max_displacement=np.concatenate([p.max_displacement for p in parts]),
+            lcp_residual=np.concatenate([p.lcp_residual for p in parts]),
+            torque_centres=np.concatenate([p.torque_centres for p in parts]),
+            frame=parts[0].frame)
+
+    def _in_time(self, deadline: float, done: int, count: int) -> None:
+        """Raise InvalidInput when the request's time budget has run out."""
+        if time.monotonic() > deadline:
+            raise InvalidInput(f'request took longer than the service budget of '
+                               f'{self.limits.max_seconds:g} s ({done} of {count} poses '
+                               'solved); send fewer poses per request')
+
+    def _retreat(self, simulator: ContactSimulator, terms: ForwardTerms, query: ContactQuery,
+                 poses, chunk: int = 1024, deadline: float = np.inf) -> np.ndarray:
         """Retreat (B,) metres of each pose along the approach under the series compliance."""
         a = normalise_approach(query.approach)
         base = _as_rows(poses, simulator.surface.frame)
         centre = np.asarray(query.torque_centre, dtype=np.float64)
 
         def push_back(index, shift):
+            self._in_time(deadline, 0, len(base))
             rows = base[index].copy()
             rows[:, :3] -= shift[:, None] * a
             out = simulator.query_batch(query.mesh, rows, a, centre, chunk=chunk)

@@ -5,7 +5,8 @@ the learner's latched model topic. A new model is swapped in without dropping re
 requests get ``success=False`` and a message; the node keeps serving: each callback contains
 every exception (``MemoryError`` and unforeseen errors included) and answers with a reason, and
 requests beyond the limits (``max_sample_poses``, ``max_request_memory``, ``max_distance``,
-``max_depth``, ``max_torque_arm``) are refused before any work. Accepted effects stored in
+``max_depth``, ``max_torque_arm``) are refused before any work, and a batch past its time
+budget (``max_request_seconds``) between chunks of poses. Accepted effects stored in
 the model add their forward terms (:mod:`pointforce_ros.effects.forward`): series compliance
 (``series_compliance``), a viscoelastic hold fraction (``hold_time``) and a surface offset.
 """
@@ -60,7 +61,7 @@ class ContactWrenchNode(Node):
                 'Largest rigid-mesh samples x poses of one request (the work it asks for)',
                 bounds=(1000, 10_000_000_000)),
             max_memory=int(2 ** 20 * declare(
-                self, 'max_request_memory', 1024.0,
+                self, 'max_request_memory', 256.0,
                 'Largest working-memory estimate of one request, MiB (batches are cut into '
                 'chunks that fit; a mesh whose single pose does not fit is refused)',
                 bounds=(16.0, 65536.0))),
@@ -75,7 +76,11 @@ class ContactWrenchNode(Node):
             max_torque_arm=declare(
                 self, 'max_torque_arm', 5.0,
                 'Largest distance from the torque centre to a pose, m (base)',
-                bounds=(0.01, 1000.0)))
+                bounds=(0.01, 1000.0)),
+            max_seconds=declare(
+                self, 'max_request_seconds', 30.0,
+                'Time budget of one batch request, s (checked between chunks of poses)',
+                bounds=(0.01, 3600.0)))
         self.server = WrenchServer(spacing=spacing, series_compliance=series,
                                    hold_time=hold_time, limits=limits)
         self.requests_served = 0

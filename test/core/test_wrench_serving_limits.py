@@ -104,8 +104,8 @@ def test_memory_limits_cut_batches_and_refuse_what_cannot_fit():
     small.simulator().query_batch = lambda *a, **k: calls.append(k['chunk']) or original(*a, **k)
     np.testing.assert_allclose(small.answer_batch(query)[0].wrenches,
                                roomy.answer_batch(query)[0].wrenches, rtol=0, atol=1e-12)
-    assert calls == [6 * 2 ** 20 // (mesh_sample_count(SPHERE, 0.003) * BYTES_PER_SAMPLE_POSE)]
-    assert calls[0] < len(depths)
+    chunk = 6 * 2 ** 20 // (mesh_sample_count(SPHERE, 0.003) * BYTES_PER_SAMPLE_POSE)
+    assert chunk < len(depths) and calls == [chunk] * int(np.ceil(len(depths) / chunk))
 
 
 @dataclass(frozen=True)
@@ -146,3 +146,34 @@ def test_absurd_answers_are_refused_with_a_message_about_the_request(gain, match
 def test_limits_themselves_are_checked(field, value):
     with pytest.raises(InvalidInput, match=field):
         RequestLimits(**{field: value})
+
+
+def test_a_large_flat_mesh_deep_between_its_vertices_is_refused_after_the_solve():
+    """The plate's vertices lie far outside the 60 mm patch; its face is 0.2 m inside it."""
+    server = WrenchServer(limits=RequestLimits(max_memory=2 ** 30))
+    server.swap(MODEL)
+    with pytest.raises(InvalidInput, match='presses the surface in by 0.19'):
+        server.answer(_query(_plate(1.45), [0.5, 0.0, 0.045 - 0.2]))
+    with pytest.raises(InvalidInput, match=r'poses\[1\]: the mesh presses'):
+        server.answer_batch(_query(_plate(0.2), [[0.5, 0.0, 0.045], [0.5, 0.0, -0.155]]))
+    result, _ = server.answer(_query(_plate(0.2), [0.5, 0.0, 0.035]))   # 5 mm: answered
+    assert result.contact_count > 0 and result.max_displacement < 0.01
+
+
+def test_a_batch_past_its_time_budget_is_refused_between_chunks(server):
+    query = _query(SPHERE, [[0.5, 0.0, 0.06 - d] for d in np.linspace(0.0, 0.004, 200)],
+                   centre=[0.5, 0.0, 0.06])
+    slow = WrenchServer(limits=RequestLimits(max_seconds=0.02, chunk=2))
+    slow.swap(MODEL)
+    start = time.perf_counter()
+    with pytest.raises(InvalidInput, match=r'budget of 0.02 s \(\d+ of 200 poses solved\)'):
+        slow.answer_batch(query)
+    assert time.perf_counter() - start < 2.0
+    # the budgeted loop makes the simulator's own chunks: the same rows, bit for bit
+    chunked = WrenchServer(limits=RequestLimits(chunk=7))
+    chunked.swap(MODEL)
+    direct = chunked.simulator().query_batch(query.mesh, list(query.poses), query.approach,
+                                             query.torque_centre, chunk=7)
+    np.testing.assert_array_equal(chunked.answer_batch(query)[0].wrenches, direct.wrenches)
+    np.testing.assert_allclose(direct.wrenches, server.answer_batch(query)[0].wrenches,
+                               rtol=1e-9, atol=1e-12)

@@ -47,6 +47,7 @@ BYTES_PER_CONTACT_PAIR = 64
 products), bytes; a pose with ``K`` candidates needs about ``64 K^2``."""
 
 _MIB = float(2 ** 20)
+_CACHED_SAMPLES = 200_000
 _NO_ANSWER = ('{where}: the model has no finite answer for this pose ({bad} of {count} poses); '
               'the mesh is outside what the model covers; check the pose and the mesh')
 
@@ -154,7 +155,7 @@ class WrenchServer:
         self._current: Optional[Tuple[ContactModel, ContactSimulator, ForwardTerms,
                                       _Bounds]] = None
         self._swap_lock = threading.Lock()
-        self._sizes = {}    # mesh content -> (radius, sample count)
+        self._sizes = {}    # mesh content -> (radius, sample count, first mesh object)
         self._facing = {}   # projection -> (it, deepest facing height, in-plane box lo, hi)
         self.loaded_path: Optional[Path] = None
 
@@ -240,6 +241,7 @@ class WrenchServer:
         model, simulator, terms, bounds = self._snapshot()
         pose = query.poses[0]
         chunk = self._admit(query, simulator, bounds, (pose,))
+        query = self._same_mesh(query)
         if terms.compliance > 0:
             shift = self._retreat(simulator, terms, query, query.poses[:1], chunk,
                                   time.monotonic() + self.limits.max_seconds)[0]
@@ -281,6 +283,7 @@ class WrenchServer:
         deadline = time.monotonic() + self.limits.max_seconds
         poses = list(query.poses)
         chunk = self._admit(query, simulator, bounds, poses)
+        query = self._same_mesh(query)
         if terms.compliance > 0:
             shift = self._retreat(simulator, terms, query, poses, chunk, deadline)
             poses = _shifted(poses, simulator.surface.frame, shift,
@@ -356,6 +359,16 @@ class WrenchServer:
                 edges the sampler cannot count (huge coordinates).
 
         """
+        return self._known_mesh(mesh)[:2]
+
+    def _known_mesh(self, mesh) -> Tuple[float, int, object]:
+        """(radius, sample count, the first mesh seen with this content), cached by content.
+
+        Answering with the first mesh object of a content lets the simulator reuse its
+        samples (its cache is by identity, and every request brings a new object): one
+        sampling per mesh instead of one per request. Only meshes of at most
+        ``_CACHED_SAMPLES`` samples are kept, so the cache stays small.
+        """
         digest = hashlib.blake2b(mesh.vertices.tobytes(), digest_size=16)
         digest.update(mesh.triangles.tobytes())
         key = (digest.digest(), len(mesh.vertices), self._spacing)
@@ -367,11 +380,19 @@ class WrenchServer:
         if not radius <= self.limits.max_distance:
             raise InvalidInput(f'mesh: a vertex lies {radius:.3g} m from the mesh origin '
                                f'(limit {self.limits.max_distance:g} m); check the mesh units')
-        size = (radius, mesh_sample_count(mesh, self._spacing))
+        samples = mesh_sample_count(mesh, self._spacing)
+        known = (radius, samples, mesh if samples <= _CACHED_SAMPLES else None)
         if len(self._sizes) >= 64:
             self._sizes.clear()
-        self._sizes[key] = size
-        return size
+        self._sizes[key] = known
+        return known
+
+    def _same_mesh(self, query: ContactQuery) -> ContactQuery:
+        """``query`` with its mesh replaced by the cached object of equal content, if any."""
+        canonical = self._known_mesh(query.mesh)[2]
+        if canonical is None or canonical is query.mesh:
+            return query
+        return dataclasses.replace(query, mesh=canonical)
 
     def _check_geometry(self, query: ContactQuery, simulator: ContactSimulator, poses,
                         positions: np.ndarray, samples: int, radius: float) -> None:

@@ -177,3 +177,22 @@ def test_a_batch_past_its_time_budget_is_refused_between_chunks(server):
     np.testing.assert_array_equal(chunked.answer_batch(query)[0].wrenches, direct.wrenches)
     np.testing.assert_allclose(direct.wrenches, server.answer_batch(query)[0].wrenches,
                                rtol=1e-9, atol=1e-12)
+
+
+def test_a_resent_mesh_is_sampled_once(server, monkeypatch):
+    """Every request brings a new Mesh object; equal content reuses the first one's samples."""
+    from pointforce_ros.contact import simulator as simulator_module
+    calls = []
+    original = simulator_module.sample_mesh_surface
+    monkeypatch.setattr(simulator_module, 'sample_mesh_surface',
+                        lambda mesh, spacing: calls.append(1) or original(mesh, spacing))
+    answers = []
+    for _ in range(3):
+        fresh = Mesh(vertices=SPHERE.vertices.copy(), triangles=SPHERE.triangles.copy())
+        answers.append(server.answer(_query(fresh, [0.5, 0.0, 0.056]))[0].wrench.force)
+        server.answer_batch(_query(fresh, [[0.5, 0.0, 0.056]] * 2))
+    assert len(calls) == 1
+    np.testing.assert_array_equal(answers[0], answers[2])
+    moved = Mesh(vertices=SPHERE.vertices + 1e-4, triangles=SPHERE.triangles)
+    server.answer(_query(moved, [0.5, 0.0, 0.056]))
+    assert len(calls) == 2

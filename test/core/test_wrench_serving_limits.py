@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from pointforce_ros.contact import simulator as simulator_module
 from pointforce_ros.contact.sampling import mesh_sample_count
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
@@ -181,7 +182,6 @@ def test_a_batch_past_its_time_budget_is_refused_between_chunks(server):
 
 def test_a_resent_mesh_is_sampled_once(server, monkeypatch):
     """Every request brings a new Mesh object; equal content reuses the first one's samples."""
-    from pointforce_ros.contact import simulator as simulator_module
     calls = []
     original = simulator_module.sample_mesh_surface
     monkeypatch.setattr(simulator_module, 'sample_mesh_surface',

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import Vector3
+from pointforce_interfaces.srv import ContactWrench
 
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
@@ -21,7 +22,6 @@ pytestmark = [pytest.mark.e2e, pytest.mark.ros]
 
 
 def test_capture_poke_learn_and_query_on_the_simulated_cell(tmp_path):
-    from pointforce_interfaces.srv import ContactWrench
     with CellSession(tmp_path, object_name='halfspace', scenario='clean',
                      log=lambda line: None) as cell:
         surface = cell.capture_surface(views=2)
@@ -76,7 +76,6 @@ def _alive(pid):
 
 def test_a_dead_emulator_is_restarted_then_the_cell_degrades_and_keeps_serving(tmp_path):
     """Issue 16: when the controller emulator died the whole cell exited."""
-    from pointforce_interfaces.srv import ContactWrench
     with CellSession(tmp_path, object_name='halfspace', scenario='clean',
                      log=lambda line: None) as cell:
         first = cell.emulator

@@ -107,6 +107,12 @@ def model_path(directory, version: int) -> Path:
     return Path(directory) / f'model-v{int(version):06d}.npz'
 
 
+def version_of_path(path) -> Optional[int]:
+    """Version in a model file's name (``model-v000042.npz`` -> 42), or ``None``."""
+    m = _NAME.match(Path(path).name)
+    return int(m.group(1)) if m else None
+
+
 def _header(model: ContactModel) -> dict:
     return {
         'format': FORMAT, 'version': int(model.version),

@@ -23,6 +23,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from msg_adapters.interfaces import (contact_query_from_batch_request, contact_query_from_request,
                                      fail, fill_batch_response, fill_contact_response)
 from pointforce_ros.errors import PointforceError
+from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import declare, run
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
 
@@ -113,7 +114,10 @@ class ContactWrenchNode(Node):
                                     f'{type(exc).__name__}: {exc}', throttle_duration_sec=10.0)
 
     def _on_model(self, msg: ModelStatus):
-        if not msg.model_path or msg.version <= self.server.version:
+        # the file's name carries the version it was saved under: a save bumps a version that
+        # was taken by other content, past the one the learner announces
+        announced = max(msg.version, version_of_path(msg.model_path) or -1)
+        if not msg.model_path or announced <= self.server.version:
             return
         try:
             self.server.load(Path(msg.model_path))

@@ -12,7 +12,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
-from pointforce_ros.model.files import save_model
+from pointforce_ros.model.files import ContactModel, save_model
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode, LATCHED
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.serving import WrenchServer
@@ -156,7 +156,6 @@ def test_model_topic_hot_swaps_without_dropping_requests(served):
     graph, node, client_node, single, _, model, tmp_path = served
     stiffer = patch_contact_model(spacing=0.003, version=2)
     forces = stiffer.response.forces * 2.0
-    from pointforce_ros.model.files import ContactModel
     from pointforce_ros.response.baked import BakedResponse
     stiffer = ContactModel(surface=stiffer.surface, shape_constant=stiffer.shape_constant,
                            version=2, response=BakedResponse(
@@ -240,7 +239,6 @@ def test_stored_effects_add_their_forward_terms(ros_graph, tmp_path):
 
     Viscoelastic: scaled by the fraction left after ``hold_time``. Both read from the file.
     """
-    from pointforce_ros.model.files import ContactModel
     compliance, g, tau, hold = 2e-4, 0.25, 2.0, 1.0
     clean = patch_contact_model(spacing=0.003)
     effects = {'series_compliance': {'compliance': compliance},
@@ -312,3 +310,21 @@ def test_a_restarted_service_with_a_corrupt_newest_file_serves_the_last_good_one
     path = save_model(patch_contact_model(spacing=0.003, version=2), models)
     assert path.name == 'model-v000003.npz'
     ros_graph.wait_for(lambda: node.server.version == 3, 10, 'model v3')
+
+
+def test_a_model_saved_under_a_bumped_version_is_loaded_from_the_topic(ros_graph, tmp_path):
+    """The learner announces the version it asked for; the file's name has the one it got."""
+    node = ros_graph.add(ContactWrenchNode(context=ros_graph.context))
+    client_node = ros_graph.add(Node('bump_learner', context=ros_graph.context))
+    pub = client_node.create_publisher(ModelStatus, '/stiffness_learner/model', LATCHED)
+    first = save_model(patch_contact_model(spacing=0.003), tmp_path / 'models')
+    pub.publish(ModelStatus(version=1, num_pokes=1, model_path=str(first)))
+    ros_graph.wait_for(lambda: node.server.version == 1, 10, 'model v1')
+    clean = patch_contact_model(spacing=0.003)
+    other = ContactModel(surface=clean.surface, response=clean.response, version=1,
+                         shape_constant=0.006)      # a restarted learner's different v1
+    bumped = save_model(other, tmp_path / 'models')
+    assert bumped.name == 'model-v000002.npz'
+    pub.publish(ModelStatus(version=1, num_pokes=1, model_path=str(bumped)))
+    ros_graph.wait_for(lambda: node.server.version == 2, 10, 'the bumped model v2')
+    assert node.server.simulator().c == 0.006

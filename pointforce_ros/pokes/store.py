@@ -255,19 +255,32 @@ class PokeStore:
     IDS = 'ids.json'
     QUARANTINE = 'quarantine'
     RECOVERY = 'recovery'
+    LEFTOVER_AGE = 300.0
+    """Seconds after which a ``.tmp-*`` entry is an interrupted write, not one in progress."""
 
     def __init__(self, root):
         """Open (and create) the store at ``root``; removes leftovers of interrupted writes.
 
-        Bags that cannot be read are moved to ``quarantine/`` (logged with the reason).
+        A ``.tmp-*`` entry younger than ``LEFTOVER_AGE`` is kept: another process (the poke
+        server, while the learner opens the store) may be writing it. Bags that cannot be
+        read are moved to ``quarantine/`` (logged with the reason).
         """
         self.root = Path(root)
         if self.root.exists() and not self.root.is_dir():
             raise DataError(f'poke store {self.root} is a file, not a directory')
         self.root.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
+        now = time.time()
         for leftover in self.root.glob('.tmp-*'):
-            shutil.rmtree(leftover, ignore_errors=True)
+            try:
+                if now - leftover.stat().st_mtime < self.LEFTOVER_AGE:
+                    continue  # another process may be writing it right now
+            except OSError:
+                continue
+            if leftover.is_dir():
+                shutil.rmtree(leftover, ignore_errors=True)
+            else:
+                leftover.unlink(missing_ok=True)
         self.quarantined: List[Path] = []
         self._index = self._load_index()
 

@@ -1,7 +1,9 @@
 """Poke store: MCAP round trip, frame conventions, atomicity and corrupt bags."""
 
 import json
+import os
 import shutil
+import time
 
 import numpy as np
 import pytest
@@ -83,8 +85,12 @@ def test_interrupted_write_leaves_nothing_and_existing_id_is_refused(tmp_path):
     rec = make_record(n=20)
     store.add(rec)
     (tmp_path / '.tmp-poke-000002-abc').mkdir()  # what a crash mid-write leaves
+    (tmp_path / '.tmp-poke-000003-def').mkdir()  # a write another process is doing now
+    old = time.time() - st.PokeStore.LEFTOVER_AGE - 1
+    os.utime(tmp_path / '.tmp-poke-000002-abc', (old, old))
     reopened = st.PokeStore(tmp_path)
-    assert not list(tmp_path.glob('.tmp-*')) and reopened.ids() == ['poke-000001']
+    assert [p.name for p in tmp_path.glob('.tmp-*')] == ['.tmp-poke-000003-def']
+    assert reopened.ids() == ['poke-000001']
     with pytest.raises(DataError, match='unique'):
         reopened.add(rec)
 

@@ -124,6 +124,25 @@ def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndar
         return np.linalg.norm(gap, axis=1)
 
 
+def _under_footprint(proj, footprint: np.ndarray) -> int:
+    """Facing surface points under the oriented bounding box of ``footprint`` (V, 2), m.
+
+    The box has the principal axes of the projected vertices and is widened by the
+    projection's ``max_gap``; the surface points come from its KD-tree (projection plane).
+    """
+    centre = footprint.mean(axis=0)
+    local = footprint - centre
+    _, axes = np.linalg.eigh(local.T @ local)
+    local = local @ axes
+    lo, hi = local.min(axis=0) - proj.max_gap, local.max(axis=0) + proj.max_gap
+    reach = float(np.linalg.norm(np.maximum(np.abs(lo), np.abs(hi))))
+    near = proj.tree.query_ball_point(centre, r=reach)
+    if not near:
+        return 0
+    points = (proj.tree.data[near] - centre) @ axes
+    return int(np.count_nonzero(np.all((points >= lo) & (points <= hi), axis=1)))
+
+
 def _where(count: int, i: int) -> str:
     """Name pose ``i`` of a request the way the request does (``pose`` or ``poses[i]``)."""
     return 'pose' if count == 1 else f'poses[{i}]'
@@ -404,26 +423,23 @@ class WrenchServer:
         the simulator's ``max_gap``). Vectorised in chunks of 1e6 vertex-poses.
 
         Contacts: a pose has at most as many contacts as facing surface points lie under its
-        footprint (within the mesh radius plus ``max_gap`` in the projection plane) and as it
-        has samples; ``BYTES_PER_CONTACT_PAIR`` times its square must fit ``max_memory``.
-        Counted only when the whole surface could exceed it.
+        footprint (widened by ``max_gap`` in the projection plane) and as it has samples;
+        ``BYTES_PER_CONTACT_PAIR`` times its square must fit ``max_memory``. Counted only
+        when the whole surface could exceed it, first within the mesh radius of the pose, and
+        for a pose over the limit then under the oriented bounding box of its projected
+        vertices (a 60 mm paddle covers a tenth of its circle).
         """
         a = normalise_approach(query.approach)
         proj = simulator.projection(a)
         if proj.tree is None:
             return  # no surface faces this approach: nothing can be touched
         limit = self.limits.max_memory
+        flagged = np.zeros(len(poses), dtype=bool)
         if float(min(samples, len(proj.index))) ** 2 * BYTES_PER_CONTACT_PAIR > limit:
             under = proj.tree.query_ball_point(positions @ proj.basis, r=radius + proj.max_gap,
                                                return_length=True)
             need = np.minimum(np.asarray(under, dtype=np.float64), samples) ** 2
-            worst = int(np.argmax(need))
-            if need[worst] * BYTES_PER_CONTACT_PAIR > limit:
-                raise InvalidInput(
-                    f'{_where(len(poses), worst)}: up to {int(np.sqrt(need[worst]))} contacts '
-                    f'under the mesh would need about '
-                    f'{need[worst] * BYTES_PER_CONTACT_PAIR / _MIB:.0f} MiB to solve, above the '
-                    f'service limit of {limit / _MIB:.0f} MiB; send a smaller mesh')
+            flagged = need * BYTES_PER_CONTACT_PAIR > limit   # refined on the footprint below
         hit = self._facing.get(id(proj))
         if hit is None or hit[0] is not proj:
             facing = simulator.surface.points[proj.index]
@@ -450,6 +466,14 @@ class WrenchServer:
                     f'past the deepest point of the object along the approach (limit '
                     f'{self.limits.max_depth:g} m): it would be inside the object; check the '
                     'pose, its frame and the approach direction')
+            for j in np.flatnonzero(flagged[s:s + step]):
+                k = min(_under_footprint(proj, coords[j, :, 1:]), samples)
+                if float(k) ** 2 * BYTES_PER_CONTACT_PAIR > limit:
+                    raise InvalidInput(
+                        f'{_where(len(poses), s + j)}: up to {k} contacts under the mesh would '
+                        f'need about {float(k) ** 2 * BYTES_PER_CONTACT_PAIR / _MIB:.0f} MiB to '
+                        f'solve, above the service limit of {limit / _MIB:.0f} MiB; send a '
+                        'smaller mesh')
 
     def _check_answer(self, query: ContactQuery, bounds: _Bounds, wrenches: np.ndarray,
                       contacts: np.ndarray, displacement: np.ndarray,

@@ -18,7 +18,7 @@ from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import ContactModel
 from pointforce_ros.model.serving import BYTES_PER_SAMPLE_POSE, RequestLimits, WrenchServer
 from pointforce_ros.response.baked import BakedResponse
-from pointforce_ros.shapes import icosphere
+from pointforce_ros.shapes import box, icosphere
 from pointforce_ros.types import ContactQuery, Mesh, Pose
 
 SPHERE = icosphere(0.02, 2)
@@ -196,3 +196,15 @@ def test_a_resent_mesh_is_sampled_once(server, monkeypatch):
     moved = Mesh(vertices=SPHERE.vertices + 1e-4, triangles=SPHERE.triangles)
     server.answer(_query(moved, [0.5, 0.0, 0.056]))
     assert len(calls) == 2
+
+
+def test_the_contact_bound_uses_the_footprint_not_the_enclosing_circle():
+    """A 60 x 6 mm paddle covers a fraction of its 31 mm circle: its pose is answered."""
+    fine = patch_contact_model(spacing=0.002)                  # 961 points, 60 mm square
+    server = WrenchServer(spacing=0.001, limits=RequestLimits(max_memory=16 * 2 ** 20))
+    server.swap(fine)
+    paddle = box((0.06, 0.006, 0.006))
+    result, _ = server.answer(_query(paddle, [0.5, 0.0, 0.0385]))
+    assert result.contact_count > 0
+    with pytest.raises(InvalidInput, match=r'up to \d+ contacts under the mesh'):
+        server.answer(_query(_plate(0.07), [0.5, 0.0, 0.0395]))

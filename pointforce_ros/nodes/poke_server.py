@@ -275,19 +275,25 @@ class PokeServerNode(Node):
             return poke_result_msg('', 0, 0.0, 0.0, 'aborted', str(exc))
         saved_id, samples, peak, depth = '', 0, 0.0, 0.0
         if result is not None and len(result) > 1:
-            record = PokeRecord(poke_id=poke_id, point=point, normal=normal,
-                                t=result.t_wall, t_controller=result.t_controller,
-                                tcp_pose=result.tcp_pose, wrench=result.wrench,
-                                speed=goal.speed, probe='point', outcome=result.outcome,
-                                meta={'standoff': goal.standoff, 'force_limit': goal.force_limit,
-                                      'depth_limit': goal.depth_limit,
-                                      'surface_index': goal.surface_index,
-                                      'robot_ip': self.robot_ip})
-            samples = len(record)
-            peak = float(np.max(record.normal_force()))
-            depth = float(np.max(record.displacement()))
-            stored = self._store(record)  # on disk before any result is sent
+            meta = {'standoff': goal.standoff, 'force_limit': goal.force_limit,
+                    'depth_limit': goal.depth_limit, 'surface_index': goal.surface_index,
+                    'robot_ip': self.robot_ip}
+            try:
+                record = PokeRecord(poke_id=poke_id, point=point, normal=normal,
+                                    t=result.t_wall, t_controller=result.t_controller,
+                                    tcp_pose=result.tcp_pose, wrench=result.wrench,
+                                    speed=goal.speed, probe='point', outcome=result.outcome,
+                                    meta=meta)
+                samples = len(record)
+                peak = float(np.max(record.normal_force()))
+                depth = float(np.max(record.displacement()))
+                stored = self._store(record)  # on disk before any result is sent
+            except PointforceError as exc:    # samples a record refuses: kept raw
+                samples = len(result)
+                stored = self._store_raw(poke_id, result, point, normal, meta, exc)
             if stored is not None:
+                if fault is not None:
+                    stored = f'{getattr(fault, "kind", "device_fault")}: {fault}; {stored}'
                 self.get_logger().error(f'poke aborted: {stored}')
                 goal_handle.abort()
                 return poke_result_msg('', samples, peak, depth, 'aborted', stored)
@@ -327,6 +333,19 @@ class PokeServerNode(Node):
                 where = f'could not be kept either ({lost})'
             return (f'{record.outcome}: the poke ran but storing {record.poke_id} failed '
                     f'({error}); its {len(record)} samples are {where}')
+
+    def _store_raw(self, poke_id, result, point, normal, meta, error):
+        """Keep the arrays of a push a PokeRecord refused; return the abort message."""
+        arrays = dict(t=result.t_wall, t_controller=result.t_controller,
+                      tcp_pose=result.tcp_pose, wrench=result.wrench)
+        header = dict(poke_id=poke_id, point=np.asarray(point).tolist(),
+                      normal=np.asarray(normal).tolist(), outcome=result.outcome, meta=meta)
+        try:
+            where = f'kept in {self.store.save_raw_recovery(poke_id, arrays, header, error)}'
+        except OSError as lost:
+            where = f'could not be kept either ({lost})'
+        return (f'{result.outcome}: the poke ran but its samples are not a valid record '
+                f'({type(error).__name__}: {error}); its {len(result)} samples are {where}')
 
     def destroy_node(self):
         """Close the arm connection with the node."""

@@ -398,11 +398,27 @@ class PokeStore:
             OSError: neither place can be written.
 
         """
-        header = dict(record_header(record), recovery_format=RECOVERY_FORMAT,
-                      error=f'{type(error).__name__}: {error}')
+        header = dict(record_header(record), recovery_format=RECOVERY_FORMAT)
         arrays = dict(t=record.t, t_controller=record.t_controller, tcp_pose=record.tcp_pose,
-                      wrench=record.wrench,
-                      header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8))
+                      wrench=record.wrench)
+        return self.save_raw_recovery(record.poke_id, arrays, header, error)
+
+    def save_raw_recovery(self, poke_id: str, arrays: dict, header: dict,
+                          error: BaseException) -> Path:
+        """Keep ``arrays`` (name -> array) of a poke that is not even a valid record.
+
+        As :meth:`save_recovery`, for samples a :class:`PokeRecord` refused (the header says
+        why); ``np.load`` reads the file, :func:`load_recovery` only when it was a record.
+
+        Raises:
+            OSError: neither the store nor the temporary folder can be written.
+
+        """
+        header = dict(header, error=f'{type(error).__name__}: {error}')
+        arrays = {name: np.asarray(value) for name, value in arrays.items()}
+        arrays['header'] = np.frombuffer(json.dumps(header, default=str).encode(),
+                                         dtype=np.uint8)
+        samples = max((len(a) for a in arrays.values() if a.ndim), default=0)
         places = [self.root / self.RECOVERY,
                   Path(tempfile.gettempdir()) / 'pointforce-recovery']
         for i, folder in enumerate(places):
@@ -414,11 +430,11 @@ class PokeStore:
                         np.savez(fh, **arrays)
                         fh.flush()
                         os.fsync(fh.fileno())
-                    path = folder / f'{record.poke_id}.npz'
+                    path = folder / f'{poke_id}.npz'
                     n = 0
                     while path.exists():
                         n += 1
-                        path = folder / f'{record.poke_id}.{n}.npz'
+                        path = folder / f'{poke_id}.{n}.npz'
                     os.replace(tmp, path)
                 finally:
                     if os.path.exists(tmp):
@@ -427,8 +443,8 @@ class PokeStore:
                 if i == len(places) - 1:
                     raise
                 continue
-            LOG.error('poke store %s: %s not stored (%s); its %d samples are kept in %s',
-                      self.root, record.poke_id, header['error'], len(record), path)
+            LOG.error('poke store %s: %s not stored (%s); its samples (%d) are kept in %s',
+                      self.root, poke_id, header['error'], samples, path)
             return path
         raise OSError('unreachable')  # pragma: no cover
 

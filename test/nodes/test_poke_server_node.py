@@ -5,6 +5,8 @@ the lock); when storing failed after the arm moved, the data was gone and the cl
 with an empty message.
 """
 
+import dataclasses
+import json
 import time
 
 import numpy as np
@@ -181,3 +183,28 @@ def test_an_unexpected_error_in_execution_aborts_with_a_message_and_frees_the_lo
     handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal after')
     assert handle.accepted
     assert graph.wait_future(handle.get_result_async(), 30, 'result after').status == 4
+
+
+def test_samples_a_record_refuses_are_kept_raw_and_the_message_says_where(scripted):
+    """A controller clock that stepped back: PokeRecord refuses the series, the file keeps it."""
+    graph, server, client, arms, tmp_path = scripted
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'warm-up goal')
+    graph.wait_future(handle.get_result_async(), 30, 'warm-up result')
+    arm = arms[0]
+    original = arm.push_until
+
+    def stepped_back(*args, **kwargs):
+        result = original(*args, **kwargs)
+        t_controller = result.t_controller.copy()
+        t_controller[50] = t_controller[10]
+        return dataclasses.replace(result, t_controller=t_controller)
+    arm.push_until = stepped_back
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal')
+    got = graph.wait_future(handle.get_result_async(), 30, 'result')
+    path = tmp_path / 'pokes' / 'recovery' / 'poke-000002.npz'
+    assert got.status == 6 and str(path) in got.result.message
+    assert 'InvalidInput' in got.result.message
+    with np.load(path) as z:
+        assert len(z['t_controller']) == arm.samples and z['t_controller'][50] == z[
+            't_controller'][10]
+        assert 'strictly increasing' in json.loads(bytes(z['header']).decode())['error']

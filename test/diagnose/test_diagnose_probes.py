@@ -81,8 +81,7 @@ def test_generate_folder_files_are_found_from_the_folder_or_its_pokes(tmp_path):
 
 
 def test_generated_probe_file_round_trips_into_trials(tmp_path):
-    from pointforce_ros.sim.generate import save_probe_trials
-    from pointforce_ros.diagnose.probes import load_probe_trials
+    from pointforce_ros.pokes.trials import load_probe_trials, save_probe_trials
     trials = probe_data.make_trials(0.004, count=1)
     save_probe_trials([{'kind': t.kind, 'vertices': t.mesh.vertices,
                         'triangles': t.mesh.triangles, 'start_position': t.start.position,

@@ -28,7 +28,7 @@ import numpy as np
 from pointforce_ros.sim.fem.probes import cylinder_probe, paddle_probe, pose_for_push
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.effects.forward import solve_retreat
-from pointforce_ros.diagnose.probes import ProbeTrial
+from pointforce_ros.pokes.trials import ProbeTrial
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
 

@@ -33,13 +33,13 @@ def _diagnose(case, tmp_path):
 
 
 def test_clean_table_accepts_nothing(tmp_path):
-    report = _diagnose(eg.Case('clean', seed=2, pokes=16, restart=True), tmp_path)
+    report = _diagnose(eg.Case('clean', seed=2, pokes=12, restart=True), tmp_path)
     assert report.accepted_names == []
     assert not report.unexplained and not report.inconclusive
 
 
 def test_sensor_saturation_is_unexplained_not_a_library_cause(tmp_path):
-    report = _diagnose(eg.Case('saturation', seed=2, pokes=16), tmp_path)
+    report = _diagnose(eg.Case('saturation', seed=2, pokes=12), tmp_path)
     assert report.accepted_names == []
     assert report.unexplained
     summary = summary_dict(report)
@@ -47,7 +47,7 @@ def test_sensor_saturation_is_unexplained_not_a_library_cause(tmp_path):
 
 
 def test_strong_relaxation_with_restarted_times_is_named_alone(tmp_path):
-    case = eg.Case('viscoelastic', 20.0, 'one', seed=2, pokes=16, restart=True)
+    case = eg.Case('viscoelastic', 20.0, 'one', seed=2, pokes=12, restart=True)
     report = _diagnose(case, tmp_path)
     assert report.accepted_names == ['viscoelastic']
     assert report.effects()['viscoelastic']['g'] == pytest.approx(0.4, rel=0.2)
@@ -56,7 +56,7 @@ def test_strong_relaxation_with_restarted_times_is_named_alone(tmp_path):
 
 
 def test_sharp_hysteresis_switch_is_named(tmp_path):
-    report = _diagnose(eg.Case('hysteresis', 3.0, 'sharp', seed=2, pokes=16), tmp_path)
+    report = _diagnose(eg.Case('hysteresis', 3.0, 'sharp', seed=2, pokes=12), tmp_path)
     assert report.accepted_names == ['hysteresis']
     assert report.effects()['hysteresis']['eta'] == pytest.approx(0.12, rel=0.2)
 
@@ -71,7 +71,7 @@ def test_a_candidate_that_fails_numerically_makes_the_verdict_inconclusive(tmp_p
         return real(batch, effects, **kwargs)
 
     monkeypatch.setattr(diagnose_run, 'fit_global', failing)
-    report = _diagnose(eg.Case('hysteresis', 10.0, 'smooth', seed=2, pokes=16), tmp_path)
+    report = _diagnose(eg.Case('hysteresis', 10.0, 'smooth', seed=2, pokes=12), tmp_path)
     # hysteresis passes the tests, but relaxation competes for the same unloading deficit
     # and could not be evaluated: no effect takes its place
     assert report.accepted_names == []
@@ -95,7 +95,7 @@ def _steps(case, per_poke=10):
 
 def test_step_data_is_scored_and_says_what_does_not_apply(tmp_path, capsys):
     path = tmp_path / 'steps.csv'
-    path.write_text(eg.table_text(_steps(eg.Case('camera_bias', 3.0, seed=2, pokes=16))))
+    path.write_text(eg.table_text(_steps(eg.Case('camera_bias', 3.0, seed=2, pokes=12))))
     code = cli_main(['diagnose', str(path), '--out', str(tmp_path / 'report'), '--json'])
     out = capsys.readouterr().out
     assert code == 0

@@ -18,10 +18,12 @@ BENCHMARKS: Dict[str, str] = {
     'learn': 'pointforce_ros.lab.bench_learn:bench_learn',
     'cell': 'pointforce_ros.sim.fem.bench:bench_cell',
     'ros': 'pointforce_ros.bringup.bench_ros:bench_ros',
+    'deformation': 'pointforce_ros.deformation.bench:bench_deformation',
 }
 
 
-QUICK: Dict[str, dict] = {'cell': {'queries': 200, 'full_solve': False}}
+QUICK: Dict[str, dict] = {'cell': {'queries': 200, 'full_solve': False},
+                          'deformation': {'baseline': False}}
 """Keyword arguments of ``--quick`` per benchmark (default ``{'quick': True}``)."""
 
 
@@ -74,6 +76,10 @@ def _cmd_figures(args) -> int:
     return _load('pointforce_ros.lab.figures:main')(args.rest)
 
 
+def _cmd_deformation(args) -> int:
+    return _load('pointforce_ros.lab.deformation_figures:main')(args.rest)
+
+
 def _cmd_replay(args) -> int:
     return _load('pointforce_ros.bringup.replay:run_replay')(args.bag, rate=args.rate)
 
@@ -124,6 +130,13 @@ def build_parser() -> argparse.ArgumentParser:
                          help='options of python -m pointforce_ros.lab.figures (--out, --quick, '
                          '...)')
     figures.set_defaults(func=_cmd_figures)
+
+    deformation = sub.add_parser('deformation', help='seed 001 on the simulated cell: (E, nu) '
+                                 'identification and force from the camera, against the truth')
+    deformation.add_argument('rest', nargs=argparse.REMAINDER,
+                             help='options of python -m pointforce_ros.lab.deformation_figures '
+                             '(--object, --json, ...)')
+    deformation.set_defaults(func=_cmd_deformation)
 
     replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
     replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')

@@ -46,7 +46,7 @@ def share_dirs() -> List[Path]:
 
 
 def share_path(*parts: str) -> Path:
-    """Path of a shipped file or folder, e.g. ``share_path('config', 'objects')``.
+    """Return the path of a shipped file or folder (``config/objects``, ``data/fem``, ...).
 
     Returns the first candidate of :func:`share_dirs` that has it; if none has it, the path
     under the first candidate (so an error message names a sensible place), or under the

@@ -81,7 +81,6 @@ def calibration_push(spec):
 
 def _calibrate(cell, spec):
     """Identify ``c`` from the calibration push (second probe); None if it cannot be done."""
-
     path = DATA / f'demo_calibration_{spec.name}.npz'
     if not path.exists():
         print(f'[demo] no calibration push for {spec.name} ({path.name}): c stays as set')
@@ -161,7 +160,6 @@ def _ground_truth(spec, queries):
 def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lamb',
              scenario: str = 'realistic', pokes: int = 0) -> int:
     """Run the demo; returns a process exit code."""
-
     started = time.monotonic()
     out = Path(out)
     pokes = pokes or (4 if quick else 8)

@@ -119,7 +119,6 @@ def make_poke_fixture(name: str, out=DATA_DIR, count: int = 30, seed: int = 0,
         DataError: the object's live cache is missing or stale.
 
     """
-
     started = time.monotonic()
     live = LiveContact.load(name, build=False)
     spec = live.spec
@@ -201,7 +200,6 @@ def point_dent(spec, depth: Optional[float] = None, h: Optional[float] = None) -
         NotConverged: the FE solve failed.
 
     """
-
     depth = float(depth or 0.5 * spec.max_depth)
     h = h or spec.mesh_live
     x, y = spec.centre
@@ -291,7 +289,6 @@ def make_probe_fixture(name: str, out=DATA_DIR, lines: int = 3, cylinders: int =
         NotConverged: the dent's full solve failed.
 
     """
-
     started = time.monotonic()
     spec = load_object(name)
     out = Path(out)
@@ -385,7 +382,6 @@ def load_probe_fixture(name: str, data_dir=DATA_DIR, say: Callable[[str], None] 
         DataError: the file is missing (the message says how to make it).
 
     """
-
     data = _read_fixture(data_dir, name, 'probes')
     cap = 1.5 * load_object(name).force_cap
     trials = []
@@ -498,7 +494,6 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
     (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
     force cap.
     """
-
     factories = {'ours': ContactGpModel,
                  'ours_capped': lambda: CappedAtTraining(ContactGpModel()),
                  'ours_independent': lambda: ContactGpModel(decorrelate=False),
@@ -528,7 +523,6 @@ def full_depth_truth(name: str, curves: Sequence[PokeCurve], step: float = 0.000
         DataError: the object's live cache is missing or stale.
 
     """
-
     live = LiveContact.load(name, build=False)
     spec = live.spec
     out = {}
@@ -557,7 +551,6 @@ def truth_floor(name: str, curves: Sequence[PokeCurve], stride: int = 5) -> floa
         DataError: the object's live cache is missing or stale.
 
     """
-
     live = LiveContact.load(name, build=False)
     pts = np.array([c.point for c in curves])
     normal_z = np.array([c.normal[2] for c in curves])
@@ -575,7 +568,6 @@ def truth_floor(name: str, curves: Sequence[PokeCurve], stride: int = 5) -> floa
 
 def own_law_rmse(curves: Sequence[PokeCurve]) -> float:
     """RMSE (N) of each curve against its *own* contact-law fit: the law's noise floor."""
-
     model = ContactGpModel()
     err = []
     for c in curves:
@@ -611,7 +603,6 @@ def spread_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 10,
         InvalidInput: ``size`` leaves no held-out poke, or ``repeats < 1``.
 
     """
-
     curves = list(curves)
     if not 1 <= size < len(curves) or repeats < 1:
         raise InvalidInput(f'spread_budget: need 1 <= size < {len(curves)} pokes and '
@@ -715,7 +706,6 @@ def _simulate_ours(sim, trials) -> List[Tuple[np.ndarray, np.ndarray]]:
 
 def _simulate_paper(sim, fallback, trials) -> Tuple[List[Tuple[np.ndarray, np.ndarray]], int]:
     """Paper simulator per pose; where its LCP scheme fails (singular ``G``), ``fallback``."""
-
     out, failed = [], 0
     for t in trials:
         f, m = [], []
@@ -747,7 +737,6 @@ def identify_c_dent(dent: Mapping, r_min: float = 0.003):
     when given). With a free depth the FEM dents (which fall off faster than ``1 / r`` on a
     finite object on a table) drive ``c`` to its lower bound.
     """
-
     surf = Surface(points=dent['points'], normals=_unit(dent['normals']))
     r, u = dent_profile(surf, dent['displaced'], dent['poke_point'])
     try:
@@ -792,7 +781,6 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         InvalidInput: fewer than 2 trials or fewer than ``n_train + 1`` curves.
 
     """
-
     trials = list(trials)
     if len(trials) < 2:
         raise InvalidInput('figure_probes: need >= 2 trials (the others identify c)')
@@ -926,7 +914,6 @@ def pokes_to_match(result: Mapping) -> Dict:
 def figure_active(curves: Sequence[PokeCurve], surface: Surface, repeats: int = 10,
                   seed: int = 0, max_pokes: int = ACTIVE_MAX) -> Dict:
     """Figure 4 for one object: :func:`active_vs_random_curve` with ours, and the savings."""
-
     res = active_vs_random_curve(list(curves), surface, ContactGpModel, start=2,
                                  max_pokes=max_pokes, repeats=repeats, seed=seed)
     res['match'] = pokes_to_match(res)
@@ -1234,7 +1221,6 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         InvalidInput: an unknown object name or ``repeats < 1``.
 
     """
-
     started = time.monotonic()
     objects = list(objects)[:2] if quick else list(objects)
     unknown = [o for o in objects if o not in list_objects()]

@@ -160,7 +160,7 @@ class OnlineLearner:
         return fresh
 
     def _curve(self, record) -> Optional[PokeCurve]:
-        """Loading curve of one poke record (corrected), or ``None`` with the reason noted.
+        """Cut the loading curve of one (corrected) poke record; ``None`` with the reason noted.
 
         Raises:
             PointforceError: the record cannot be cut into a curve.
@@ -290,7 +290,7 @@ class OnlineLearner:
             return self._save(time.perf_counter())
 
     def contact_model(self) -> ContactModel:
-        """The current model baked on the model surface, as it would be saved.
+        """Return the current model baked on the model surface, as it would be saved.
 
         Raises:
             ModelNotReady: before the first fit.

@@ -247,7 +247,6 @@ def generate(object_name: str, scenario_name: str, pokes: int, probes: Sequence[
              seed: int, out, progress: Callable[[str], None] = print,
              probe_count: int = 3) -> dict:
     """Generate the data set; returns the manifest (also written to ``manifest.json``)."""
-
     unknown = set(probes) - set(PROBE_KINDS)
     if unknown:
         raise InvalidInput(f'--probes: unknown kind(s) {sorted(unknown)}; use {PROBE_KINDS}')

@@ -241,7 +241,6 @@ class ObjectSpec:
 
     def gauss_young(self, mesh: HexMesh) -> np.ndarray:
         """(E, 8) Young's modulus at the 2x2x2 Gauss points of ``mesh``, Pa."""
-
         n = shape_functions(GAUSS_2)  # (8, 8)
         pts = np.einsum('qa,eai->eqi', n, mesh.nodes[mesh.elements]).reshape(-1, 3)
         return self.stiffness_at(pts).reshape(-1, 8)

@@ -180,7 +180,6 @@ def fem_object(object_name: str = 'plush', *, margin: float = 0.012,
         InvalidInput: unknown object, or a margin that leaves no region.
 
     """
-
     live = LiveContact.load(object_name, cache_dir=cache_dir, build=False)
     spec = live.spec
     half = np.array(spec.size[:2]) / 2 - float(margin)

@@ -67,7 +67,6 @@ def reference_uv(spec: ObjectSpec, x, y):
 
 def uv_to_xy(spec: ObjectSpec, u, v):
     """Return base-frame (x, y) of reference coordinates (inverse of :func:`reference_uv`)."""
-
     u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
     if spec.kind == 'dome':
         u, v = square_to_disk(u, v)
@@ -339,7 +338,6 @@ class LiveContact:
             ``(force (3,), torque (3,))``, N and N m, ``base``.
 
         """
-
         return probe_wrench_full(self.spec, mesh, pose, torque_centre, h=self.spec.mesh_live)
 
     def _surface_hit(self, p, a):

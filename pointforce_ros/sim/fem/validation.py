@@ -164,7 +164,6 @@ def mesh_shift_case(spec, x: float, y: float, shifts=(0.0, 0.001, 0.002), h=None
         ``shifts`` (S,), ``spread`` (K,) ``(max - min) / min`` over the shifts.
 
     """
-
     rows = []
     for dx in shifts:
         depths, f, n, _ = nonlinear_point_poke(spec, x, y, h=h, refine_at=(x + dx, y))

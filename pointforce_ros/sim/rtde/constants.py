@@ -1,5 +1,7 @@
-"""Constants of the emulated controller: ports, versions, modes, status bits and the ur_rtde
-control-script command numbers."""
+"""Constants of the emulated controller: ports, versions, modes, bits, script command numbers.
+
+The command numbers are those of ur_rtde 1.6.5's control script (input_int_register_0).
+"""
 
 
 DT = 0.002

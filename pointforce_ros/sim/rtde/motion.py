@@ -18,12 +18,15 @@ class Kinematics:
         self.w = np.zeros(3)
 
     def pose6(self) -> np.ndarray:
+        """Return the TCP pose [x, y, z, rx, ry, rz] (m, rad, base)."""
         return np.concatenate([self.p, matrix_to_rotvec(self.r)])
 
     def twist6(self) -> np.ndarray:
+        """Return the TCP twist [vx, vy, vz, wx, wy, wz] (m/s, rad/s, base)."""
         return np.concatenate([self.v, self.w])
 
     def integrate(self, v_new: np.ndarray, w_new: np.ndarray, dt: float) -> None:
+        """Advance the pose by ``dt`` seconds to the new twist (trapezoidal rule)."""
         self.p = self.p + 0.5 * (self.v + v_new) * dt
         self.r = rotvec_to_matrix(0.5 * (self.w + w_new) * dt) @ self.r
         self.v = v_new
@@ -47,6 +50,7 @@ class Trapezoid:
         self.duration = 2.0 * self.ta + self.tf
 
     def at(self, t: float):
+        """Return (distance, speed) along the profile at time ``t`` seconds after its start."""
         if t <= 0.0:
             return 0.0, 0.0
         if t < self.ta:
@@ -75,6 +79,7 @@ class LinearMove:
         self.target = np.array(target6, dtype=float)
 
     def step(self, kin: Kinematics, dt: float) -> bool:
+        """Advance the motion by one controller period; return whether it has finished."""
         self.t += dt
         if self.t >= self.profile.duration:
             kin.p, kin.r = self.p1.copy(), self.r1.copy()
@@ -96,6 +101,7 @@ class StopMove:
         self.decel = decel
 
     def step(self, kin: Kinematics, dt: float) -> bool:
+        """Advance the motion by one controller period; return whether it has finished."""
         speed = float(np.linalg.norm(kin.v))
         ang = float(np.linalg.norm(kin.w))
         ref = speed if speed > 1e-12 else ang
@@ -115,6 +121,7 @@ class SpeedMove:
         self.accel = accel
 
     def step(self, kin: Kinematics, dt: float) -> bool:
+        """Advance the motion by one controller period; return whether it has finished."""
         def approach(cur, want):
             delta = want - cur
             norm = float(np.linalg.norm(delta))
@@ -132,6 +139,7 @@ class MoveSequence:
         self.current = None
 
     def step(self, kin: Kinematics, dt: float) -> bool:
+        """Advance the motion by one controller period; return whether it has finished."""
         while True:
             if self.current is None:
                 if not self.factories:
@@ -152,10 +160,12 @@ class Ring:
         self.count = 0
 
     def push(self, row: np.ndarray) -> None:
+        """Append one row, overwriting the oldest when full."""
         self.data[self.count % len(self.data)] = row
         self.count += 1
 
     def last(self, n: int) -> np.ndarray:
+        """Return the newest ``n`` rows (fewer if fewer were pushed), oldest first."""
         n = min(n, self.count, len(self.data))
         idx = (np.arange(self.count - n, self.count)) % len(self.data)
         return self.data[idx]

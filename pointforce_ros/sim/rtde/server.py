@@ -40,6 +40,7 @@ class ClientConnection:
             return self._flush_locked()
 
     def flush(self) -> bool:
+        """Send what is pending; return False once the connection is closed."""
         with self.send_lock:
             if self.closed:
                 return False
@@ -63,6 +64,7 @@ class ClientConnection:
         return True
 
     def close(self) -> None:
+        """Close the connection (idempotent)."""
         with self.send_lock:
             self._close_locked()
 
@@ -78,6 +80,8 @@ class ClientConnection:
 
 
 class RtdeClient(ClientConnection):
+    """One RTDE client: handshake, recipes, and its output stream at the requested rate."""
+
     def __init__(self, emulator, sock):
         super().__init__(emulator, sock, 'rtde')
         self.output: Optional[rp.Recipe] = None
@@ -87,6 +91,7 @@ class RtdeClient(ClientConnection):
         self.protocol_ok = False
 
     def serve(self) -> None:
+        """Read and answer the client's packages until it disconnects."""
         buf = rp.MessageBuffer()
         while not self.closed:
             try:

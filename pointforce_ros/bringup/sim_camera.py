@@ -2,8 +2,9 @@
 
 Renders the object's visible surface (with the scenario's depth bias and noise, occlusion and
 NaN holes) as an organised PointCloud2 in ``camera_depth_optical_frame`` on
-``/camera/camera/depth/color/points`` and the camera's pose in ``base`` on
-``/cloud_capture/camera_pose`` (the stand-in for tf). ``~/next_view`` (std_srvs/Trigger) moves
+``camera/camera/depth/color/points`` and the camera's pose in ``base`` on
+``cloud_capture/camera_pose`` (the stand-in for tf; both relative, so a namespaced cell keeps its
+camera). ``~/next_view`` (std_srvs/Trigger) moves
 it to the next viewpoint of its ring, as a wrist camera would be moved between scans.
 """
 
@@ -41,7 +42,7 @@ class SimCameraNode(Node):
         self._lock = threading.Lock()
         self.cloud_pub = self.create_publisher(PointCloud2, DEFAULT_TOPIC,
                                                qos_profile_sensor_data)
-        self.pose_pub = self.create_publisher(PoseStamped, '/cloud_capture/camera_pose', 10)
+        self.pose_pub = self.create_publisher(PoseStamped, 'cloud_capture/camera_pose', 10)
         self.create_service(Trigger, '~/next_view', self._on_next)
         self.create_timer(1.0 / rate, self.publish_frame)
 

@@ -25,14 +25,16 @@ from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import save_surface
-from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.nodes.common import declare, qos_watch, run
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
-DEFAULT_TOPIC = '/camera/camera/depth/color/points'
+DEFAULT_TOPIC = 'camera/camera/depth/color/points'
+"""realsense-ros's topic, relative: under ``__ns:=/cell1`` a camera launched in the cell's
+namespace is found (an absolute ``cloud_topic`` or a remap points elsewhere)."""
 
 
 class CloudCaptureNode(Node):
@@ -68,13 +70,15 @@ class CloudCaptureNode(Node):
         self._scans = []
         self.surface = None
         self.surface_pub = self.create_publisher(PointCloud2, '~/surface', LATCHED)
-        self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data)
-        self.create_subscription(PoseStamped, '~/camera_pose', self._on_pose, 10)
+        self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data,
+                                 event_callbacks=qos_watch(self, topic))
+        self.create_subscription(PoseStamped, '~/camera_pose', self._on_pose, 10,
+                                 event_callbacks=qos_watch(self, '~/camera_pose'))
         group = MutuallyExclusiveCallbackGroup()
         self.create_service(Trigger, '~/add_scan', self._on_add, callback_group=group)
         self.create_service(Trigger, '~/capture', self._on_capture, callback_group=group)
         self.create_service(Trigger, '~/clear', self._on_clear, callback_group=group)
-        self.get_logger().info(f'listening for clouds on {topic}')
+        self.get_logger().info(f'listening for clouds on {self.resolve_topic_name(topic)}')
 
     def _on_cloud(self, msg: PointCloud2):
         stamp = stamp_to_sec(msg.header.stamp)

@@ -6,6 +6,7 @@ import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 
 
@@ -31,6 +32,22 @@ def declare(node: Node, name: str, default, description: str, *,
     elif isinstance(default, str):
         descriptor.type = ParameterType.PARAMETER_STRING
     return node.declare_parameter(name, default, descriptor).value
+
+
+def qos_watch(node: Node, topic: str) -> SubscriptionEventCallbacks:
+    """Event callbacks for a subscription to ``topic``: an incompatible-QoS match is logged.
+
+    The event is also appended to ``node.incompatible_qos`` (a list the node creates), so a test
+    or a supervisor can tell that a publisher was discovered but never delivers.
+    """
+    if not hasattr(node, 'incompatible_qos'):
+        node.incompatible_qos = []
+
+    def on_incompatible(event):
+        node.incompatible_qos.append((topic, event))
+        node.get_logger().error(f'{topic}: a publisher offers an incompatible QoS '
+                                f'(policy {event.last_policy_kind}); its data never arrives')
+    return SubscriptionEventCallbacks(incompatible_qos=on_incompatible)
 
 
 def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:

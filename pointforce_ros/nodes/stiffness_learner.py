@@ -1,10 +1,13 @@
 """stiffness_learner node: refit the force-response model whenever a poke lands.
 
-Surface: the latched ``/cloud_capture/surface`` (or ``surface_file`` at start-up). Pokes: the
-poke store directory the poke server writes; a refit is triggered by ``/poke_server/poke_landed``
+Surface: the latched ``cloud_capture/surface`` (or ``surface_file`` at start-up). Pokes: the
+poke store directory the poke server writes; a refit is triggered by ``poke_server/poke_landed``
 (the new poke id) and, as a fallback, by polling the store. Publishes the latched ``~/model``
-(:class:`pointforce_interfaces.msg.ModelStatus`), which the contact service follows, and serves
-``~/suggest_poke``. On restart it reloads the stored pokes and produces the same model.
+(:class:`pointforce_interfaces.msg.ModelStatus`), which the contact service follows, the latched
+``~/markers`` (visualization_msgs/MarkerArray for RViz/Foxglove: the surface coloured by the
+learned force at ``marker_depth``, and the suggested next pokes), and serves ``~/suggest_poke``.
+Cross-node names are relative (``__ns:=/cell1`` keeps a cell together). On restart it reloads the
+stored pokes and produces the same model.
 ``effects_file`` (diagnose's ``effects.json``) makes the learner remove the accepted effects from
 the pokes and store them in every model, whose forward terms the contact service then applies.
 """
@@ -12,6 +15,8 @@ the pokes and store them in every model, whose forward terms the contact service
 import json
 import threading
 from pathlib import Path
+
+import numpy as np
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from pointforce_interfaces.msg import ModelStatus
@@ -21,17 +26,19 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import MarkerArray
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
 from msg_adapters.geometry import sec_to_stamp, stamp_to_sec
 from msg_adapters.interfaces import fail, fill_suggest_response
+from msg_adapters.markers import model_markers
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.effects.correct import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import OnlineLearner
-from pointforce_ros.model.files import load_surface
-from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.model.files import load_model, load_surface
+from pointforce_ros.nodes.common import declare, qos_watch, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
 
@@ -39,7 +46,9 @@ LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 RECORDER = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+                      durability=DurabilityPolicy.VOLATILE)
+"""The recorder's streams: volatile, so it matches the poke server's volatile publishers (a
+transient-local reader never matches a volatile writer) and a bag replay's transient-local ones."""
 
 
 def _decay_length(value: float) -> float:
@@ -59,7 +68,7 @@ class StiffnessLearnerNode(Node):
                                  'Where versioned contact models are written')
         surface_file = declare(self, 'surface_file', '',
                                'Equilibrium surface (.npz) to start from; empty: wait for '
-                               '/cloud_capture/surface')
+                               'cloud_capture/surface')
         self.shape_constant = declare(self, 'shape_constant', 0.004,
                                       'Shape-function constant c of g(r) = c/(c+r), m',
                                       bounds=(1e-4, 0.1))
@@ -94,34 +103,46 @@ class StiffnessLearnerNode(Node):
                                    f'(spatial_coupling)'
                                    + ('' if result.successful else
                                       f'; the parameter refused it: {result.reason}'))
+        self.marker_depth = declare(self, 'marker_depth', 0.005,
+                                    'Reference depth of the ~/markers stiffness colours, m',
+                                    bounds=(0.0005, 0.05))
+        self.marker_suggestions = declare(self, 'marker_suggestions', 5,
+                                          'Suggested next pokes drawn in ~/markers',
+                                          bounds=(0, 50))
         record = declare(self, 'record_topics', False,
-                         'Rebuild pokes from the /poke_server/tcp_pose, wrench and poke_record '
+                         'Rebuild pokes from the poke_server/tcp_pose, wrench and poke_record '
                          'topics into store_dir (a learner away from the poke server, or a bag '
                          'replay)')
         self._lock = threading.Lock()
         self.learner = None
         self.recorder = StreamRecorder() if record else None
         self.model_pub = self.create_publisher(ModelStatus, '~/model', LATCHED)
+        self.marker_pub = self.create_publisher(MarkerArray, '~/markers', LATCHED)
         refit_group = MutuallyExclusiveCallbackGroup()
         if surface_file:
             try:
                 self._set_surface(load_surface(surface_file))
             except PointforceError as exc:
                 self.get_logger().error(f'cannot load surface_file: {exc}')
-        self.create_subscription(PointCloud2, '/cloud_capture/surface', self._on_surface,
-                                 LATCHED, callback_group=refit_group)
-        self.create_subscription(String, '/poke_server/poke_landed', self._on_poke,
-                                 RELIABLE, callback_group=refit_group)
+        self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,
+                                 LATCHED, callback_group=refit_group,
+                                 event_callbacks=qos_watch(self, 'cloud_capture/surface'))
+        self.create_subscription(String, 'poke_server/poke_landed', self._on_poke,
+                                 RELIABLE, callback_group=refit_group,
+                                 event_callbacks=qos_watch(self, 'poke_server/poke_landed'))
         self.create_timer(poll, self.refit, callback_group=refit_group)
         if self.recorder is not None:
             self._record_store = PokeStore(self.store_dir)
             stream = ReentrantCallbackGroup()
-            self.create_subscription(PoseStamped, '/poke_server/tcp_pose', self._on_pose,
-                                     RECORDER, callback_group=stream)
-            self.create_subscription(WrenchStamped, '/poke_server/wrench', self._on_wrench,
-                                     RECORDER, callback_group=stream)
-            self.create_subscription(String, '/poke_server/poke_record', self._on_record,
-                                     RELIABLE, callback_group=refit_group)
+            self.create_subscription(PoseStamped, 'poke_server/tcp_pose', self._on_pose,
+                                     RECORDER, callback_group=stream,
+                                     event_callbacks=qos_watch(self, 'poke_server/tcp_pose'))
+            self.create_subscription(WrenchStamped, 'poke_server/wrench', self._on_wrench,
+                                     RECORDER, callback_group=stream,
+                                     event_callbacks=qos_watch(self, 'poke_server/wrench'))
+            self.create_subscription(String, 'poke_server/poke_record', self._on_record,
+                                     RELIABLE, callback_group=refit_group,
+                                     event_callbacks=qos_watch(self, 'poke_server/poke_record'))
         self.create_service(SuggestPoke, '~/suggest_poke', self._on_suggest,
                             callback_group=ReentrantCallbackGroup())
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -237,6 +258,28 @@ class StiffnessLearnerNode(Node):
             f'{status.training_rmse:.3f} N, prequential RMSE {status.validation_rmse:.3f} N, '
             f'fit {status.fit_seconds:.2f} s' +
             (f', skipped {sorted(status.skipped)}' if status.skipped else ''))
+        self._publish_markers(status, learner)
+
+    def _publish_markers(self, status, learner):
+        """Publish the latched MarkerArray of the model just saved and its suggestions."""
+        try:
+            model = load_model(status.model_path)
+            n = len(model.surface)
+            forces = model.response.force(np.arange(n), np.full(n, self.marker_depth))
+            points = normals = None
+            if self.marker_suggestions > 0:
+                indices, _ = learner.suggest(self.marker_suggestions,
+                                             exclude_radius=self.exclude_radius,
+                                             max_tilt_deg=self.max_tilt)
+                points = learner.surface.points[indices]
+                normals = learner.surface.normals[indices]
+        except PointforceError as exc:
+            self.get_logger().warn(f'no markers for model v{status.version}: {exc}')
+            return
+        self.marker_pub.publish(model_markers(
+            model.surface.points, forces, self.marker_depth, suggestions=points,
+            suggestion_normals=normals, frame='base',
+            stamp=self.get_clock().now().nanoseconds * 1e-9))
 
     def _on_suggest(self, request, response):
         learner = self.learner

@@ -35,6 +35,7 @@ setup(
             'poke_server = pointforce_ros.nodes.poke_server:main',
             'stiffness_learner = pointforce_ros.nodes.stiffness_learner:main',
             'contact_wrench = pointforce_ros.nodes.contact_wrench:main',
+            'deformation_force = pointforce_ros.nodes.deformation_force:main',
             'rtde_emulator = pointforce_ros.sim.rtde.emulator:main',
         ],
     },

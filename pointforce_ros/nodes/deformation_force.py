@@ -1,0 +1,447 @@
+"""deformation_force node: an FEM model of the scanned object and the contact force it sees.
+
+Thin wiring of the deformation wing (:mod:`pointforce_ros.deformation`, seed 001):
+
+- **Rest surface**: ``surface_file`` (.npz as cloud_capture stores it) at start-up, or the
+  latched ``cloud_capture/surface``; the volume mesh (``element_size``, ``layers``) and the
+  rest-scan offsets are built from it once per surface.
+- **Deformed clouds**: ``cloud_topic`` (PointCloud2). A cloud whose ``frame_id`` is
+  ``frame_id`` (``base``) is used as is; any other (the camera's optical frame) is moved into
+  ``base`` with the newest ``cloud_capture/camera_pose`` (PoseStamped, ``base`` <- optical
+  frame), else the ``camera_pose`` parameter, as cloud_capture does. Invalid (NaN) pixels are
+  dropped, as realsense-ros marks them; a cloud with no finite point is refused.
+- **F/T**: ``poke_server/wrench`` (``tool0_controller``, the reaction on the tool) is rotated
+  into ``base`` with the newest ``poke_server/tcp_pose`` and negated: the force on the object.
+- **A poke runs** while that force exceeds ``contact_force`` (it ends below half of it). Its
+  contact point is the TCP position (the probe tip) at the first sample above the threshold:
+  where the probe met the rest surface, for a normal or an oblique push, with no geometry in
+  the node and no extra message from the poke server.
+- **Observations for identification** (the simplest design a real cell can use, with no hold
+  and no timing by the operator): while a poke runs, each new cloud is paired with the F/T
+  force of the moment; the pair with the largest force (the deepest static state) becomes the
+  poke's observation when the poke ends, named ``contact-<n>`` and renamed to the poke id
+  that ``poke_server/poke_landed`` announces next (within ``landed_window`` seconds).
+  ``~/observe`` (Trigger) also snapshots the newest cloud, force and contact point by hand
+  (``observe-<n>``), for a cell that holds the probe still.
+- ``~/identify`` (IdentifyDeformation): (E, nu) from the chosen observations (all when none
+  are named); the model is saved atomically as the next ``deformation-v<k>.npz`` in
+  ``model_dir`` and used at once. The newest model file is loaded at start-up.
+- ``~/estimate_force`` (EstimateForce): the force at a contact point (``base``) that explains
+  the newest cloud, camera only, with residual and covariance.
+- While a poke runs, every new cloud gives a camera estimate on ``~/force`` (WrenchStamped,
+  ``base``, force on the object) and a ``~/ft_consistency`` report (DiagnosticStatus: OK when
+  camera and F/T agree within ``consistency_sigma`` of their combined uncertainty, ERROR when
+  not, e.g. a saturated or broken F/T; WARN when no camera estimate could be made).
+
+Services never raise into rclpy: a missing model, surface or cloud, an empty or NaN cloud, a
+contact point off the surface (the wing's ``InvalidInput``), and any other exception
+(``MemoryError`` included) give ``success=False`` with the reason, and the node keeps serving.
+"""
+
+import re
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from pointforce_interfaces.srv import EstimateForce, IdentifyDeformation
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from msg_adapters.geometry import pose_stamped_from_msg, sec_to_stamp, stamp_to_sec, vec
+from msg_adapters.interfaces import fail
+from msg_adapters.pointcloud2 import cloud_from_msg, surface_from_msg
+from pointforce_ros.deformation.force import estimate_force, ForceConfig
+from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
+from pointforce_ros.deformation.mesh import volume_mesh_from_surface
+from pointforce_ros.deformation.observe import rest_offsets
+from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, load_latest,
+                                              save_model)
+from pointforce_ros.errors import InvalidInput, PointforceError
+from pointforce_ros.model.files import load_surface
+from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
+from pointforce_ros.types import Pose
+
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+STREAM = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+DEFAULT_TOPIC = '/camera/camera/depth/color/points'
+
+
+def _reason(exc: Exception) -> str:
+    """One line on why a request failed, whatever ``exc`` was."""
+    if isinstance(exc, PointforceError):
+        return str(exc)
+    if isinstance(exc, MemoryError):
+        return ('out of memory: the mesh or the cloud is too large for this machine (raise '
+                'element_size, lower layers)')
+    return f'the node could not answer ({type(exc).__name__}: {exc}); it keeps serving'
+
+
+class DeformationForceNode(Node):
+    """Identifies the object's FEM model and estimates contact forces from depth clouds."""
+
+    def __init__(self, **kwargs):
+        """Declare parameters, load the newest model and the surface, wire topics/services."""
+        super().__init__('deformation_force', **kwargs)
+        self.model_dir = declare(self, 'model_dir', 'out/cell/deformation',
+                                 'Directory of versioned deformation-v*.npz models (newest '
+                                 'loaded at start, identified ones saved there); empty: keep '
+                                 'identified models in memory only')
+        surface_file = declare(self, 'surface_file', '',
+                               'Rest (equilibrium) surface .npz to mesh at start-up; empty: '
+                               'wait for the latched cloud_capture/surface')
+        self.cloud_topic = declare(self, 'cloud_topic', DEFAULT_TOPIC,
+                                   'PointCloud2 of the deformed object, in frame_id or in the '
+                                   'camera frame (moved to base with the camera pose)')
+        pose7 = declare(self, 'camera_pose', [0.5, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0],
+                        'Camera optical frame in base when no cloud_capture/camera_pose is '
+                        'published: [x y z (m), qx qy qz qw]')
+        self.frame = declare(self, 'frame_id', 'base',
+                             'Robot base frame: clouds in it are not transformed, outputs are '
+                             'in it')
+        self.element_size = declare(self, 'element_size', 0.004,
+                                    'Volume mesh element size in x-y, m (base)',
+                                    bounds=(0.001, 0.05))
+        self.layers = declare(self, 'layers', 6, 'Volume mesh element layers through the '
+                              'object height (finer towards the top)', bounds=(1, 40))
+        self.sigma = declare(self, 'consistency_sigma', 3.0,
+                             'Camera and F/T disagree beyond this many standard deviations of '
+                             'their combined uncertainty (Mahalanobis distance)',
+                             bounds=(0.5, 100.0))
+        self.ft_sigma = declare(self, 'ft_sigma', 0.1, 'F/T noise per axis, N',
+                                bounds=(0.001, 10.0))
+        self.contact_force = declare(self, 'contact_force', 0.2,
+                                     'A poke runs while the F/T force on the object exceeds '
+                                     'this (ends below half of it), N', bounds=(0.01, 100.0))
+        self.landed_window = declare(self, 'landed_window', 30.0,
+                                     'A poke id on poke_server/poke_landed names the last '
+                                     'observation if it ended this recently, s',
+                                     bounds=(0.0, 3600.0))
+        self.max_observations = declare(self, 'max_observations', 100,
+                                        'Observations held (oldest dropped)', bounds=(1, 10000))
+        try:
+            self.default_pose = Pose(position=pose7[:3], orientation=pose7[3:])
+        except PointforceError as exc:
+            raise ValueError(f'deformation_force: bad camera_pose: {exc}') from exc
+        self._lock = threading.Lock()
+        self._camera_pose = None
+        self._tcp = None            # (position (3,), rotation (3, 3)) in base
+        self._ft = None             # force on the object, base, N
+        self._contact = None        # contact point of the running poke, or None
+        self._candidate = None      # (|F|, Poke) deepest state of the running poke
+        self._cloud = None          # (points (P, 3) base, stamp) or an error string
+        self._observations = OrderedDict()
+        self._last_ended = None     # (id, monotonic time) of the last automatic observation
+        self._count = 0
+        self._rest = None           # (mesh, rest offsets) of the rest surface
+        self._model = None
+        self._fem = None
+        self.clouds_received = 0
+        self.estimates_published = 0
+        self._load_model()
+        if surface_file:
+            try:
+                self._set_surface(load_surface(surface_file))
+            except Exception as exc:  # noqa: BLE001 - start without a surface, say why
+                self.get_logger().error(f'cannot use surface_file {surface_file}: '
+                                        f'{_reason(exc)}')
+        work = MutuallyExclusiveCallbackGroup()
+        stream = MutuallyExclusiveCallbackGroup()
+        self.force_pub = self.create_publisher(WrenchStamped, '~/force', 10)
+        self.consistency_pub = self.create_publisher(DiagnosticStatus, '~/ft_consistency', 10)
+        self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,
+                                 LATCHED, callback_group=work)
+        self.create_subscription(PointCloud2, self.cloud_topic, self._on_cloud,
+                                 qos_profile_sensor_data, callback_group=work)
+        self.create_subscription(PoseStamped, 'cloud_capture/camera_pose', self._on_camera,
+                                 10, callback_group=stream)
+        self.create_subscription(PoseStamped, 'poke_server/tcp_pose', self._on_tcp, STREAM,
+                                 callback_group=stream)
+        self.create_subscription(WrenchStamped, 'poke_server/wrench', self._on_wrench, STREAM,
+                                 callback_group=stream)
+        self.create_subscription(String, 'poke_server/poke_landed', self._on_landed, STREAM,
+                                 callback_group=stream)
+        self.create_service(IdentifyDeformation, '~/identify', self._on_identify,
+                            callback_group=work)
+        self.create_service(EstimateForce, '~/estimate_force', self._on_estimate,
+                            callback_group=work)
+        self.create_service(Trigger, '~/observe', self._on_observe, callback_group=work)
+        self.get_logger().info(f'clouds on {self.cloud_topic}; model '
+                               + (f'v{self._model.version}' if self._model else 'none yet'))
+
+    # ------------------------------------------------------------------ model and surface
+    def _load_model(self):
+        if not self.model_dir:
+            return
+        try:
+            model = load_latest(self.model_dir)
+            if model is not None:
+                self._model, self._fem = model, model.build()
+                self.get_logger().info(f'loaded deformation model v{model.version}: E '
+                                       f'{model.young if np.ndim(model.young) == 0 else "field"}'
+                                       f' Pa, nu {model.poisson:.3f}')
+        except Exception as exc:  # noqa: BLE001 - start without a model, say why
+            self.get_logger().error(f'cannot load a model from {self.model_dir}: '
+                                    f'{_reason(exc)}')
+
+    def _set_surface(self, surface):
+        mesh = volume_mesh_from_surface(surface.points, surface.normals,
+                                        element_size=self.element_size, layers=self.layers)
+        self._rest = (mesh, rest_offsets(mesh, surface.points))
+        self.get_logger().info(f'rest surface of {len(surface)} points: mesh of '
+                               f'{mesh.n_nodes} nodes, {len(mesh.tets)} tetrahedra')
+
+    def _on_surface(self, msg: PointCloud2):
+        try:
+            self._set_surface(surface_from_msg(msg))
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            self.get_logger().error(f'ignoring rest surface: {_reason(exc)}')
+
+    # ------------------------------------------------------------------ streams
+    def _on_camera(self, msg: PoseStamped):
+        try:
+            pose = pose_stamped_from_msg(msg)
+        except PointforceError as exc:
+            self.get_logger().warn(f'ignoring camera pose: {exc}', throttle_duration_sec=5.0)
+            return
+        with self._lock:
+            self._camera_pose = pose
+
+    def _on_tcp(self, msg: PoseStamped):
+        q = msg.pose.orientation
+        try:
+            rot = quaternion_to_matrix([q.x, q.y, q.z, q.w])
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            self.get_logger().warn(f'ignoring TCP pose: {exc}', throttle_duration_sec=5.0)
+            return
+        with self._lock:
+            self._tcp = (vec(msg.pose.position), rot)
+
+    def _on_wrench(self, msg: WrenchStamped):
+        with self._lock:
+            if self._tcp is None:
+                self.get_logger().warn('F/T sample before any poke_server/tcp_pose: cannot '
+                                       'rotate it into base; ignored', throttle_duration_sec=5.0)
+                return
+            position, rot = self._tcp
+            force = -(rot @ vec(msg.wrench.force))  # reaction on the tool -> force on object
+            if not np.all(np.isfinite(force)):
+                return
+            self._ft = force
+            magnitude = float(np.linalg.norm(force))
+            if self._contact is None and magnitude > self.contact_force:
+                self._contact, self._candidate = position.copy(), None
+            elif self._contact is not None and magnitude < 0.5 * self.contact_force:
+                self._contact = None
+                if self._candidate is not None:
+                    self._count += 1
+                    name = f'contact-{self._count}'
+                    self._add_observation(name, self._candidate[1])
+                    self._last_ended = (name, time.monotonic())
+                    self._candidate = None
+
+    def _on_landed(self, msg: String):
+        with self._lock:
+            last = self._last_ended
+            if (last is None or last[0] not in self._observations
+                    or time.monotonic() - last[1] > self.landed_window):
+                return
+            self._observations = OrderedDict(
+                (msg.data if k == last[0] else k, v) for k, v in self._observations.items())
+            self._last_ended = None
+        self.get_logger().info(f'observation {last[0]} is poke {msg.data}')
+
+    def _add_observation(self, name: str, poke: Poke):
+        """Hold one observation (caller holds the lock)."""
+        self._observations[name] = poke
+        while len(self._observations) > self.max_observations:
+            self._observations.popitem(last=False)
+        self.get_logger().info(f'observation {name}: |F| {np.linalg.norm(poke.force):.2f} N at '
+                               f'{np.round(poke.contact_point, 4).tolist()} m, '
+                               f'{len(poke.cloud)} points')
+
+    def _cloud_in_base(self, msg: PointCloud2):
+        """(P, 3) finite points in base, or raise InvalidInput (no finite point)."""
+        cloud = cloud_from_msg(msg)
+        raw = cloud.points.reshape(-1, 3)
+        points = raw[np.all(np.isfinite(raw), axis=1)]
+        if len(raw) and not len(points):
+            raise InvalidInput(f'cloud: all {len(raw)} points are NaN or inf (no valid depth)')
+        if msg.header.frame_id and msg.header.frame_id != self.frame:
+            with self._lock:
+                pose = self._camera_pose or self.default_pose
+            m = pose_to_matrix(pose)
+            points = points @ m[:3, :3].T + m[:3, 3]
+        return points
+
+    def _on_cloud(self, msg: PointCloud2):
+        stamp = stamp_to_sec(msg.header.stamp)
+        self.clouds_received += 1
+        try:
+            points = self._cloud_in_base(msg)
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            with self._lock:
+                self._cloud = f'latest cloud refused: {_reason(exc)}'
+            return
+        with self._lock:
+            self._cloud = (points, stamp)
+            contact, ft = self._contact, self._ft
+            if contact is not None and len(points):
+                magnitude = float(np.linalg.norm(ft))
+                if self._candidate is None or magnitude >= self._candidate[0]:
+                    try:
+                        self._candidate = (magnitude, Poke(contact, ft, points))
+                    except PointforceError:
+                        pass
+        if contact is not None and self._fem is not None:
+            self._publish_estimate(contact, points, ft, stamp)
+
+    def _publish_estimate(self, contact, points, ft, stamp):
+        """Camera estimate on ``~/force``, its agreement with the F/T on ``~/ft_consistency``."""
+        status = DiagnosticStatus(name=f'{self.get_name()}: camera vs F/T force',
+                                  hardware_id='ft_sensor')
+        try:
+            est = estimate_force(self._fem, contact, points,
+                                 ForceConfig(load_radius=self._model.load_radius),
+                                 rest_offset=self._model.rest_offset)
+            out = WrenchStamped()
+            out.header.frame_id = self.frame
+            sec_to_stamp(stamp, out.header.stamp)
+            (out.wrench.force.x, out.wrench.force.y,
+             out.wrench.force.z) = (float(v) for v in est.force)
+            self.force_pub.publish(out)
+            self.estimates_published += 1
+            check = ft_consistency(est, ft, ft_sigma=self.ft_sigma, threshold=self.sigma)
+            status.level = DiagnosticStatus.OK if check.consistent else DiagnosticStatus.ERROR
+            status.message = check.message
+            status.values = [KeyValue(key='distance_sigma', value=f'{check.distance:.3f}'),
+                             KeyValue(key='threshold_sigma', value=f'{self.sigma:g}'),
+                             KeyValue(key='camera_force_n',
+                                      value=str(np.round(est.force, 4).tolist())),
+                             KeyValue(key='ft_force_n', value=str(np.round(ft, 4).tolist())),
+                             KeyValue(key='camera_magnitude_std_n',
+                                      value=f'{est.magnitude_std:.4f}'),
+                             KeyValue(key='residual_rms_m', value=f'{est.residual_rms:.3g}')]
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            status.level = DiagnosticStatus.WARN
+            status.message = f'no camera estimate for this cloud: {_reason(exc)}'
+            self.get_logger().warn(status.message, throttle_duration_sec=5.0)
+        self.consistency_pub.publish(status)
+
+    # ------------------------------------------------------------------ services
+    def _latest_cloud(self) -> np.ndarray:
+        with self._lock:
+            cloud = self._cloud
+        if cloud is None:
+            raise InvalidInput(f'no cloud received yet on {self.cloud_topic}')
+        if isinstance(cloud, str):
+            raise InvalidInput(cloud)
+        return cloud[0]
+
+    def _on_observe(self, request, response):
+        try:
+            points = self._latest_cloud()
+            with self._lock:
+                contact, ft = self._contact, self._ft
+                if contact is None:
+                    raise InvalidInput(f'no poke is running (F/T force on the object below '
+                                       f'{self.contact_force:g} N): nothing to observe')
+                self._count += 1
+                name = f'observe-{self._count}'
+                self._add_observation(name, Poke(contact, ft, points))
+            response.success, response.message = True, name
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            fail(response, _reason(exc))
+        return response
+
+    def _on_identify(self, request, response):
+        try:
+            with self._lock:
+                held = OrderedDict(self._observations)
+            names = list(request.poke_ids) or list(held)
+            missing = [n for n in names if n not in held]
+            if missing:
+                raise InvalidInput(f'poke_ids: no observation {missing}; held: {list(held)}')
+            if not names:
+                raise InvalidInput('no observations held: run pokes (a cloud while the F/T '
+                                   'force exceeds contact_force) or call ~/observe first')
+            if self._rest is not None:
+                mesh, offset = self._rest
+            elif self._model is not None:
+                mesh, offset = self._model.mesh, self._model.rest_offset
+            else:
+                raise InvalidInput('no rest surface: set surface_file or publish '
+                                   'cloud_capture/surface')
+            config = IdentifyConfig()
+            fit, fem = identify_elasticity(mesh, [held[n] for n in names], config,
+                                           rest_offset=offset)
+            model = DeformationModel(mesh=mesh, young=fit.young, poisson=fit.poisson,
+                                     rest_offset=offset, load_radius=config.load_radius,
+                                     residual_rms=fit.residual_rms)
+            where = 'kept in memory (model_dir is empty)'
+            if self.model_dir:
+                path = save_model(self.model_dir, model)
+                model = replace(model, version=int(re.search(r'-v(\d+)\.npz$', path).group(1)))
+                where = f'saved as {Path(path).name}'
+            self._model, self._fem = model, fem
+            response.success = True
+            response.young, response.poisson = float(fit.young), float(fit.poisson)
+            response.residual_rms = float(fit.residual_rms)
+            response.model_version = int(model.version)
+            response.message = (f'E {fit.young:.0f} Pa, nu {fit.poisson:.3f} from {len(names)} '
+                                f'observation(s), {fit.points} points, residual '
+                                f'{fit.residual_rms * 1e3:.3f} mm in {fit.seconds:.2f} s; '
+                                f'{where}')
+            self.get_logger().info(response.message)
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            fail(response, _reason(exc))
+            self.get_logger().warn(f'identify refused: {response.message}',
+                                   throttle_duration_sec=2.0)
+        return response
+
+    def _on_estimate(self, request, response):
+        try:
+            if self._fem is None:
+                raise InvalidInput('no deformation model: call ~/identify or put a '
+                                   'deformation-v*.npz in model_dir')
+            points = self._latest_cloud()
+            model = self._model
+            est = estimate_force(self._fem, vec(request.contact_point), points,
+                                 ForceConfig(load_radius=model.load_radius),
+                                 rest_offset=model.rest_offset)
+            response.success = True
+            response.wrench.header.frame_id = self.frame
+            response.wrench.header.stamp = self.get_clock().now().to_msg()
+            f = response.wrench.wrench.force
+            f.x, f.y, f.z = (float(v) for v in est.force)
+            response.residual_rms = float(est.residual_rms)
+            response.covariance = [float(v) for v in np.asarray(est.covariance).ravel()]
+            response.magnitude_std = float(est.magnitude_std)
+            response.points = int(est.points)
+            response.message = (f'|F| {np.linalg.norm(est.force):.3f} +- '
+                                f'{est.magnitude_std:.3f} N from {est.points} points '
+                                f'(model v{model.version}) in {est.seconds * 1e3:.0f} ms')
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            fail(response, _reason(exc))
+            self.get_logger().warn(f'estimate_force refused: {response.message}',
+                                   throttle_duration_sec=2.0)
+        return response
+
+
+def main(args=None):
+    """Console entry point: ``deformation_force --ros-args -p surface_file:=...``."""
+    run(DeformationForceNode, args=args)
+
+
+if __name__ == '__main__':
+    main()

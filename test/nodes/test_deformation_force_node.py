@@ -1,0 +1,251 @@
+"""deformation_force node over real DDS, on the foam block fixtures of the cell's ground truth.
+
+The fixtures (test/data/deformation/, ``make_deformation_fixtures.py``): the rest cloud of a
+homogeneous foam block (E 50 kPa, nu 0.30) and static point-probe pushes of the cell's
+independent FEM with their F/T truth, rendered by the cell's depth camera. The test plays the
+cell: it publishes the rest surface, the poke server's TCP pose and F/T wrench streams and the
+camera's clouds, and calls the node's services. A coarse mesh keeps it fast.
+"""
+
+import os
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from pointforce_interfaces.srv import EstimateForce, IdentifyDeformation
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from msg_adapters.geometry import to_point
+from msg_adapters.pointcloud2 import msg_from_cloud
+from pointforce_ros.deformation.store import model_versions
+from pointforce_ros.nodes import deformation_force
+from pointforce_ros.nodes.deformation_force import DeformationForceNode, LATCHED, STREAM
+from pointforce_ros.rotations import matrix_to_quaternion, quaternion_to_matrix
+
+pytestmark = pytest.mark.ros
+DATA = os.path.join(os.path.dirname(__file__), '..', 'data', 'deformation')
+TOPIC = '/test_camera/points'
+TOOL_Q = np.array([1.0, 0.0, 0.0, 0.0])  # tool z pointing down, as in a poke along -z
+TOOL_R = quaternion_to_matrix(TOOL_Q)
+
+
+def _fixture(name):
+    with np.load(os.path.join(DATA, f'{name}.npz')) as data:
+        return dict(data)
+
+
+def _cloud(push, k):
+    s = push['cloud_start']
+    return push['cloud'][s[k]:s[k + 1]].astype(float)
+
+
+class Cell:
+    """The test's side of the graph: streams, clouds, service clients, collected outputs."""
+
+    def __init__(self, graph, node):
+        self.graph, self.node = graph, node
+        self.io = graph.add(Node('test_cell', context=graph.context))
+        io = self.io
+        self.surface_pub = io.create_publisher(PointCloud2, '/cloud_capture/surface', LATCHED)
+        self.camera_pub = io.create_publisher(PoseStamped, '/cloud_capture/camera_pose', 10)
+        self.cloud_pub = io.create_publisher(PointCloud2, TOPIC, 10)
+        self.tcp_pub = io.create_publisher(PoseStamped, '/poke_server/tcp_pose', STREAM)
+        self.wrench_pub = io.create_publisher(WrenchStamped, '/poke_server/wrench', STREAM)
+        self.landed_pub = io.create_publisher(String, '/poke_server/poke_landed', STREAM)
+        self.forces, self.reports = [], []
+        io.create_subscription(WrenchStamped, '/deformation_force/force', self.forces.append, 10)
+        io.create_subscription(DiagnosticStatus, '/deformation_force/ft_consistency',
+                               self.reports.append, 10)
+        self.identify = io.create_client(IdentifyDeformation, '/deformation_force/identify')
+        self.estimate = io.create_client(EstimateForce, '/deformation_force/estimate_force')
+        self.observe = io.create_client(Trigger, '/deformation_force/observe')
+        for client in (self.identify, self.estimate, self.observe):
+            assert client.wait_for_service(timeout_sec=15.0), client.srv_name
+        self.stamp = 0.0
+
+    def call(self, client, request, what, timeout=60.0):
+        return self.graph.wait_future(client.call_async(request), timeout, what)
+
+    def estimate_at(self, point):
+        return self.call(self.estimate, EstimateForce.Request(contact_point=to_point(point)),
+                         'estimate_force')
+
+    def send_cloud(self, points, frame='base'):
+        """Publish until the node has taken this cloud (held it, or refused it)."""
+        self.stamp += 1.0
+        msg = msg_from_cloud(points, frame_id=frame, stamp=self.stamp)
+        before = self.node.clouds_received
+
+        def held():
+            if self.node.clouds_received > before:
+                return True
+            self.cloud_pub.publish(msg)
+            return False
+
+        self.graph.wait_for(held, 20.0, 'cloud held by the node', period=0.1)
+
+    def tcp(self, position):
+        msg = PoseStamped()
+        msg.header.frame_id = 'base'
+        msg.pose.position = to_point(position)
+        o = msg.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in TOOL_Q)
+        self.tcp_pub.publish(msg)
+        self.graph.wait_for(lambda: self.node._tcp is not None
+                            and np.allclose(self.node._tcp[0], position), 10.0, 'TCP pose')
+
+    def wrench(self, force_on_object):
+        """Publish the F/T reading that a force on the object gives (tool frame, reaction)."""
+        f = TOOL_R.T @ -np.asarray(force_on_object, dtype=float)
+        msg = WrenchStamped()
+        msg.header.frame_id = 'tool0_controller'
+        msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = (float(v) for v in f)
+        self.wrench_pub.publish(msg)
+        self.graph.wait_for(lambda: self.node._ft is not None
+                            and np.allclose(self.node._ft, force_on_object, atol=1e-9),
+                            10.0, 'F/T sample')
+
+    def poke(self, push, k, ft_force=None, end=True):
+        """One push of the fixtures: touch, press to depth k with its cloud, release."""
+        force = push['force'][k] if ft_force is None else np.asarray(ft_force)
+        self.tcp(push['contact_point'])
+        self.wrench(0.5 * force / np.linalg.norm(force))  # first touch: 0.5 N
+        self.graph.wait_for(lambda: self.node._contact is not None, 10.0, 'contact')
+        np.testing.assert_allclose(self.node._contact, push['contact_point'])
+        self.tcp(push['probe_position'][k])
+        self.wrench(force)
+        self.send_cloud(_cloud(push, k))
+        if end:
+            self.wrench(np.zeros(3))
+            self.graph.wait_for(lambda: self.node._contact is None, 10.0, 'poke ended')
+
+
+@pytest.fixture
+def cell(ros_graph, tmp_path):
+    node = ros_graph.add(DeformationForceNode(
+        context=ros_graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(tmp_path / 'models')),
+                             Parameter('cloud_topic', value=TOPIC),
+                             Parameter('element_size', value=0.006),
+                             Parameter('layers', value=4)]))
+    cell = Cell(ros_graph, node)
+    rest = _fixture('rest_foam_block')
+    cell.surface_pub.publish(msg_from_cloud(rest['points'], normals=rest['normals'],
+                                            frame_id='base'))
+    ros_graph.wait_for(lambda: node._rest is not None, 30.0, 'rest mesh')
+    return cell
+
+
+def test_identify_then_camera_only_force_on_a_held_out_push(cell, tmp_path):
+    node = cell.node
+    pushes = [_fixture(f'push_foam_block_{k}') for k in range(6)]
+    # nothing to work from yet: refused with a reason
+    refused = cell.estimate_at(pushes[3]['contact_point'])
+    assert not refused.success and 'no deformation model' in refused.message
+    refused = cell.call(cell.identify, IdentifyDeformation.Request(), 'identify')
+    assert not refused.success and 'no observations' in refused.message
+    refused = cell.call(cell.observe, Trigger.Request(), 'observe')
+    assert not refused.success and 'no cloud' in refused.message
+    # three identification pokes at 3 mm; the poke server names the first one
+    for i, push in enumerate(p for p in pushes if str(p['role']) == 'identify'):
+        cell.poke(push, 0)
+        if i == 0:
+            cell.landed_pub.publish(String(data='poke-000001'))
+            cell.graph.wait_for(lambda: 'poke-000001' in node._observations, 10.0, 'renamed')
+    assert list(node._observations) == ['poke-000001', 'contact-2', 'contact-3']
+    np.testing.assert_allclose(node._observations['contact-2'].force, pushes[1]['force'][0])
+    assert cell.forces == []  # no model while those pokes ran: no camera estimate
+    refused = cell.call(cell.identify, IdentifyDeformation.Request(poke_ids=['poke-9']),
+                        'identify')
+    assert not refused.success and "no observation ['poke-9']" in refused.message
+    fit = cell.call(cell.identify, IdentifyDeformation.Request(), 'identify')
+    assert fit.success, fit.message
+    # measured (0.006 m, 4 layers): E 55.9 kPa, nu 0.217 (truth 50 kPa, 0.30; nu is weakly
+    # observable from one top view, see test/deformation/test_estimation.py)
+    assert fit.young == pytest.approx(50e3, rel=0.15)
+    assert fit.poisson == pytest.approx(0.30, abs=0.12)
+    assert 0 < fit.residual_rms < 5e-4
+    assert fit.model_version == 1 and model_versions(str(tmp_path / 'models')) == [1]
+    # held-out push (8 mm, 2.6 N), cloud in the camera's frame with its published pose
+    held = pushes[3]
+    cam = held['camera_pose']
+    pose = PoseStamped()
+    pose.header.frame_id = 'base'
+    pose.pose.position = to_point(cam[:3, 3])
+    o = pose.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in matrix_to_quaternion(cam[:3, :3]))
+    cell.camera_pub.publish(pose)
+    cell.graph.wait_for(lambda: node._camera_pose is not None, 10.0, 'camera pose')
+    cell.send_cloud((_cloud(held, 2) - cam[:3, 3]) @ cam[:3, :3], frame='camera_optical')
+    est = cell.estimate_at(held['contact_point'])
+    assert est.success, est.message
+    force = np.array([est.wrench.wrench.force.x, est.wrench.wrench.force.y,
+                      est.wrench.wrench.force.z])
+    truth = held['force'][2]
+    # measured: 9.3 % (the wing's foam block figure: median 6.5 %, worst 11.7 % at 4 mm)
+    assert np.linalg.norm(force - truth) < 0.15 * np.linalg.norm(truth), (force, truth)
+    assert est.wrench.header.frame_id == 'base' and est.points > 100
+    cov = np.array(est.covariance).reshape(3, 3)
+    assert np.all(np.diag(cov) > 0) and 0 < est.magnitude_std < 0.3
+    assert 0 < est.residual_rms < 5e-4
+    # a second node on the same model_dir starts with the saved model
+    again = cell.graph.add(DeformationForceNode(
+        context=cell.graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(tmp_path / 'models'))]))
+    assert again._model.version == 1
+    assert again._model.young == pytest.approx(fit.young)
+
+
+def test_bad_requests_are_refused_and_a_saturated_ft_is_flagged(cell, monkeypatch):
+    node = cell.node
+    pushes = [_fixture(f'push_foam_block_{k}') for k in range(6)]
+    for push in pushes[:3]:
+        cell.poke(push, 0)
+    fit = cell.call(cell.identify, IdentifyDeformation.Request(), 'identify')
+    assert fit.success, fit.message
+    held = pushes[3]
+    point = held['contact_point']
+    cell.send_cloud(np.zeros((0, 3)))
+    refused = cell.estimate_at(point)
+    assert not refused.success and 'empty point cloud' in refused.message
+    cell.send_cloud(np.full((50, 3), np.nan))
+    refused = cell.estimate_at(point)
+    assert not refused.success and 'NaN' in refused.message
+    # a cloud with some invalid pixels (as realsense-ros marks them) is used without them
+    cloud = _cloud(held, 2)
+    cell.send_cloud(np.vstack([cloud, np.full((20, 3), np.nan)]))
+    off = cell.estimate_at(point + [0.0, 0.0, 0.03])
+    assert not off.success and 'not on it' in off.message
+    good = cell.estimate_at(point)
+    assert good.success, good.message
+
+    def exhausted(*args, **kwargs):
+        raise MemoryError()
+
+    with monkeypatch.context() as patch:
+        patch.setattr(deformation_force, 'estimate_force', exhausted)
+        refused = cell.estimate_at(point)
+    assert not refused.success and 'out of memory' in refused.message
+    # camera estimates while a poke runs: the truth agrees, an F/T stuck at 1 N does not
+    cell.poke(held, 2, end=False)
+    cell.graph.wait_for(lambda: cell.reports, 20.0, 'consistency report')
+    assert cell.forces and cell.forces[-1].header.frame_id == 'base'
+    assert cell.reports[-1].level == DiagnosticStatus.OK, cell.reports[-1].message
+    cell.wrench(np.zeros(3))
+    truth = held['force'][2]
+    cell.reports.clear()
+    cell.poke(held, 2, ft_force=truth / np.linalg.norm(truth), end=False)
+    cell.graph.wait_for(lambda: cell.reports, 20.0, 'consistency report')
+    report = cell.reports[-1]
+    assert report.level == DiagnosticStatus.ERROR and 'saturated' in report.message, \
+        report.message
+    distance = float(dict((v.key, v.value) for v in report.values)['distance_sigma'])
+    assert distance > 3.0
+    # the node still answers
+    assert cell.estimate_at(point).success
+    assert node.estimates_published == 2

@@ -236,8 +236,13 @@ def test_bad_requests_are_refused_and_a_saturated_ft_is_flagged(cell, monkeypatc
     cell.graph.wait_for(lambda: cell.reports, 20.0, 'consistency report')
     assert cell.forces and cell.forces[-1].header.frame_id == 'base'
     assert cell.reports[-1].level == DiagnosticStatus.OK, cell.reports[-1].message
-    cell.wrench(np.zeros(3))
     truth = held['force'][2]
+    snap = cell.call(cell.observe, Trigger.Request(), 'observe')  # by hand, probe held still
+    assert snap.success and snap.message.startswith('observe-'), snap.message
+    np.testing.assert_allclose(node._observations[snap.message].force, truth)
+    np.testing.assert_allclose(node._observations[snap.message].contact_point,
+                               held['contact_point'])
+    cell.wrench(np.zeros(3))
     cell.reports.clear()
     cell.poke(held, 2, ft_force=truth / np.linalg.norm(truth), end=False)
     cell.graph.wait_for(lambda: cell.reports, 20.0, 'consistency report')

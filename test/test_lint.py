@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SOURCES = ['pointforce_ros', 'msg_adapters', 'test', 'setup.py']
+SOURCES = ['pointforce_ros', 'msg_adapters', 'test', 'launch', 'setup.py']
 
 
 def _run(args):

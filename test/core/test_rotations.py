@@ -40,6 +40,12 @@ def test_round_trips_over_random_and_edge_rotations(seed):
                                atol=1e-12)
     np.testing.assert_allclose(rot.rotvec_to_matrix(rot.quaternion_to_rotvec(q)), matrices,
                                atol=1e-12)
+    # one quaternion (closed form) and many (scipy) agree, normalised or not
+    for k in (0, 7, 203):
+        np.testing.assert_allclose(rot.quaternion_to_matrix(3.0 * q[k]),
+                                   rot.quaternion_to_matrix(q[k:k + 1])[0], atol=1e-12)
+    with pytest.raises(ValueError):
+        rot.quaternion_to_matrix(np.zeros(4))
     # read-only arrays (memory-mapped or from a bag reader) are accepted
     frozen = rotvecs.copy()
     frozen.flags.writeable = False

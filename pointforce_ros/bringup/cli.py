@@ -1,4 +1,4 @@
-"""The ``pointforce`` command: demo, cell (run, generate), diagnose, figures, replay, bench.
+"""The ``pointforce`` command: demo, cell, diagnose, replica, deformation, figures, replay, bench.
 
 Each sub-command imports what it needs lazily, so ``pointforce --help`` is instant and the core
 sub-commands run without a ROS graph.
@@ -11,6 +11,7 @@ import sys
 from typing import Callable, Dict, List, Optional
 
 from pointforce_ros.errors import PointforceError
+from pointforce_ros.replica import cli as replica_cli
 
 BENCHMARKS: Dict[str, str] = {
     'contact': 'pointforce_ros.lab.bench_contact:bench_contact',
@@ -123,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     diagnose.add_argument('--json', action='store_true',
                           help='print the JSON summary on stdout (progress on stderr)')
     diagnose.set_defaults(func=_cmd_diagnose)
+
+    replica_cli.add_parser(sub)
 
     figures = sub.add_parser('figures', help='the seed-method figures on the simulated cell '
                              '(learning curves, probe wrench RMSE, shape constant)')

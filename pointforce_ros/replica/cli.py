@@ -30,8 +30,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     """Run ``pointforce replica`` with parsed ``args``; returns the exit status."""
-    # pybullet and scikit-learn load in seconds; only this sub-command needs them
-    from pointforce_ros.replica.build import build_replica
+    from pointforce_ros.replica.build import build_replica  # loads pybullet: this command only
     build_replica(args.data, args.out, engine=args.engine, h=args.h, train=args.train,
                   held_out=args.held_out, damping=not args.no_damping, seed=args.seed)
     return 0

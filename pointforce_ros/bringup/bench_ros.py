@@ -3,8 +3,14 @@
 Figures, each against a baseline measured in the same run:
 
 * single ContactWrench round trip over Fast DDS (p50, p99) against the same query called on the
-  core directly (``ros_rtt_over_core``);
-* batch throughput over ROS (poses/s) against the core's batch call (``batch_ros_over_core``);
+  core directly (``ros_rtt_over_core``, ``ros_overhead_p50_ms``: round trip minus core) and a
+  trivial ``std_srvs/Trigger`` service's round trip (what rclpy and DDS cost for nothing);
+* small batches (``small_batch`` poses, p50 and p99) against the core's batch call, and the
+  throughput of one large batch over ROS (poses/s) against the core (``batch_ros_over_core``);
+
+Round trips are timed by an event-driven client: the future's done callback sets a
+``threading.Event`` the benchmark waits on (with a deadline), so no poll period is in the figure.
+The servers and the client spin in separate contexts and executors, as separate processes would.
 * the F/T stream of a poke campaign through the real ur_rtde against the emulator: the rate inside
   the recorded pokes against the 250 Hz target (``ft_rate_over_target``), the rate over the whole
   campaign including the time between pokes, and dropped samples (controller-time gaps).
@@ -12,10 +18,15 @@ Figures, each against a baseline measured in the same run:
 
 import os
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup.launcher import InProcessLauncher
@@ -35,17 +46,51 @@ def _percentiles(values):
     return float(np.percentile(values, 50)), float(np.percentile(values, 99))
 
 
-def bench_ros(quick: bool = False) -> dict:
-    """Run the benchmark; returns a JSON-able dict (times in ms unless the key says)."""
+def round_trip(client, request, timeout: float, what: str):
+    """Call ``client`` once; return (seconds from the call to the response, response).
+
+    Event-driven: the future's done callback (run by the client's executor) sets an Event.
+
+    Raises:
+        RuntimeError: no response within ``timeout`` seconds.
+
+    """
+    done = threading.Event()
+    start = time.perf_counter()
+    future = client.call_async(request)
+    future.add_done_callback(lambda _future: done.set())
+    if not done.wait(timeout):
+        client.remove_pending_request(future)
+        raise RuntimeError(f'timed out after {timeout:.1f} s waiting for {what}')
+    elapsed = time.perf_counter() - start
+    return elapsed, future.result()
+
+
+def _trigger_node(context):
+    """Return a node with a trivial std_srvs/Trigger service, the round trip's baseline."""
+    def answer(request, response):
+        response.success = True
+        return response
+    node = Node('bench_trigger', context=context)
+    node.create_service(Trigger, '~/trigger', answer, callback_group=ReentrantCallbackGroup())
+    return node
+
+
+def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
+    """Run the benchmark; returns a JSON-able dict (times in ms unless the key says).
+
+    ``campaign=False`` leaves out the poke campaign (the F/T stream figures).
+    """
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     from geometry_msgs.msg import Vector3
     from pointforce_interfaces.action import Poke
     from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
     from rclpy.action import ActionClient
-    from rclpy.node import Node
     from rclpy.parameter import Parameter
 
     n_single = 100 if quick else 500
+    n_small = 50 if quick else 200
+    small_batch = 100
     n_batch = 1000 if quick else 10000
     campaign_s = 10.0 if quick else 60.0
     out = {}
@@ -60,55 +105,89 @@ def bench_ros(quick: bool = False) -> dict:
     centre = np.array([0.5, 0.0, 0.06])
     server = WrenchServer()
     server.swap(model)
+
+    def query(chosen):
+        return ContactQuery(mesh=sphere, poses=tuple(chosen), approach=[0, 0, -1],
+                            torque_centre=centre)
     for pose in poses[:5]:  # warm-up: the first query builds the projection cache
-        server.answer(ContactQuery(mesh=sphere, poses=(pose,), approach=[0, 0, -1],
-                                   torque_centre=centre))
+        server.answer(query([pose]))
     core = []
     for pose in poses[:n_single]:
         start = time.perf_counter()
-        server.answer(ContactQuery(mesh=sphere, poses=(pose,), approach=[0, 0, -1],
-                                   torque_centre=centre))
+        server.answer(query([pose]))
         core.append(time.perf_counter() - start)
+    core_small = []
+    for i in range(n_small):
+        chunk = poses[(i * small_batch) % n_batch:][:small_batch]
+        start = time.perf_counter()
+        server.answer_batch(query(chunk))
+        core_small.append(time.perf_counter() - start)
     start = time.perf_counter()
-    server.answer_batch(ContactQuery(mesh=sphere, poses=tuple(poses), approach=[0, 0, -1],
-                                     torque_centre=centre))
+    server.answer_batch(query(poses))
     core_batch = time.perf_counter() - start
     with InProcessLauncher() as launcher, InProcessLauncher(threads=2) as planner:
-        # the client in its own context, as a planner process would be
+        # the client in its own context, as a planner process would be; each server on its
+        # own executor, as in pointforce cell
         launcher.add(ContactWrenchNode(context=launcher.context, parameter_overrides=[
-            Parameter('model_dir', value=str(work / 'models'))]))
+            Parameter('model_dir', value=str(work / 'models'))]), isolated=True)
+        launcher.add(_trigger_node(launcher.context), isolated=True)
         client_node = planner.add(Node('bench_client', context=planner.context))
         single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
         batch = client_node.create_client(ContactWrenchBatch,
                                           '/contact_wrench/contact_wrench_batch')
-        if not (single.wait_for_service(timeout_sec=20)
-                and batch.wait_for_service(timeout_sec=20)):
-            raise RuntimeError('contact_wrench services did not appear within 20 s')
+        trigger = client_node.create_client(Trigger, '/bench_trigger/trigger')
+        for client in (single, batch, trigger):
+            if not client.wait_for_service(timeout_sec=20):
+                raise RuntimeError(f'service {client.srv_name} did not appear within 20 s')
         mesh_msg = mesh_to_msg(sphere)
-        rtt = []
-        for pose in poses[:n_single]:
-            req = ContactWrench.Request(mesh=mesh_msg, pose=pose_to_msg(pose),
-                                        approach=Vector3(x=0.0, y=0.0, z=-1.0),
-                                        torque_centre=to_point(centre))
-            start = time.perf_counter()
-            planner.wait_future(single.call_async(req), 30, 'contact_wrench')
-            rtt.append(time.perf_counter() - start)
-        req = ContactWrenchBatch.Request(mesh=mesh_msg, poses=[pose_to_msg(p) for p in poses],
-                                         approach=Vector3(x=0.0, y=0.0, z=-1.0),
-                                         torque_centre=to_point(centre))
-        start = time.perf_counter()
-        resp = planner.wait_future(batch.call_async(req), 120, 'contact_wrench_batch')
-        ros_batch = time.perf_counter() - start
+        approach = Vector3(x=0.0, y=0.0, z=-1.0)
+
+        def single_request(pose):
+            return ContactWrench.Request(mesh=mesh_msg, pose=pose_to_msg(pose),
+                                         approach=approach, torque_centre=to_point(centre))
+
+        def batch_request(chosen):
+            return ContactWrenchBatch.Request(mesh=mesh_msg,
+                                              poses=[pose_to_msg(p) for p in chosen],
+                                              approach=approach, torque_centre=to_point(centre))
+        for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
+            round_trip(single, single_request(pose), 30, 'contact_wrench')
+            round_trip(trigger, Trigger.Request(), 30, 'trigger')
+        rtt, trigger_rtt = [], []
+        for pose in poses[:n_single]:   # interleaved: both see the same machine load
+            request = single_request(pose)
+            elapsed, resp = round_trip(single, request, 30, 'contact_wrench')
+            if not resp.success:
+                raise RuntimeError(f'contact_wrench refused: {resp.message}')
+            rtt.append(elapsed)
+            trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
+        small_rtt = []
+        for i in range(n_small):
+            request = batch_request(poses[(i * small_batch) % n_batch:][:small_batch])
+            elapsed, resp = round_trip(batch, request, 60, 'contact_wrench_batch')
+            if not resp.success:
+                raise RuntimeError(f'batch refused: {resp.message}')
+            small_rtt.append(elapsed)
+        ros_batch, resp = round_trip(batch, batch_request(poses), 120, 'contact_wrench_batch')
         if not resp.success:
             raise RuntimeError(f'batch refused: {resp.message}')
     p50, p99 = _percentiles(rtt)
     c50, c99 = _percentiles(core)
+    t50, t99 = _percentiles(trigger_rtt)
+    b50, b99 = _percentiles(small_rtt)
+    bc50, bc99 = _percentiles(core_small)
     out.update(single_rtt_p50_ms=p50, single_rtt_p99_ms=p99, core_query_p50_ms=c50,
-               core_query_p99_ms=c99, ros_rtt_over_core=p50 / c50, batch_poses=n_batch,
-               batch_ros_s=ros_batch, batch_core_s=core_batch,
+               core_query_p99_ms=c99, ros_rtt_over_core=p50 / c50,
+               ros_overhead_p50_ms=p50 - c50, trigger_rtt_p50_ms=t50, trigger_rtt_p99_ms=t99,
+               single_queries=n_single, small_batch_poses=small_batch,
+               small_batch_rtt_p50_ms=b50, small_batch_rtt_p99_ms=b99,
+               small_batch_core_p50_ms=bc50, small_batch_core_p99_ms=bc99,
+               batch_poses=n_batch, batch_ros_s=ros_batch, batch_core_s=core_batch,
                batch_ros_poses_per_s=n_batch / ros_batch,
                batch_ros_over_core=ros_batch / core_batch)
 
+    if not campaign:
+        return out
     emulator = start_emulator(work / 'logs',
                               force_model='pointforce_ros.sim.rtde.forces:HalfSpaceSpring',
                               force_model_kwargs={'z0': 0.04, 'k': 1000.0},

@@ -1,0 +1,44 @@
+"""``pointforce bench ros`` times round trips with an event-driven client (issue 21).
+
+It used to wait on each future with a 10 ms sleep loop, so no round trip could read below the
+poll period; it now reports single queries, small batches and a trivial Trigger service's round
+trip from the same run.
+"""
+
+import pytest
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from pointforce_ros.bringup.bench_ros import _trigger_node, bench_ros, round_trip
+
+pytestmark = pytest.mark.ros
+
+
+def test_round_trip_is_event_driven_and_below_a_poll_period(ros_graph):
+    ros_graph.add(_trigger_node(ros_graph.context), isolated=True)
+    client = ros_graph.add(Node('rtt_client', context=ros_graph.context)).create_client(
+        Trigger, '/bench_trigger/trigger')
+    assert client.wait_for_service(timeout_sec=10.0)
+    times = sorted(round_trip(client, Trigger.Request(), 10.0, 'trigger')[0]
+                   for _ in range(60))
+    assert times[len(times) // 2] < 0.005      # a 10 ms poll could never read this
+
+
+def test_round_trip_names_the_service_on_time_out(ros_graph):
+    client = ros_graph.add(Node('lonely', context=ros_graph.context)).create_client(
+        Trigger, '/nobody/trigger')
+    with pytest.raises(RuntimeError, match='nobody trigger.*0.2 s|0.2 s.*nobody trigger'):
+        round_trip(client, Trigger.Request(), 0.2, 'nobody trigger')
+
+
+def test_bench_ros_reports_round_trips_beside_core_and_trigger():
+    out = bench_ros(quick=True, campaign=False)
+    for key in ('single_rtt_p50_ms', 'single_rtt_p99_ms', 'core_query_p50_ms',
+                'ros_overhead_p50_ms', 'trigger_rtt_p50_ms', 'trigger_rtt_p99_ms',
+                'small_batch_rtt_p50_ms', 'small_batch_rtt_p99_ms', 'small_batch_core_p50_ms',
+                'batch_ros_poses_per_s'):
+        assert out[key] > 0, key
+    assert out['single_rtt_p50_ms'] > out['core_query_p50_ms']
+    assert out['single_rtt_p99_ms'] >= out['single_rtt_p50_ms']
+    assert out['small_batch_rtt_p50_ms'] > out['small_batch_core_p50_ms']
+    assert 'ft_stream_rate_hz' not in out

@@ -187,7 +187,11 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
         gap = np.linalg.norm(surface.points[:, :2] - site, axis=1)
         index = int(np.argmin(np.where(surface.normals[:, 2] > 0.7, gap, np.inf)))
         for k in range(pokes):
-            if k > 0:
+            if k > 0 and not cell.models:
+                # no model yet: the earlier pokes were not learned from (e.g. aborted on a
+                # stalled stream); the arm retracted, so poke the first site again
+                why = f'{first} again: no model yet'
+            elif k > 0:
                 suggestion = cell.suggest(1)
                 if not suggestion.success:
                     raise RuntimeError(f'suggest_poke failed: {suggestion.message}')

@@ -9,6 +9,7 @@ latched, stores it, and clears the merge set. A bad cloud is refused with a mess
 keeps serving.
 """
 
+import dataclasses
 import threading
 import time
 from collections import deque
@@ -25,7 +26,7 @@ from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import save_surface
-from pointforce_ros.nodes.common import declare, qos_watch, run
+from pointforce_ros.nodes.common import declare, live, qos_watch, run
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
@@ -44,7 +45,8 @@ class CloudCaptureNode(Node):
         """Declare parameters, subscribe to the camera, create the services."""
         super().__init__('cloud_capture', **kwargs)
         topic = declare(self, 'cloud_topic', DEFAULT_TOPIC,
-                        'PointCloud2 input (realsense-ros layout: x y z float32 + packed rgb)')
+                        'PointCloud2 input (realsense-ros layout: x y z float32 + packed rgb)',
+                        read_only=True)
         pose7 = declare(self, 'camera_pose', [0.5, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0],
                         'Camera optical frame in base when no ~/camera_pose topic is published: '
                         '[x y z (m), qx qy qz qw]')
@@ -55,8 +57,10 @@ class CloudCaptureNode(Node):
         orientation = declare(self, 'normal_orientation', 'camera',
                               'Outward-normal rule: camera | centroid | up')
         self.store_path = Path(declare(self, 'surface_file', 'out/cell/surface.npz',
-                                       'Where the captured surface is stored (.npz)'))
-        self.frame = declare(self, 'frame_id', 'base', 'Frame of the published surface')
+                                       'Where the captured surface is stored (.npz)',
+                                       read_only=True))
+        self.frame = declare(self, 'frame_id', 'base', 'Frame of the published surface',
+                             read_only=True)
         try:
             self.config = SurfaceConfig(roi_min=roi[:3], roi_max=roi[3:], voxel_size=voxel,
                                         orientation=orientation)
@@ -78,7 +82,31 @@ class CloudCaptureNode(Node):
         self.create_service(Trigger, '~/add_scan', self._on_add, callback_group=group)
         self.create_service(Trigger, '~/capture', self._on_capture, callback_group=group)
         self.create_service(Trigger, '~/clear', self._on_clear, callback_group=group)
+        live(self, {'roi': self._new_roi, 'voxel_size': self._new_voxel,
+                    'normal_orientation': self._new_orientation,
+                    'camera_pose': self._new_camera_pose})
         self.get_logger().info(f'listening for clouds on {self.resolve_topic_name(topic)}')
+
+    # run-time parameters: validated here, in effect from the next add_scan / capture
+    def _new_roi(self, roi):
+        if len(roi) != 6:
+            raise ValueError(f'6 values [xmin ymin zmin xmax ymax zmax] needed, got {len(roi)}')
+        config = dataclasses.replace(self.config, roi_min=roi[:3], roi_max=roi[3:])
+        return lambda: setattr(self, 'config', config)
+
+    def _new_voxel(self, voxel):
+        config = dataclasses.replace(self.config, voxel_size=voxel)
+        return lambda: setattr(self, 'config', config)
+
+    def _new_orientation(self, orientation):
+        config = dataclasses.replace(self.config, orientation=orientation)
+        return lambda: setattr(self, 'config', config)
+
+    def _new_camera_pose(self, pose7):
+        if len(pose7) != 7:
+            raise ValueError(f'7 values [x y z qx qy qz qw] needed, got {len(pose7)}')
+        pose = Pose(position=pose7[:3], orientation=pose7[3:])
+        return lambda: setattr(self, 'default_pose', pose)
 
     def _on_cloud(self, msg: PointCloud2):
         stamp = stamp_to_sec(msg.header.stamp)

@@ -1,13 +1,15 @@
 """Shared node plumbing: the Jazzy ``main()`` pattern and described, bounded parameters."""
 
-from typing import Callable, Optional, Sequence
+from typing import Callable, Dict, Optional, Sequence
 
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+                                ParameterType, SetParametersResult)
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
+
+from pointforce_ros.errors import PointforceError
 
 
 def declare(node: Node, name: str, default, description: str, *,
@@ -32,6 +34,46 @@ def declare(node: Node, name: str, default, description: str, *,
     elif isinstance(default, str):
         descriptor.type = ParameterType.PARAMETER_STRING
     return node.declare_parameter(name, default, descriptor).value
+
+
+Applier = Callable[[object], Optional[Callable[[], None]]]
+"""``applier(value)`` validates a new value (raising :class:`PointforceError` or ``ValueError``
+with the reason) and returns the action that makes it take effect (or ``None``)."""
+
+
+def live(node: Node, appliers: Dict[str, Applier]) -> None:
+    """Make the parameters in ``appliers`` take effect when set at run time.
+
+    rclpy has already checked the declared type and bounds. Every applier of a set runs first;
+    if one refuses, the whole set is refused with its reason and nothing changes; else every
+    action runs and each change is logged (``name: old -> new``). Call it after the last
+    ``declare``; declare every other parameter ``read_only`` so that no set is accepted and
+    ignored.
+    """
+    def on_set(params):
+        actions = []
+        for param in params:
+            applier = appliers.get(param.name)
+            if applier is None:
+                continue
+            try:
+                actions.append((param, applier(param.value)))
+            except (PointforceError, ValueError) as exc:
+                node.get_logger().warn(f'parameter {param.name} = {param.value!r} refused: '
+                                       f'{exc}')
+                return SetParametersResult(successful=False, reason=f'{param.name}: {exc}')
+        for param, action in actions:
+            old = node.get_parameter(param.name).value
+            if action is not None:
+                action()
+            node.get_logger().info(f'parameter {param.name}: {_show(old)} -> '
+                                   f'{_show(param.value)} (in effect)')
+        return SetParametersResult(successful=True)
+    node.add_on_set_parameters_callback(on_set)
+
+
+def _show(value):
+    return list(value) if not isinstance(value, (str, bool, int, float)) else value
 
 
 def qos_watch(node: Node, topic: str) -> SubscriptionEventCallbacks:

@@ -21,7 +21,6 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import SuggestPoke
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -38,7 +37,7 @@ from pointforce_ros.effects.correct import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.files import load_model, load_surface
-from pointforce_ros.nodes.common import declare, qos_watch, run
+from pointforce_ros.nodes.common import declare, live, qos_watch, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
 
@@ -63,12 +62,12 @@ class StiffnessLearnerNode(Node):
         """Declare parameters, load the surface if a file is given, wire topics and services."""
         super().__init__('stiffness_learner', **kwargs)
         self.store_dir = declare(self, 'store_dir', 'out/cell/pokes',
-                                 'Poke store directory (rosbag2 MCAP per poke)')
+                                 'Poke store directory (rosbag2 MCAP per poke)', read_only=True)
         self.model_dir = declare(self, 'model_dir', 'out/cell/models',
-                                 'Where versioned contact models are written')
+                                 'Where versioned contact models are written', read_only=True)
         surface_file = declare(self, 'surface_file', '',
                                'Equilibrium surface (.npz) to start from; empty: wait for '
-                               'cloud_capture/surface')
+                               'cloud_capture/surface', read_only=True)
         self.shape_constant = declare(self, 'shape_constant', 0.004,
                                       'Shape-function constant c of g(r) = c/(c+r), m',
                                       bounds=(1e-4, 0.1))
@@ -77,7 +76,7 @@ class StiffnessLearnerNode(Node):
                                    'g(r) = c/(c+r) exp(-r/L), m; 0: none (the paper\'s g)',
                                    bounds=(0.0, 1.0))
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
-                       bounds=(0.1, 600.0))
+                       bounds=(0.1, 600.0), read_only=True)
         self.exclude_radius = declare(self, 'suggest_exclude_radius', 0.01,
                                       'Suggestions keep this far from each other and from '
                                       'pokes, m', bounds=(0.0, 0.2))
@@ -86,11 +85,12 @@ class StiffnessLearnerNode(Node):
                                 'base +z, degrees', bounds=(0.0, 90.0))
         self.min_peak_force = declare(self, 'min_peak_force', 0.3,
                                       'A poke that never exceeded this force made no contact '
-                                      'and is not learned from, N', bounds=(0.0, 50.0))
+                                      'and is not learned from, N', bounds=(0.0, 50.0),
+                                      read_only=True)
         effects_file = declare(self, 'effects_file', '',
                                'Accepted effects (effects.json written by pointforce diagnose): '
                                'removed from every poke before learning and stored in each '
-                               'model for the contact service; empty: none')
+                               'model for the contact service; empty: none', read_only=True)
         self.effects = self._load_effects(effects_file)
         coupling = self.effects.get('spatial_coupling')
         if coupling is not None:
@@ -112,9 +112,10 @@ class StiffnessLearnerNode(Node):
         record = declare(self, 'record_topics', False,
                          'Rebuild pokes from the poke_server/tcp_pose, wrench and poke_record '
                          'topics into store_dir (a learner away from the poke server, or a bag '
-                         'replay)')
+                         'replay)', read_only=True)
         self._lock = threading.Lock()
         self.learner = None
+        self._last_status = None   # the newest model's status, for redrawing the markers
         self.recorder = StreamRecorder() if record else None
         self.model_pub = self.create_publisher(ModelStatus, '~/model', LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, '~/markers', LATCHED)
@@ -145,33 +146,33 @@ class StiffnessLearnerNode(Node):
                                      event_callbacks=qos_watch(self, 'poke_server/poke_record'))
         self.create_service(SuggestPoke, '~/suggest_poke', self._on_suggest,
                             callback_group=ReentrantCallbackGroup())
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        live(self, {
+            'shape_constant': lambda v: lambda: self._set_shape('shape_constant', v),
+            'shape_decay': lambda v: lambda: self._set_shape('shape_decay', v),
+            'suggest_exclude_radius': lambda v: lambda: setattr(self, 'exclude_radius', v),
+            'suggest_max_tilt_deg': lambda v: lambda: setattr(self, 'max_tilt', v),
+            'marker_depth': lambda v: lambda: self._set_marker('marker_depth', v),
+            'marker_suggestions': lambda v: lambda: self._set_marker('marker_suggestions', v)})
 
-    def _on_set_parameters(self, params):
-        """``shape_constant`` and ``shape_decay`` may change at run time (identified from data).
+    def _set_shape(self, name: str, value: float):
+        """Take a new ``shape_constant`` or ``shape_decay`` (identified from data) into use.
 
         rclpy has already refused values outside the declared bounds; an accepted value is,
         once a model exists, saved as a new model version the contact service hot-swaps to.
         """
-        for param in params:
-            if param.name not in ('shape_constant', 'shape_decay'):
-                continue
-            value = float(param.value)     # within the declared bounds: rclpy checked them
-            if param.name == 'shape_constant':
-                self.shape_constant = value
-            else:
-                self.shape_decay = value
-            learner = self.learner
-            if learner is not None:
-                status = learner.set_shape_constant(self.shape_constant,
-                                                    _decay_length(self.shape_decay))
-                if status is not None:
-                    self._publish(status, learner)
-            self.get_logger().info(f'shape constant c = {1e3 * self.shape_constant:.3f} mm, '
-                                   f'tail decay length '
-                                   + (f'{1e3 * self.shape_decay:.1f} mm' if self.shape_decay
-                                      else 'none'))
-        return SetParametersResult(successful=True)
+        setattr(self, name, float(value))
+        learner = self.learner
+        if learner is not None:
+            status = learner.set_shape_constant(self.shape_constant,
+                                                _decay_length(self.shape_decay))
+            if status is not None:
+                self._publish(status, learner)
+
+    def _set_marker(self, name: str, value):
+        """Take a new marker setting into use: the latched markers are drawn again."""
+        setattr(self, name, value)
+        if self._last_status is not None and self.learner is not None:
+            self._publish_markers(self._last_status, self.learner)
 
     def _load_effects(self, path: str) -> dict:
         """Read and validate ``effects_file``; on any problem log it and learn without effects."""
@@ -262,6 +263,7 @@ class StiffnessLearnerNode(Node):
 
     def _publish_markers(self, status, learner):
         """Publish the latched MarkerArray of the model just saved and its suggestions."""
+        self._last_status = status
         try:
             model = load_model(status.model_path)
             n = len(model.surface)

@@ -1,0 +1,117 @@
+"""Run-time parameters take effect or are refused (issue 21): never accepted and ignored.
+
+Each parameter set here is checked by what the node then does, not by the stored value.
+"""
+
+import numpy as np
+import pytest
+from rcl_interfaces.srv import SetParameters
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from msg_adapters.pointcloud2 import msg_from_cloud
+from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
+from pointforce_ros.nodes.stiffness_learner import LATCHED
+
+from test_cell_graph import _learner_with_model  # noqa: I100 - the same learner fixture
+
+pytestmark = pytest.mark.ros
+
+
+class Setter:
+    """``ros2 param set`` over the node's ``set_parameters`` service."""
+
+    def __init__(self, graph, probe, node_name):
+        self.graph = graph
+        self.client = probe.create_client(SetParameters, f'/{node_name}/set_parameters')
+        assert self.client.wait_for_service(timeout_sec=10.0)
+
+    def __call__(self, name, value):
+        request = SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()])
+        return self.graph.wait_future(self.client.call_async(request), 20, name).results[0]
+
+
+def _capture(graph, client):
+    assert client.wait_for_service(timeout_sec=10.0)
+    result = graph.wait_future(client.call_async(Trigger.Request()), 30, 'capture')
+    assert result.success, result.message
+
+
+def test_cloud_capture_roi_voxel_and_camera_pose_apply_to_the_next_capture(ros_graph, tmp_path):
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 'surface.npz'))]))
+    probe = ros_graph.add(Node('live_probe', context=ros_graph.context))
+    camera = probe.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    g = np.arange(-0.03, 0.03 + 1e-9, 0.002)
+    xs, ys = np.meshgrid(g, g)
+    cloud = msg_from_cloud(np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.46)]),
+                           frame_id='camera_depth_optical_frame')
+
+    def published():
+        camera.publish(cloud)
+        return node._latest is not None
+    ros_graph.wait_for(published, 10, 'a cloud', period=0.1)
+    capture = probe.create_client(Trigger, '/cloud_capture/capture')
+    setter = Setter(ros_graph, probe, 'cloud_capture')
+    _capture(ros_graph, capture)
+    first = node.surface
+    assert first.points[:, 0].max() > 0.525 and np.allclose(first.points[:, 2], 0.04, atol=1e-3)
+    # a smaller box: the next surface is cut at x = 0.5
+    assert setter('roi', [0.35, -0.15, 0.0, 0.5, 0.15, 0.2]).successful
+    _capture(ros_graph, capture)
+    assert node.surface.points[:, 0].max() <= 0.5 + 1e-9
+    # an empty box is refused with the reason, and the box in use stays
+    bad = setter('roi', [0.6, -0.15, 0.0, 0.5, 0.15, 0.2])
+    assert not bad.successful and 'roi' in bad.reason and 'empty' in bad.reason
+    assert not setter('roi', [0.35, 0.0]).successful
+    _capture(ros_graph, capture)
+    assert node.surface.points[:, 0].max() <= 0.5 + 1e-9
+    # the camera 0.1 m higher: the same cloud lands 0.1 m higher in base
+    assert setter('camera_pose', [0.5, 0.0, 0.6, 1.0, 0.0, 0.0, 0.0]).successful
+    assert not setter('camera_pose', [0.5, 0.0, 0.6, 0.5, 0.0, 0.0, 0.0]).successful
+    _capture(ros_graph, capture)
+    assert np.allclose(node.surface.points[:, 2], 0.14, atol=1e-3)
+    # a coarser voxel grid: fewer points
+    before = len(node.surface)
+    assert setter('voxel_size', 0.006).successful
+    _capture(ros_graph, capture)
+    assert len(node.surface) < 0.5 * before
+    assert not setter('normal_orientation', 'sideways').successful
+    # what cannot change at run time says so
+    for name, value in (('cloud_topic', '/other'), ('surface_file', 'x.npz'),
+                        ('frame_id', 'world')):
+        result = setter(name, value)
+        assert not result.successful and 'read-only' in result.reason, name
+
+
+def test_learner_marker_settings_redraw_and_its_paths_are_read_only(ros_graph, tmp_path):
+    _learner_with_model(ros_graph, tmp_path, marker_suggestions=2)
+    probe = ros_graph.add(Node('live_learner_probe', context=ros_graph.context))
+    arrays = []
+    probe.create_subscription(MarkerArray, '/stiffness_learner/markers', arrays.append, LATCHED)
+    ros_graph.wait_for(lambda: arrays, 30, 'markers of the first model')
+    setter = Setter(ros_graph, probe, 'stiffness_learner')
+
+    def legend():
+        return next(m.text for m in arrays[-1].markers if m.ns == 'legend')
+
+    def arrows():
+        return sum(m.ns == 'suggested_pokes' for m in arrays[-1].markers)
+    assert '5.0 mm' in legend() and arrows() == 2
+    count = len(arrays)
+    assert setter('marker_depth', 0.008).successful
+    ros_graph.wait_for(lambda: len(arrays) > count, 10, 'markers redrawn')
+    assert '8.0 mm' in legend()
+    count = len(arrays)
+    assert setter('marker_suggestions', 4).successful
+    ros_graph.wait_for(lambda: len(arrays) > count, 10, 'markers redrawn')
+    assert arrows() == 4
+    for name, value in (('store_dir', '/tmp/elsewhere'), ('model_dir', '/tmp/elsewhere'),
+                        ('record_topics', True), ('poll_period', 1.0),
+                        ('min_peak_force', 1.0), ('effects_file', 'e.json')):
+        result = setter(name, value)
+        assert not result.successful and 'read-only' in result.reason, name

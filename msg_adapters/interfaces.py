@@ -19,13 +19,32 @@ from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import ContactQuery, PokeGoal
 
 
+MODEL_FRAME = 'base'
+"""The frame the contact model, and so every contact query, is in."""
+
+
+def check_frame(header, frame: str = MODEL_FRAME) -> None:
+    """Refuse a request stamped in another frame than ``frame`` (an empty frame_id means it).
+
+    Raises:
+        InvalidInput: naming the frame given and the one the service answers in.
+
+    """
+    if header.frame_id not in ('', frame):
+        raise InvalidInput(f'header.frame_id: {header.frame_id!r} is not the model frame '
+                           f'{frame!r}; transform the query into {frame!r} (or leave the '
+                           f'frame_id empty for {frame!r})')
+
+
 def contact_query_from_request(req: ContactWrench.Request) -> ContactQuery:
     """Convert a ContactWrench request to a :class:`ContactQuery` with one pose.
 
     Raises:
-        InvalidInput: empty/NaN/degenerate mesh, bad pose, approach not unit, NaN centre.
+        InvalidInput: a frame other than ``base``, empty/NaN/degenerate mesh, bad pose,
+            approach not unit, NaN centre.
 
     """
+    check_frame(req.header)
     return ContactQuery(mesh=mesh_from_msg(req.mesh), poses=(pose_from_msg(req.pose),),
                         approach=unit_vector(req.approach, 'approach'),
                         torque_centre=vec(req.torque_centre),
@@ -40,6 +59,7 @@ def contact_query_from_batch_request(req: ContactWrenchBatch.Request) -> Contact
             index of a bad pose).
 
     """
+    check_frame(req.header)
     if len(req.poses) == 0:
         raise InvalidInput('poses: the batch is empty')
     poses = []

@@ -4,6 +4,8 @@ Message fields are copied once into numpy; validation is done by the core types,
 degenerate mesh in a request becomes :class:`~pointforce_ros.errors.InvalidInput`.
 """
 
+import array
+
 import numpy as np
 from geometry_msgs.msg import (Point, Pose as PoseMsg, PoseStamped, Quaternion, Vector3,
                                Wrench as WrenchMsg, WrenchStamped)
@@ -117,6 +119,36 @@ def mesh_from_msg(msg: MeshMsg) -> Mesh:
     triangles = np.concatenate([t.vertex_indices for t in msg.triangles]).astype(
         np.int64).reshape(-1, 3)
     return Mesh(vertices=vertices, triangles=triangles)
+
+
+def mesh_from_flat(vertices, triangles) -> Mesh:
+    """Flat ``float64[]`` vertices (x y z each) and ``uint32[]`` triangles -> :class:`Mesh`.
+
+    The flat form of the contact requests: rclpy hands both over as buffers, read here without a
+    Python loop.
+
+    Raises:
+        InvalidInput: lengths that are not multiples of 3, an empty mesh, NaN vertices, indices
+            out of range, or every triangle of zero area.
+
+    """
+    v = np.frombuffer(vertices, dtype=np.float64) if isinstance(vertices, array.array) else \
+        np.asarray(vertices, dtype=np.float64)
+    t = np.frombuffer(triangles, dtype=np.uint32) if isinstance(triangles, array.array) else \
+        np.asarray(triangles, dtype=np.int64)
+    if len(v) % 3 or len(t) % 3:
+        raise InvalidInput(f'mesh_vertices / mesh_triangles: {len(v)} and {len(t)} values, '
+                           'both must be multiples of 3 (x y z; three indices)')
+    if len(v) == 0 or len(t) == 0:
+        raise InvalidInput(f'Mesh: empty ({len(v) // 3} vertices, {len(t) // 3} triangles)')
+    return Mesh(vertices=v.reshape(-1, 3).copy(), triangles=t.astype(np.int64).reshape(-1, 3))
+
+
+def mesh_to_flat(mesh: Mesh):
+    """:class:`Mesh` -> (``float64[]``, ``uint32[]``) buffers for a request's flat mesh fields."""
+    vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+    triangles = np.ascontiguousarray(mesh.triangles, dtype=np.uint32)
+    return array.array('d', vertices.tobytes()), array.array('I', triangles.tobytes())
 
 
 def mesh_to_msg(mesh: Mesh) -> MeshMsg:

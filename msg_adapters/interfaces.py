@@ -13,8 +13,8 @@ from geometry_msgs.msg import Wrench as WrenchMsg
 from pointforce_interfaces.action import Poke
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch, SuggestPoke
 
-from msg_adapters.geometry import (mesh_from_msg, pose_from_msg, to_point, to_vector3,
-                                   unit_vector, vec, wrench_to_msg)
+from msg_adapters.geometry import (mesh_from_flat, mesh_from_msg, pose_from_msg, to_point,
+                                   to_vector3, unit_vector, vec, wrench_to_msg)
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import ContactQuery, PokeGoal
 
@@ -36,6 +36,21 @@ def check_frame(header, frame: str = MODEL_FRAME) -> None:
                            f'frame_id empty for {frame!r})')
 
 
+def request_mesh(req):
+    """Return the request's mesh: ``mesh`` or the flat ``mesh_vertices`` / ``mesh_triangles``.
+
+    Raises:
+        InvalidInput: both forms given, or a bad mesh in the one given.
+
+    """
+    if len(req.mesh_vertices) or len(req.mesh_triangles):
+        if len(req.mesh.vertices) or len(req.mesh.triangles):
+            raise InvalidInput('mesh: given twice (mesh and mesh_vertices / mesh_triangles); '
+                               'fill one form')
+        return mesh_from_flat(req.mesh_vertices, req.mesh_triangles)
+    return mesh_from_msg(req.mesh)
+
+
 def contact_query_from_request(req: ContactWrench.Request) -> ContactQuery:
     """Convert a ContactWrench request to a :class:`ContactQuery` with one pose.
 
@@ -45,7 +60,7 @@ def contact_query_from_request(req: ContactWrench.Request) -> ContactQuery:
 
     """
     check_frame(req.header)
-    return ContactQuery(mesh=mesh_from_msg(req.mesh), poses=(pose_from_msg(req.pose),),
+    return ContactQuery(mesh=request_mesh(req), poses=(pose_from_msg(req.pose),),
                         approach=unit_vector(req.approach, 'approach'),
                         torque_centre=vec(req.torque_centre),
                         return_displacements=bool(req.return_displacements))
@@ -68,7 +83,7 @@ def contact_query_from_batch_request(req: ContactWrenchBatch.Request) -> Contact
             poses.append(pose_from_msg(p))
         except InvalidInput as exc:
             raise InvalidInput(f'poses[{i}]: {exc}') from None
-    return ContactQuery(mesh=mesh_from_msg(req.mesh), poses=tuple(poses),
+    return ContactQuery(mesh=request_mesh(req), poses=tuple(poses),
                         approach=unit_vector(req.approach, 'approach'),
                         torque_centre=vec(req.torque_centre))
 

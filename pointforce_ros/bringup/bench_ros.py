@@ -2,9 +2,12 @@
 
 Figures, each against a baseline measured in the same run:
 
-* single ContactWrench round trip over Fast DDS (p50, p99) against the same query called on the
-  core directly (``ros_rtt_over_core``, ``ros_overhead_p50_ms``: round trip minus core) and a
-  trivial ``std_srvs/Trigger`` service's round trip (what rclpy and DDS cost for nothing);
+* single ContactWrench round trip over Fast DDS (p50, p99), the mesh sent in the request's flat
+  form, against the same query called on the core directly (``ros_rtt_over_core``,
+  ``ros_overhead_p50_ms``: round trip minus core), the same request with the mesh as a
+  ``shape_msgs/Mesh`` (``single_rtt_mesh_msg_*``: rclpy builds a Python object per vertex and
+  triangle on both sides) and a trivial ``std_srvs/Trigger`` service's round trip (what rclpy
+  and DDS cost for nothing);
 * small batches (``small_batch`` poses, p50 and p99) against the core's batch call, and the
   throughput of one large batch over ROS (poses/s) against the core (``batch_ros_over_core``);
 
@@ -27,7 +30,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
+from msg_adapters.geometry import mesh_to_flat, mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
@@ -139,27 +142,30 @@ def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
         for client in (single, batch, trigger):
             if not client.wait_for_service(timeout_sec=20):
                 raise RuntimeError(f'service {client.srv_name} did not appear within 20 s')
-        mesh_msg = mesh_to_msg(sphere)
+        vertices, triangles = mesh_to_flat(sphere)
+        flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
+        as_msg = dict(mesh=mesh_to_msg(sphere))
         approach = Vector3(x=0.0, y=0.0, z=-1.0)
 
-        def single_request(pose):
-            return ContactWrench.Request(mesh=mesh_msg, pose=pose_to_msg(pose),
-                                         approach=approach, torque_centre=to_point(centre))
+        def single_request(pose, mesh=flat):
+            return ContactWrench.Request(pose=pose_to_msg(pose), approach=approach,
+                                         torque_centre=to_point(centre), **mesh)
 
         def batch_request(chosen):
-            return ContactWrenchBatch.Request(mesh=mesh_msg,
-                                              poses=[pose_to_msg(p) for p in chosen],
-                                              approach=approach, torque_centre=to_point(centre))
+            return ContactWrenchBatch.Request(poses=[pose_to_msg(p) for p in chosen],
+                                              approach=approach, torque_centre=to_point(centre),
+                                              **flat)
         for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
             round_trip(single, single_request(pose), 30, 'contact_wrench')
             round_trip(trigger, Trigger.Request(), 30, 'trigger')
-        rtt, trigger_rtt = [], []
-        for pose in poses[:n_single]:   # interleaved: both see the same machine load
-            request = single_request(pose)
-            elapsed, resp = round_trip(single, request, 30, 'contact_wrench')
-            if not resp.success:
-                raise RuntimeError(f'contact_wrench refused: {resp.message}')
-            rtt.append(elapsed)
+        rtt, msg_rtt, trigger_rtt = [], [], []
+        for pose in poses[:n_single]:   # interleaved: all see the same machine load
+            for mesh, times in ((flat, rtt), (as_msg, msg_rtt)):
+                elapsed, resp = round_trip(single, single_request(pose, mesh), 30,
+                                           'contact_wrench')
+                if not resp.success:
+                    raise RuntimeError(f'contact_wrench refused: {resp.message}')
+                times.append(elapsed)
             trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
         small_rtt = []
         for i in range(n_small):
@@ -174,11 +180,13 @@ def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
     p50, p99 = _percentiles(rtt)
     c50, c99 = _percentiles(core)
     t50, t99 = _percentiles(trigger_rtt)
+    m50, m99 = _percentiles(msg_rtt)
     b50, b99 = _percentiles(small_rtt)
     bc50, bc99 = _percentiles(core_small)
     out.update(single_rtt_p50_ms=p50, single_rtt_p99_ms=p99, core_query_p50_ms=c50,
                core_query_p99_ms=c99, ros_rtt_over_core=p50 / c50,
                ros_overhead_p50_ms=p50 - c50, trigger_rtt_p50_ms=t50, trigger_rtt_p99_ms=t99,
+               single_rtt_mesh_msg_p50_ms=m50, single_rtt_mesh_msg_p99_ms=m99,
                single_queries=n_single, small_batch_poses=small_batch,
                small_batch_rtt_p50_ms=b50, small_batch_rtt_p99_ms=b99,
                small_batch_core_p50_ms=bc50, small_batch_core_p99_ms=bc99,

@@ -36,6 +36,7 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
     for key in ('single_rtt_p50_ms', 'single_rtt_p99_ms', 'core_query_p50_ms',
                 'ros_overhead_p50_ms', 'trigger_rtt_p50_ms', 'trigger_rtt_p99_ms',
                 'small_batch_rtt_p50_ms', 'small_batch_rtt_p99_ms', 'small_batch_core_p50_ms',
+                'single_rtt_mesh_msg_p50_ms',
                 'batch_ros_poses_per_s'):
         assert out[key] > 0, key
     assert out['single_rtt_p50_ms'] > out['core_query_p50_ms']

@@ -55,12 +55,16 @@ class CellSession:
         robot_ip: a real UR controller; ``None`` starts the emulator.
         camera_topic: a real PointCloud2 topic; ``None`` starts ``sim_camera``.
         shape_constant: ``c`` of the shape function used by the learner, metres.
+        params_file: a ROS parameter file for the four nodes (``config/nodes.yaml``); the
+            cell's own settings (paths under ``out``, the robot and camera, the simulated
+            object's ROI, ``shape_constant``) win over it; on a real camera the file's ROI holds.
 
     """
 
     def __init__(self, out='out/cell', *, object_name: str = 'lamb', scenario: str = 'realistic',
                  robot_ip: Optional[str] = None, camera_topic: Optional[str] = None,
-                 shape_constant: float = 0.004, views: int = 2, log=print):
+                 shape_constant: float = 0.004, views: int = 2, log=print,
+                 params_file: Optional[str] = None):
         """Start everything; raises DeviceFault if the emulator or the arm cannot start."""
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         from rclpy.node import Node
@@ -96,7 +100,8 @@ class CellSession:
                 robot_ip = self.emulator.host
                 log(f'[cell] emulator ready on {robot_ip}')
             self.robot_ip = robot_ip
-            self.launcher = InProcessLauncher()
+            self.launcher = InProcessLauncher(
+                args=['--ros-args', '--params-file', str(params_file)] if params_file else None)
             ctx = self.launcher.context
             paths = {'store': self.out / 'pokes', 'models': self.out / 'models',
                      'surface': self.out / 'surface.npz'}
@@ -111,11 +116,12 @@ class CellSession:
             else:
                 self.camera = None
             roi = self.spec.roi if self.spec is not None else [0.3, -0.2, 0.005, 0.7, 0.2, 0.3]
+            capture = [Parameter('cloud_topic', value=camera_topic),
+                       Parameter('surface_file', value=str(paths['surface']))]
+            if self.spec is not None or not params_file:   # a real camera: the file's ROI
+                capture.append(Parameter('roi', value=[float(v) for v in roi]))
             self.capture_node = self.launcher.add(CloudCaptureNode(
-                context=ctx, parameter_overrides=[
-                    Parameter('cloud_topic', value=camera_topic),
-                    Parameter('roi', value=[float(v) for v in roi]),
-                    Parameter('surface_file', value=str(paths['surface']))]), isolated=True)
+                context=ctx, parameter_overrides=capture), isolated=True)
             self.poke_node = self.launcher.add(PokeServerNode(context=ctx, parameter_overrides=[
                 Parameter('robot_ip', value=robot_ip),
                 Parameter('store_dir', value=str(paths['store']))]), isolated=True)
@@ -340,7 +346,8 @@ def _raise_interrupt(signum, frame):
 
 
 def run_cell(out='out/cell', object_name='lamb', scenario='realistic', robot_ip=None,
-             camera_topic=None, duration: Optional[float] = None) -> int:
+             camera_topic=None, duration: Optional[float] = None,
+             params_file: Optional[str] = None) -> int:
     """CLI body of ``pointforce cell``: start everything and serve until Ctrl-C or SIGTERM.
 
     SIGTERM, SIGHUP and Ctrl-C stop the cell (nodes, then the emulator), also during start-up;
@@ -350,7 +357,7 @@ def run_cell(out='out/cell', object_name='lamb', scenario='realistic', robot_ip=
     previous = {sig: signal.signal(sig, _raise_interrupt) for sig in _STOP_SIGNALS}
     try:
         with CellSession(out, object_name=object_name, scenario=scenario, robot_ip=robot_ip,
-                         camera_topic=camera_topic) as cell:
+                         camera_topic=camera_topic, params_file=params_file) as cell:
             print(f'[cell] running: poke action /poke_server/poke on {cell.robot_ip}, '
                   'services /contact_wrench/contact_wrench(_batch), '
                   '/stiffness_learner/suggest_poke, /cloud_capture/{add_scan,capture}. '

@@ -8,7 +8,10 @@ import argparse
 import importlib
 import json
 import sys
+from pathlib import Path
 from typing import Callable, Dict, List, Optional
+
+import yaml
 
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.replica import cli as replica_cli
@@ -57,15 +60,49 @@ def _cmd_demo(args) -> int:
         pokes=args.pokes)
 
 
+NODES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench')
+"""The product nodes a parameter file may configure."""
+
+
+def check_params_file(path) -> str:
+    """Return the absolute path of a ROS parameter file for the cell's nodes, checked.
+
+    Keys are node names, plain or with a namespace wildcard (``/**/contact_wrench``), each with
+    ``ros__parameters``.
+
+    Raises:
+        PointforceError: no such file, not YAML, or a section that names no product node.
+
+    """
+    path = Path(path).expanduser().resolve()
+    try:
+        content = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise PointforceError(f'--params-file {path}: {exc}') from exc
+    if not isinstance(content, dict) or not content:
+        raise PointforceError(f'--params-file {path}: not a mapping of node names')
+    for key, section in content.items():
+        name = str(key).rsplit('/', 1)[-1]
+        if name not in NODES and name not in ('*', '**'):
+            raise PointforceError(f'--params-file {path}: section {key!r} names no node of the '
+                                  f'cell ({", ".join(NODES)})')
+        if not isinstance(section, dict) or 'ros__parameters' not in section:
+            raise PointforceError(f'--params-file {path}: section {key!r} has no '
+                                  'ros__parameters')
+    return str(path)
+
+
 def _cmd_cell(args) -> int:
     if args.action == 'generate':
         return _load('pointforce_ros.sim.generate:run_generate')(
             object_name=args.object, scenario=args.scenario, pokes=args.pokes,
             probes=[p for p in args.probes.split(',') if p], seed=args.seed,
             out=args.out or f'out/data/{args.object}-{args.scenario}')
+    params_file = check_params_file(args.params_file) if args.params_file else None
     return _load('pointforce_ros.bringup.cell:run_cell')(
         out=args.out or 'out/cell', object_name=args.object, scenario=args.scenario,
-        robot_ip=args.robot_ip, camera_topic=args.camera_topic, duration=args.duration)
+        robot_ip=args.robot_ip, camera_topic=args.camera_topic, duration=args.duration,
+        params_file=params_file)
 
 
 def _cmd_diagnose(args) -> int:
@@ -108,6 +145,10 @@ def build_parser() -> argparse.ArgumentParser:
     cell.add_argument('--robot-ip', default=None, help='a real UR controller (no emulator)')
     cell.add_argument('--camera-topic', default=None,
                       help='a real PointCloud2 topic (no simulated camera)')
+    cell.add_argument('--params-file', default=None,
+                      help='ROS parameter file of the four nodes (config/nodes.yaml); the '
+                      'cell\'s own settings (output paths, --robot-ip, --camera-topic, the '
+                      'simulated object\'s ROI) win over it')
     cell.add_argument('--out', default=None, help='output directory')
     cell.add_argument('--duration', type=float, default=None, help='seconds to run (run)')
     cell.add_argument('--pokes', type=int, default=20, help='point pokes (generate)')

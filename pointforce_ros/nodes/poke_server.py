@@ -17,6 +17,7 @@ callback (the lock is held from acceptance to the end of execution), and no call
 exception escape into the executor.
 """
 
+import dataclasses
 import json
 import threading
 import time
@@ -36,7 +37,7 @@ from msg_adapters.geometry import sec_to_stamp
 from msg_adapters.interfaces import (poke_feedback_msg, poke_goal_from_msg, poke_result_msg)
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.errors import DeviceFault, PointforceError
-from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.nodes.common import declare, live, run
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.rotations import (matrix_to_quaternion, rotvec_aligning_z,
@@ -50,6 +51,11 @@ STREAM = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 REQUESTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
 """Goal and cancel requests: the default depth of 10 dropped goals of a burst unanswered."""
+
+
+LIMITS = ('max_force', 'max_depth', 'max_speed', 'surface_tolerance', 'max_normal_angle',
+          'max_tilt')
+"""The goal limits (:class:`PokeLimits` fields), each a parameter of the same name."""
 
 
 class PokeServerNode(Node):
@@ -66,9 +72,11 @@ class PokeServerNode(Node):
         """
         super().__init__('poke_server', **kwargs)
         self.robot_ip = declare(self, 'robot_ip', '127.0.0.2',
-                                'UR controller address (the simulated cell listens on 127.0.0.2)')
+                                'UR controller address (the simulated cell listens on 127.0.0.2)',
+                                read_only=True)
         self.store = PokeStore(declare(self, 'store_dir', 'out/cell/pokes',
-                                       'Poke store directory (one rosbag2 MCAP bag per poke)'))
+                                       'Poke store directory (one rosbag2 MCAP bag per poke)',
+                                       read_only=True))
         self.limits = PokeLimits(
             max_force=declare(self, 'max_force', 15.0, 'Largest accepted force limit, N',
                               bounds=(0.1, 100.0)),
@@ -106,17 +114,30 @@ class PokeServerNode(Node):
         self.pose_pub = self.create_publisher(PoseStamped, '~/tcp_pose', STREAM)
         self.landed_pub = self.create_publisher(String, '~/poke_landed', STREAM)
         self.record_pub = self.create_publisher(String, '~/poke_record', STREAM)
-        self.create_subscription(PointCloud2, '/cloud_capture/surface', self._on_surface,
+        self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,
                                  LATCHED, callback_group=group)
         self.create_service(Trigger, '~/zero_ftsensor', self._on_zero, callback_group=group)
         self._server = ActionServer(self, Poke, '~/poke', execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group, goal_service_qos_profile=REQUESTS,
                                     cancel_service_qos_profile=REQUESTS)
+        # limits and speeds apply from the next goal: a poke in progress keeps the values it
+        # started with (they were passed to the arm); robot_ip and store_dir are read-only
+        live(self, {**{name: self._new_limit(name) for name in LIMITS},
+                    'retract_speed': lambda v: lambda: setattr(self, 'retract_speed', v),
+                    'approach_speed': lambda v: lambda: setattr(self, 'approach_speed', v),
+                    'feedback_rate': lambda v: lambda: setattr(self, 'feedback_hz', v)})
         try:
             self._connect()
         except PointforceError as exc:
             self.get_logger().warn(f'arm not connected yet ({exc}); will retry on the next goal')
+
+    def _new_limit(self, name):
+        """Return the applier of the goal limit ``name`` (a new PokeLimits, checked)."""
+        def applier(value):
+            limits = dataclasses.replace(self.limits, **{name: value})
+            return lambda: setattr(self, 'limits', limits)
+        return applier
 
     # ------------------------------------------------------------------ arm and streaming
     @staticmethod

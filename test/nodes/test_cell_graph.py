@@ -59,7 +59,7 @@ def _call(graph, client, what):
 
 
 def test_two_namespaced_cells_on_one_domain_keep_their_own_data(ros_graph, tmp_path):
-    cells = {}
+    cells, pokers = {}, {}
     for ns, half in (('/cell1', 0.02), ('/cell2', 0.012)):
         work = tmp_path / ns.strip('/')
         capture = ros_graph.add(CloudCaptureNode(
@@ -70,6 +70,9 @@ def test_two_namespaced_cells_on_one_domain_keep_their_own_data(ros_graph, tmp_p
                 Parameter('store_dir', value=str(work / 'pokes')),
                 Parameter('model_dir', value=str(work / 'models')),
                 Parameter('poll_period', value=600.0)]))
+        pokers[ns] = ros_graph.add(PokeServerNode(
+            arm_factory=StreamingArm, context=ros_graph.context, namespace=ns,
+            parameter_overrides=[Parameter('store_dir', value=str(work / 'poke_store'))]))
         cells[ns] = (capture, learner, half)
     probe = ros_graph.add(Node('cells_probe', context=ros_graph.context))
     for ns, (capture, learner, half) in cells.items():
@@ -88,8 +91,11 @@ def test_two_namespaced_cells_on_one_domain_keep_their_own_data(ros_graph, tmp_p
         ros_graph.wait_for(lambda: learner.learner is not None, 15, f'{ns} learner surface')
     size = {ns: len(capture.surface) for ns, (capture, _, _) in cells.items()}
     assert size['/cell1'] > 1.5 * size['/cell2']          # two distinguishable surfaces
+    for ns, (capture, learner, half) in cells.items():
+        ros_graph.wait_for(lambda: pokers[ns].surface is not None, 10, f'{ns} poke server surface')
     time.sleep(1.0)   # a cross-talking surface would have arrived by now
     for ns, (capture, learner, half) in cells.items():
+        assert len(pokers[ns].surface) == size[ns], ns
         assert len(learner.learner.surface) == size[ns], ns
         np.testing.assert_allclose(learner.learner.surface.points, capture.surface.points,
                                    atol=1e-6)

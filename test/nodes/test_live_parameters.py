@@ -3,18 +3,26 @@
 Each parameter set here is checked by what the node then does, not by the stored value.
 """
 
+import time
+
 import numpy as np
 import pytest
+from pointforce_interfaces.action import Poke
 from rcl_interfaces.srv import SetParameters
+from rclpy.action import ActionClient
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from msg_adapters.interfaces import poke_goal_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud
+from pointforce_ros.errors import DeviceFault
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
+from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import LATCHED
+from pointforce_ros.types import PokeGoal
 
 from test_cell_graph import _learner_with_model  # noqa: I100 - the same learner fixture
 
@@ -113,5 +121,71 @@ def test_learner_marker_settings_redraw_and_its_paths_are_read_only(ros_graph, t
     for name, value in (('store_dir', '/tmp/elsewhere'), ('model_dir', '/tmp/elsewhere'),
                         ('record_topics', True), ('poll_period', 1.0),
                         ('min_peak_force', 1.0), ('effects_file', 'e.json')):
+        result = setter(name, value)
+        assert not result.successful and 'read-only' in result.reason, name
+
+
+class RecordingArm:
+    """A connected arm whose push takes 0.8 s and records the limits it was given."""
+
+    def __init__(self, host):
+        self.pushes = []
+
+    def add_sample_callback(self, callback):
+        pass
+
+    def is_connected(self):
+        return True
+
+    def close(self):
+        pass
+
+    def latest(self):
+        return None
+
+    def tare(self):
+        pass
+
+    def push_until(self, standoff, direction, **kwargs):
+        self.pushes.append(kwargs)
+        time.sleep(0.8)
+        raise DeviceFault('scripted: no samples')   # ends the poke quickly, aborted
+
+
+def test_poke_limits_apply_to_the_next_goal_never_to_the_running_one(ros_graph, tmp_path):
+    arms = []
+
+    def factory(host):
+        arms.append(RecordingArm(host))
+        return arms[-1]
+    ros_graph.add(PokeServerNode(arm_factory=factory, context=ros_graph.context,
+                                 parameter_overrides=[
+                                     Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
+    probe = ros_graph.add(Node('poke_live_probe', context=ros_graph.context))
+    client = ActionClient(probe, Poke, '/poke_server/poke')
+    assert client.wait_for_server(timeout_sec=15.0)
+    setter = Setter(ros_graph, probe, 'poke_server')
+
+    def goal(force):
+        return poke_goal_to_msg(PokeGoal(point=[0.5, 0.0, 0.04], normal=[0.0, 0.0, 1.0],
+                                         force_limit=force, depth_limit=0.008, speed=0.005,
+                                         standoff=0.008))
+    running = ros_graph.wait_future(client.send_goal_async(goal(10.0)), 15, 'goal')
+    assert running.accepted
+    ros_graph.wait_for(lambda: arms and arms[-1].pushes, 10, 'the push started')
+    assert setter('max_force', 5.0).successful          # during the push
+    assert setter('approach_speed', 0.02).successful
+    ros_graph.wait_future(running.get_result_async(), 20, 'first poke')
+    assert arms[-1].pushes[0]['max_force'] == 15.0       # the running poke kept its limit
+    assert arms[-1].pushes[0]['approach_speed'] == 0.05
+    refused = ros_graph.wait_future(client.send_goal_async(goal(10.0)), 15, 'goal over 5 N')
+    assert not refused.accepted                          # the next goal sees 5 N
+    second = ros_graph.wait_future(client.send_goal_async(goal(4.0)), 15, 'goal under 5 N')
+    assert second.accepted
+    ros_graph.wait_future(second.get_result_async(), 20, 'second poke')
+    assert arms[-1].pushes[-1]['max_force'] == 5.0
+    assert arms[-1].pushes[-1]['approach_speed'] == 0.02
+    assert not setter('max_force', 0.0).successful       # outside the declared bounds
+    for name, value in (('robot_ip', '10.0.0.1'), ('store_dir', '/tmp/elsewhere')):
         result = setter(name, value)
         assert not result.successful and 'read-only' in result.reason, name

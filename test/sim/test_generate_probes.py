@@ -3,7 +3,6 @@
 import numpy as np
 
 from pointforce_ros.sim import generate
-from pointforce_ros.sim.fem import indentation
 from pointforce_ros.sim.objects import load_object
 from pointforce_ros.errors import NotConverged
 
@@ -25,7 +24,7 @@ def test_a_trial_that_does_not_converge_is_skipped_and_the_others_kept(monkeypat
             raise NotConverged('step 3 (depth 7.760 mm) failed after 5 bisections')
         return Result(depths)
 
-    monkeypatch.setattr(indentation, 'solve_indentation', solve)
+    monkeypatch.setattr(generate, 'solve_indentation', solve)
     lines = []
     trials = generate.probe_trials(spec, ['line'], 3, seed=0, progress=lines.append, steps=4)
     assert len(calls) == 3 and len(trials) == 2
@@ -49,7 +48,7 @@ def test_an_interrupted_run_resumes_without_solving_again_and_gives_the_same_tri
         solved.append(start.position.copy())
         return Result(start, depths)
 
-    monkeypatch.setattr(indentation, 'solve_indentation', solve)
+    monkeypatch.setattr(generate, 'solve_indentation', solve)
     whole = generate.probe_trials(spec, ['line'], 3, seed=4, progress=lambda _: None)
     saved = []
     generate.probe_trials(spec, ['line'], 2, seed=4, progress=lambda _: None,
@@ -80,7 +79,7 @@ def test_a_push_that_fails_deep_keeps_its_solved_steps_and_a_shallow_failure_is_
         assert keep_solved
         return Result(depths, next(solved_steps))
 
-    monkeypatch.setattr(indentation, 'solve_indentation', solve)
+    monkeypatch.setattr(generate, 'solve_indentation', solve)
     lines = []
     trials = generate.probe_trials(spec, ['line'], 3, seed=1, progress=lines.append, steps=8)
     assert [len(t['depths']) for t in trials] == [5, 8]

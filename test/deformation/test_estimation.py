@@ -10,6 +10,7 @@ import os
 import numpy as np
 import pytest
 
+from pointforce_ros.deformation.bench import surface_samples
 from pointforce_ros.deformation.fem import (CorotationalFem, load_columns,
                                             surface_point_load)
 from pointforce_ros.deformation.force import (estimate_force, estimate_force_nelder_mead,
@@ -32,17 +33,7 @@ def mesh():
 
 def _sample_surface(mesh, u, count, noise, seed):
     """Seeded points on the displaced surface triangles (area-uniform) plus normal noise."""
-    rng = np.random.default_rng(seed)
-    x = mesh.nodes + u.reshape(-1, 3)
-    c = x[mesh.surface_triangles]
-    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    area = 0.5 * np.linalg.norm(n, axis=1)
-    tri = rng.choice(len(c), size=count, p=area / area.sum())
-    a, b = rng.uniform(size=(2, count))
-    flip = a + b > 1
-    a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
-    p = c[tri, 0] + a[:, None] * (c[tri, 1] - c[tri, 0]) + b[:, None] * (c[tri, 2] - c[tri, 0])
-    return p + noise * rng.normal(size=(count, 1)) * n[tri] / (2 * area[tri, None])
+    return surface_samples(mesh, u, count, noise, np.random.default_rng(seed))
 
 
 def _push(fem, point, force, radius=0.004):

@@ -134,3 +134,36 @@ def test_a_stop_signal_ends_the_cell_and_leaves_no_emulator(tmp_path, stop):
         if cell.poll() is None:
             cell.kill()
             cell.wait(10)
+
+
+def test_a_sigkilled_cell_leaves_no_emulator(tmp_path):
+    """Issue 16: a cell killed with SIGKILL (no clean-up runs) left its emulator orphaned."""
+    cell = subprocess.Popen(
+        [sys.executable, '-m', 'pointforce_ros.bringup.cli', 'cell', '--object', 'halfspace',
+         '--scenario', 'clean', '--out', str(tmp_path)], stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True, cwd=str(Path(__file__).resolve().parents[2]))
+    emulators = []
+    try:
+        deadline = time.monotonic() + 120
+        lines = []
+        while time.monotonic() < deadline:
+            line = cell.stdout.readline()
+            lines.append(line)
+            if line.startswith('[cell] running') or not line:
+                break
+        assert lines[-1].startswith('[cell] running'), ''.join(lines)
+        emulators = _children(cell.pid, 'pointforce_ros.sim.rtde.emulator')
+        assert len(emulators) == 1 and _alive(emulators[0])
+        cell.kill()
+        assert cell.wait(10) == -signal.SIGKILL
+        deadline = time.monotonic() + 10
+        while _alive(emulators[0]) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _alive(emulators[0]), 'the emulator outlived the SIGKILLed cell'
+    finally:
+        if cell.poll() is None:
+            cell.kill()
+            cell.wait(10)
+        for pid in emulators:   # never leave one behind, even when the test fails
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)

@@ -8,7 +8,10 @@ Run it as its own process (the ur_rtde constructors hold the Python GIL through 
 
 It prints one line ``rtde_emulator ready host=... rtde=30004 dashboard=29999 script=30003
 control=30099 pid=...`` on stdout once every port listens (logs go to stderr), and shuts down
-cleanly on SIGTERM or SIGINT.
+cleanly on SIGTERM or SIGINT. With ``--exit-with-parent`` it also shuts down when its stdin
+reaches end-of-file: :func:`pointforce_ros.sim.rtde.process.start_emulator` keeps the write end
+of that pipe, so the emulator follows its parent even when the parent is SIGKILLed (the kernel
+closes the pipe) and no orphan holds the controller ports.
 
 What it emulates
 ----------------
@@ -116,7 +119,22 @@ def _parse_args(argv):
                         help='push-back force (N) that tool_contact reports as contact')
     parser.add_argument('--seed', type=int, default=0, help='seed of the sensor noise floor')
     parser.add_argument('--log-level', default='WARNING')
+    parser.add_argument('--exit-with-parent', action='store_true',
+                        help='shut down when stdin reaches end-of-file (the parent holds the '
+                             'write end of a pipe; it closes when the parent dies, even by '
+                             'SIGKILL)')
     return parser.parse_args(argv)
+
+
+def _stop_at_end_of_stdin(stop: threading.Event) -> None:
+    """Set ``stop`` once stdin reaches end-of-file (or fails): the parent has gone."""
+    try:
+        while sys.stdin.buffer.read(4096):
+            pass
+    except (OSError, ValueError):
+        pass
+    logging.getLogger(__name__).warning('stdin closed: the parent process has gone, stopping')
+    stop.set()
 
 
 def main(argv=None) -> int:
@@ -148,6 +166,9 @@ def main(argv=None) -> int:
         stop.set()
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    if args.exit_with_parent:
+        threading.Thread(target=_stop_at_end_of_stdin, args=(stop,), daemon=True,
+                         name='parent-watch').start()
     ports = emulator.ports
     print(f'rtde_emulator ready host={args.host} rtde={ports["rtde"]} '
           f'dashboard={ports["dashboard"]} script={ports["script"]} '

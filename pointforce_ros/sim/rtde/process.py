@@ -2,7 +2,9 @@
 
 The ur_rtde interface constructors hold the GIL through their handshake, so the emulator never
 runs in the process that connects to it. Used by ``pointforce cell``, the demo, the benchmarks
-and the test fixtures. Ports are fixed by ur_rtde (30004, 29999, 30003), so concurrent emulators
+and the test fixtures. The emulator exits with the process that started it, also when that
+process is SIGKILLed (it watches a stdin pipe whose write end only the parent holds). Ports are
+fixed by ur_rtde (30004, 29999, 30003), so concurrent emulators
 use distinct loopback addresses; :func:`loopback_hosts` yields candidates.
 """
 
@@ -54,6 +56,11 @@ class EmulatorProcess:
 
     def stop(self) -> None:
         """SIGTERM, then SIGKILL after 5 s."""
+        if self.process.stdin is not None and not self.process.stdin.closed:
+            try:
+                self.process.stdin.close()   # the emulator's parent watch ends it too
+            except OSError:
+                pass
         if self.process.poll() is None:
             self.process.terminate()
             try:
@@ -128,13 +135,16 @@ def start_emulator(log_dir, *, hosts: Optional[Iterator[str]] = None,
             cmd += ['--initial-pose', json.dumps([float(x) for x in initial_pose])]
         if noise_floor is not None:
             cmd += ['--ft-noise-floor', str(noise_floor)]
-        cmd += list(extra_args)
+        cmd += ['--exit-with-parent'] + list(extra_args)
         env = dict(os.environ)
         env['PYTHONPATH'] = os.pathsep.join(
             [str(REPO_ROOT)] + [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p])
         with open(log_path, 'w') as log:
-            process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True,
-                                       cwd=str(REPO_ROOT), env=env)
+            # this process keeps the write end of the stdin pipe (not inherited by other
+            # children: close_fds); when it dies, even by SIGKILL, the emulator reads
+            # end-of-file and stops (--exit-with-parent)
+            process = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                       stderr=log, text=True, cwd=str(REPO_ROOT), env=env)
         handle = EmulatorProcess(host, process, log_path)
         if _wait_ready(process, time.monotonic() + ready_timeout):
             return handle

@@ -172,6 +172,7 @@ class _Projection:
     cell: float
     bound: np.ndarray            # (nx, ny) a sample at height t <= bound cannot touch
     last: np.ndarray             # (2,) largest cell index per axis (a border of +inf)
+    floor: float = np.inf        # smallest finite bound: no sample at or below it can touch
 
 
 def normalise_approach(approach) -> np.ndarray:
@@ -443,7 +444,7 @@ class ContactSimulator:
         bound = minimum_filter(per_cell, size=3, mode='constant', cval=np.inf)
         bound = np.pad(bound, 1, constant_values=np.inf)
         return _Projection(a, basis, idx, tree, max_gap, origin - cell, cell, bound,
-                           np.array(bound.shape) - 1)
+                           np.array(bound.shape) - 1, float(np.min(bound)))
 
     def _run(self, local: np.ndarray, rot: np.ndarray, pos: np.ndarray, a: np.ndarray,
              centres: np.ndarray, detail: bool) -> dict:
@@ -457,16 +458,26 @@ class ContactSimulator:
                      umax=np.zeros(B), residual=np.zeros(B))
         if proj.tree is None or len(local) == 0 or B == 0:
             return empty
-        # 1. Discard samples that cannot penetrate (conservative per-cell height bound).
+        # 1. Discard samples that cannot penetrate (conservative per-cell height bound). The
+        # height along the approach comes first: a sample below the lowest bound of the whole
+        # grid cannot penetrate anywhere (on a planner's query most of the body), so the
+        # in-plane coordinates and cells are computed for the rest only.
         frame = np.column_stack([a, proj.basis])
-        coords = np.matmul(local, rot.transpose(0, 2, 1) @ frame) + (pos @ frame)[:, None, :]
-        cij = np.floor((coords[..., 1:] - proj.origin) / proj.cell).astype(np.int64)
+        to_frame = rot.transpose(0, 2, 1) @ frame           # (B, 3, 3) mesh -> (a, e1, e2)
+        offset = pos @ frame                                  # (B, 3)
+        height = np.matmul(to_frame[:, :, 0], local.T) + offset[:, :1]   # (B, R)
+        b_idx, r_idx = np.nonzero(height > proj.floor)
+        if len(b_idx) == 0:
+            return empty
+        uv = np.einsum('kj,kji->ki', local[r_idx], to_frame[b_idx, :, 1:]) + offset[b_idx, 1:]
+        cij = np.floor((uv - proj.origin) / proj.cell).astype(np.int64)
         np.clip(cij, 0, proj.last, out=cij)  # outside the grid: its border of +inf
-        b_idx, r_idx = np.nonzero(coords[..., 0] > proj.bound[cij[..., 0], cij[..., 1]])
+        near = height[b_idx, r_idx] > proj.bound[cij[:, 0], cij[:, 1]]
+        b_idx, r_idx, uv = b_idx[near], r_idx[near], uv[near]
         if len(b_idx) == 0:
             return empty
         # 2. Three nearest surface points in the projection plane (eq. 1).
-        dist, nn = proj.tree.query(coords[b_idx, r_idx, 1:], k=3, workers=self.workers)
+        dist, nn = proj.tree.query(uv, k=3, workers=self.workers)
         over = dist[:, 2] <= proj.max_gap
         nbr = proj.index[nn[over]]
         b_idx, r_idx = b_idx[over], r_idx[over]

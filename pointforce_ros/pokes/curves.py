@@ -10,6 +10,12 @@ Camera bias makes contact start anywhere from about -5 to +5 mm of nominal displ
 loading phase, ``f = b + a * (d - d0)_+ ** p`` (residual bias ``b``, onset ``d0``) with a
 vectorised grid over ``(d0, p)`` and a closed-form solve for ``(b, a)``, refined by a robust
 (soft-L1) least-squares step, so a single noisy sample cannot trigger the onset.
+
+**Step data.** Another rig may measure a poke as a few quasi-static depth steps (5-20 settled
+samples) instead of a stream. A poke with fewer than :data:`STEP_SAMPLES` samples is treated
+as such: there is no constant-speed phase to find, so its loading phase is every sample that
+reaches a new deepest depth up to the deepest one, at least :data:`MIN_STEP_SAMPLES` of them;
+the onset fit and the contact test are the same (relative to the poke's own noise).
 """
 
 from dataclasses import dataclass, field
@@ -24,6 +30,13 @@ from pointforce_ros.types import as_array, PokeRecord, unit_rows
 
 DEFAULT_EXPONENTS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
 """Contact exponents ``p`` tried by the grid stage of :func:`fit_power_onset`."""
+
+STEP_SAMPLES = 25
+"""A poke with fewer samples than this is quasi-static step data (module docstring)."""
+MIN_STEP_SAMPLES = 5
+"""Fewest loading samples of a step-data poke (the onset fit has four parameters)."""
+MIN_STREAM_SAMPLES = 20
+"""Fewest loading samples of a streamed poke."""
 
 
 @dataclass(frozen=True)
@@ -210,14 +223,15 @@ def _refine(x, f, theta, with_bias, bounds, noise, robust):
     return unpack(sol.x)
 
 
-def extract_curve(record: PokeRecord, *, min_samples: int = 20, speed_band=(0.5, 1.5),
-                  smooth_time: float = 0.04, fit_fraction: float = 0.5,
-                  min_snr: float = 5.0) -> PokeCurve:
+def extract_curve(record: PokeRecord, *, min_samples: Optional[int] = None,
+                  speed_band=(0.5, 1.5), smooth_time: float = 0.04, fit_fraction: float = 0.5,
+                  min_snr: float = 5.0, step_samples: int = STEP_SAMPLES) -> PokeCurve:
     """Cut the loading phase out of ``record`` and find its contact onset and residual bias.
 
     Args:
         record: one poke; ``record.speed`` is the commanded push speed (m/s).
-        min_samples: fewest loading-phase samples accepted.
+        min_samples: fewest loading-phase samples accepted; ``None``:
+            :data:`MIN_STEP_SAMPLES` for step data, :data:`MIN_STREAM_SAMPLES` otherwise.
         speed_band: the loading phase is where the smoothed approach speed lies within this
             band times ``record.speed`` (excludes a faster approach, holds and retraction).
         smooth_time: window of the Savitzky-Golay speed estimate, seconds.
@@ -226,12 +240,16 @@ def extract_curve(record: PokeRecord, *, min_samples: int = 20, speed_band=(0.5,
             part of the curve may change shape).
         min_snr: the peak force must exceed the residual bias by this many noise sigmas,
             otherwise there was no contact.
+        step_samples: a record with fewer samples is quasi-static step data (module
+            docstring); its loading phase is its new-deepest samples, ``speed_band`` and
+            ``smooth_time`` do not apply.
 
     Returns:
         The curve, with ``f`` bias-corrected. ``meta`` holds ``bias`` (N), ``noise_std`` (N),
         ``onset_exponent``, ``segment`` ([first, last] sample indices in the record),
         ``peak_force`` (N), ``peak_d`` (m), ``speed`` (m/s), ``outcome``, ``onset_observed``
-        (False when the push started already in contact) and ``t0`` (controller time, s).
+        (False when the push started already in contact), ``t0`` (controller time, s) and
+        ``step_data`` (bool).
 
     Raises:
         InvalidInput: too few samples, no constant-speed loading phase, or no contact.
@@ -245,13 +263,14 @@ def extract_curve(record: PokeRecord, *, min_samples: int = 20, speed_band=(0.5,
                              record.displacement(), record.normal_force(), speed=record.speed,
                              min_samples=min_samples, speed_band=speed_band,
                              smooth_time=smooth_time, fit_fraction=fit_fraction,
-                             min_snr=min_snr, meta=meta)
+                             min_snr=min_snr, meta=meta, step_samples=step_samples)
 
 
 def curve_from_series(poke_id: str, point, normal, t, d, f, *, speed: Optional[float] = None,
-                      min_samples: int = 20, speed_band=(0.5, 1.5), smooth_time: float = 0.04,
-                      fit_fraction: float = 0.5, min_snr: float = 5.0,
-                      meta: Optional[Mapping] = None) -> PokeCurve:
+                      min_samples: Optional[int] = None, speed_band=(0.5, 1.5),
+                      smooth_time: float = 0.04, fit_fraction: float = 0.5,
+                      min_snr: float = 5.0, meta: Optional[Mapping] = None,
+                      step_samples: int = STEP_SAMPLES) -> PokeCurve:
     """Build a :class:`PokeCurve` from plain time series (imported tables use this directly).
 
     Args:
@@ -271,12 +290,58 @@ def curve_from_series(poke_id: str, point, normal, t, d, f, *, speed: Optional[f
     n = len(t)
     d = as_array(d, 'curve d', (n,))
     f = as_array(f, 'curve f', (n,))
+    step = n < step_samples
+    if min_samples is None:
+        min_samples = MIN_STEP_SAMPLES if step else MIN_STREAM_SAMPLES
     if n < min_samples:
         raise InvalidInput(f'poke {poke_id}: {n} samples, need at least {min_samples}')
     dt_all = np.diff(t)
     if np.any(dt_all <= 0):
         raise InvalidInput(f'poke {poke_id}: time must be strictly increasing')
-    dt = float(np.median(dt_all))
+    if step:
+        seg, first, deepest, speed = _step_loading(poke_id, t, d, min_samples)
+    else:
+        seg, first, deepest, speed = _stream_loading(poke_id, t, d, speed, min_samples,
+                                                     speed_band, smooth_time)
+    d_l, f_l, t_l = d[seg], f[seg], t[seg]
+    # Onset fit on the early part of the loading phase.
+    baseline = float(np.median(f_l[:max(5, len(f_l) // 10)]))
+    peak = float(f_l.max())
+    cut = np.flatnonzero(f_l >= baseline + fit_fraction * (peak - baseline))
+    stop = max(int(cut[0]) + 1 if len(cut) else len(f_l), min(len(f_l), 10))
+    fit = fit_power_onset(d_l[:stop], f_l[:stop], with_bias=True)
+    noise = max(fit.noise, 1e-9)
+    if peak - fit.bias < min_snr * noise:
+        raise InvalidInput(f'poke {poke_id}: no contact detected (peak force {peak:.3g} N is '
+                           f'within {min_snr:g} sigma = {min_snr * noise:.3g} N of the baseline)')
+    info = dict(meta or {})
+    info.update(bias=fit.bias, noise_std=noise, onset_exponent=fit.p,
+                segment=[first, deepest], peak_force=peak - fit.bias, peak_d=float(d_l[-1]),
+                speed=float(speed), onset_observed=bool(fit.d0 > d_l[0]), t0=float(t[0]),
+                step_data=bool(step))
+    return PokeCurve(poke_id=poke_id, point=point, normal=normal, d=d_l, f=f_l - fit.bias,
+                     onset_d=fit.d0, t=t_l - t[0], meta=info)
+
+
+def _step_loading(poke_id, t, d, min_samples):
+    """Loading samples of step data: each sample that reaches a new deepest depth."""
+    deepest = int(np.argmax(d))
+    before = np.maximum.accumulate(np.concatenate([[-np.inf], d[:deepest]]))
+    seg = np.flatnonzero(d[:deepest + 1] > before)
+    if len(seg) < min_samples:
+        raise InvalidInput(f'poke {poke_id}: {len(seg)} steps reach a new depth, need at least '
+                           f'{min_samples}')
+    span = float(d[deepest] - d[seg[0]])
+    if span <= 0:
+        raise InvalidInput(f'poke {poke_id}: no loading phase (the probe never moves in)')
+    speed = span / max(float(t[deepest] - t[seg[0]]), 1e-9)
+    return seg, int(seg[0]), deepest, speed
+
+
+def _stream_loading(poke_id, t, d, speed, min_samples, speed_band, smooth_time):
+    """Loading samples of a stream: the constant-speed push to the deepest point after it."""
+    n = len(t)
+    dt = float(np.median(np.diff(t)))
     window = max(5, int(round(smooth_time / dt)) | 1)
     window = min(window, n if n % 2 else n - 1)
     polyorder = 2 if window > 3 else 1
@@ -302,27 +367,10 @@ def curve_from_series(poke_id: str, point, normal, t, d, f, *, speed: Optional[f
     while tail_end < n and d[tail_end] >= d[tail_end - 1]:
         tail_end += 1
     deepest = first + int(np.argmax(d[first:tail_end]))
-    seg = slice(first, deepest + 1)
     if deepest + 1 - first < min_samples:
         raise InvalidInput(f'poke {poke_id}: loading phase has {deepest + 1 - first} samples, '
                            f'need at least {min_samples}')
-    d_l, f_l, t_l = d[seg], f[seg], t[seg]
-    # Onset fit on the early part of the loading phase.
-    baseline = float(np.median(f_l[:max(5, len(f_l) // 10)]))
-    peak = float(f_l.max())
-    cut = np.flatnonzero(f_l >= baseline + fit_fraction * (peak - baseline))
-    stop = max(int(cut[0]) + 1 if len(cut) else len(f_l), min(len(f_l), 10))
-    fit = fit_power_onset(d_l[:stop], f_l[:stop], with_bias=True)
-    noise = max(fit.noise, 1e-9)
-    if peak - fit.bias < min_snr * noise:
-        raise InvalidInput(f'poke {poke_id}: no contact detected (peak force {peak:.3g} N is '
-                           f'within {min_snr:g} sigma = {min_snr * noise:.3g} N of the baseline)')
-    info = dict(meta or {})
-    info.update(bias=fit.bias, noise_std=noise, onset_exponent=fit.p,
-                segment=[first, deepest], peak_force=peak - fit.bias, peak_d=float(d_l[-1]),
-                speed=float(speed), onset_observed=bool(fit.d0 > d_l[0]), t0=float(t[0]))
-    return PokeCurve(poke_id=poke_id, point=point, normal=normal, d=d_l, f=f_l - fit.bias,
-                     onset_d=fit.d0, t=t_l - t[0], meta=info)
+    return np.arange(first, deepest + 1), first, deepest, speed
 
 
 def _runs(mask: np.ndarray):

@@ -128,9 +128,55 @@ def test_series_without_speed_estimates_it():
 
 
 def test_too_few_samples_raise():
-    t = np.arange(10) * 0.004
-    with pytest.raises(InvalidInput, match='samples'):
+    t = np.arange(4) * 0.004
+    with pytest.raises(InvalidInput, match='4 samples, need at least 5'):
         curve_from_series('short', [0, 0, 0], [0, 0, 1], t, 0.002 * t, t, speed=0.002)
+    t = np.arange(30) * 0.004   # a stream (not step data) still needs 20 loading samples
+    d = np.where(t < 0.06, 0.002 * t, 0.00012 - 0.002 * (t - 0.06))
+    with pytest.raises(InvalidInput, match='need at least 20'):
+        curve_from_series('short', [0, 0, 0], [0, 0, 1], t, d, t, speed=0.002)
+
+
+def _steps(onset, count=10, noise=0.02, seed=0, deepest=0.008, start=-0.0015):
+    """Quasi-static steps of ``f = 40000 (d - onset)_+ ** 1.6`` (N, m) with white noise."""
+    rng = np.random.default_rng(seed)
+    d = np.linspace(start, deepest, count)
+    f = 4e4 * np.maximum(d - onset, 0.0) ** 1.6 + noise * rng.standard_normal(count)
+    return np.arange(count) * 1.0, d, f
+
+
+@pytest.mark.parametrize('count', [6, 10, 20])
+def test_step_data_gives_a_curve_with_its_onset(count):
+    errors = []
+    for seed in range(5):
+        t, d, f = _steps(0.001, count=count, seed=seed)
+        curve = curve_from_series(f'steps-{seed}', [0, 0, 0], [0, 0, 1], t, d, f)
+        assert len(curve) == count and curve.meta['step_data']
+        errors.append(curve.onset_d - 0.001)
+        assert curve.meta['noise_std'] < 0.1
+    # the steps are 1-2 mm apart: the onset is found to a fraction of a step
+    assert np.max(np.abs(errors)) < 0.35 * (0.0095 / (count - 1)) + 2e-4
+
+
+def test_step_data_keeps_the_steps_that_go_deeper():
+    t, d, f = _steps(0.0, count=12, seed=3)
+    d = d.copy()
+    d[6] = d[4]            # a step back (re-seat): not loading
+    curve = curve_from_series('reseat', [0, 0, 0], [0, 0, 1], t, d, f)
+    assert len(curve) == 11 and np.all(np.diff(curve.d) > 0)
+
+
+def test_step_data_without_contact_raises_relative_to_its_noise():
+    rng = np.random.default_rng(8)
+    t = np.arange(10) * 1.0
+    d = np.linspace(-0.01, -0.001, 10)
+    with pytest.raises(InvalidInput, match='no contact'):
+        curve_from_series('air', [0, 0, 0], [0, 0, 1], t, d, rng.normal(0, 0.3, 10))
+    # steps whose whole contact force is smaller than that noise are learned when their own
+    # noise is smaller still: the test is relative to the poke's own noise
+    t, d, f = _steps(0.001, seed=4, noise=0.002)
+    curve = curve_from_series('soft', [0, 0, 0], [0, 0, 1], t, d, 0.02 * f)
+    assert curve.meta['peak_force'] < 0.3
 
 
 def test_no_loading_phase_raises():

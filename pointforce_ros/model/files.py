@@ -12,6 +12,9 @@ version instead, and that highest version is persisted (``versions.json``, writt
 beside the files and the quarantine. A file the loader cannot read (truncated, empty, not a zip,
 altered, unknown format) is moved to ``quarantine/`` beside it with a ``.reason.txt``, logged,
 and :func:`load_latest_model` falls back to the newest valid version.
+
+A shape-function update made at run time (``c``, decay length ``L``) is kept beside the models in
+``shape.json`` (:func:`save_shape`, atomic), so that a restarted learner uses it again.
 """
 
 import dataclasses
@@ -39,6 +42,8 @@ QUARANTINE = 'quarantine'
 """Folder, beside the model files, that unreadable files are moved to."""
 VERSIONS = 'versions.json'
 """File, beside the model files, holding the highest version ever saved there."""
+SHAPE = 'shape.json'
+"""File, beside the model files, holding the shape function set at run time (c, L)."""
 LOG = logging.getLogger(__name__)
 
 
@@ -192,7 +197,9 @@ def save_model(model: ContactModel, directory) -> Path:
 
     The version is kept when it is free and above every version the directory has held, or
     when the file of that version holds the same content (then nothing is written: a restarted
-    learner reproducing a model gets the same file). Otherwise the model is saved under the
+    learner reproducing a model gets the same file). The newest file holding the same content
+    is returned as it is too (a restarted learner whose shape constant was restored reproduces
+    the model last saved under a bumped version). Otherwise the model is saved under the
     next free version, so a version never names two different models and never goes down;
     the returned path (and the file's header) carry the version actually used.
 
@@ -206,6 +213,9 @@ def save_model(model: ContactModel, directory) -> Path:
     wanted = model_path(directory, model.version)
     if wanted.is_file() and _stored_digest(wanted) == digest:
         return wanted
+    newest = latest_model_path(directory)
+    if newest is not None and newest != wanted and _stored_digest(newest) == digest:
+        return newest
     highest = highest_version(directory)
     if model.version <= highest:
         new = highest + 1
@@ -346,6 +356,50 @@ def latest_model_path(directory) -> Optional[Path]:
         if m and int(m.group(1)) > found[0]:
             found = (int(m.group(1)), p)
     return found[1]
+
+
+def save_shape(directory, shape_constant: float, shape_decay: float = float('inf')) -> Path:
+    """Persist the shape function set at run time beside the models (``shape.json``, atomic).
+
+    Args:
+        directory: the model directory (created if needed).
+        shape_constant: ``c``, metres (> 0).
+        shape_decay: decay length ``L``, metres (``inf``: none, stored as ``null``).
+
+    Raises:
+        InvalidInput: ``c`` not finite and positive, or ``L`` neither positive nor ``inf``.
+        OSError: the file cannot be written.
+
+    """
+    if not (np.isfinite(shape_constant) and shape_constant > 0):
+        raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
+    decay = check_decay(shape_decay, 'shape_decay')
+    body = {'shape_constant': float(shape_constant),
+            'shape_decay': float(decay) if np.isfinite(decay) else None}
+    return atomic_write(Path(directory) / SHAPE, lambda fh: json.dump(body, fh), binary=False)
+
+
+def load_shape(directory) -> Optional[Tuple[float, float]]:
+    """Read ``shape.json`` of ``directory``: ``(c, L)`` in metres (``L`` inf: none), or ``None``.
+
+    Raises:
+        DataError: the file exists but cannot be read or holds invalid values.
+
+    """
+    path = Path(directory) / SHAPE
+    if not path.is_file():
+        return None
+    try:
+        body = json.loads(path.read_text())
+        c = float(body['shape_constant'])
+        decay = body.get('shape_decay')
+        decay = float('inf') if decay is None else float(decay)
+        if not (np.isfinite(c) and c > 0):
+            raise ValueError(f'shape_constant {c} is not > 0')
+        check_decay(decay, 'shape_decay')
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, InvalidInput) as exc:
+        raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
+    return c, decay
 
 
 def save_surface(surface: Surface, path) -> Path:

@@ -7,11 +7,16 @@ poke store directory the poke server writes; a refit is triggered by ``poke_serv
 ``~/markers`` (visualization_msgs/MarkerArray for RViz/Foxglove: the surface coloured by the
 learned force at ``marker_depth``, and the suggested next pokes), and serves ``~/suggest_poke``.
 Cross-node names are relative (``__ns:=/cell1`` keeps a cell together). On restart it reloads the
-stored pokes and produces the same model.
+stored pokes and produces the same model. A shape function set at run time (``shape_constant``,
+``shape_decay``) is persisted beside the models (``<model_dir>/shape.json``) and wins over the
+start-up parameters after a restart (an effects file's ``spatial_coupling`` still wins over both).
+The published ``version`` is the one the model file was saved under (``save_model`` moves a
+model to the next free version rather than reuse one).
 ``effects_file`` (diagnose's ``effects.json``) makes the learner remove the accepted effects from
 the pokes and store them in every model, whose forward terms the contact service then applies.
 """
 
+import dataclasses
 import json
 import threading
 from pathlib import Path
@@ -36,7 +41,8 @@ from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.effects.correct import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import OnlineLearner
-from pointforce_ros.model.files import load_model, load_surface
+from pointforce_ros.model.files import (load_model, load_shape, load_surface, save_shape,
+                                        version_of_path)
 from pointforce_ros.nodes.common import declare, live, qos_watch, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
@@ -75,6 +81,7 @@ class StiffnessLearnerNode(Node):
                                    'Decay length of the shape function\'s tail, '
                                    'g(r) = c/(c+r) exp(-r/L), m; 0: none (the paper\'s g)',
                                    bounds=(0.0, 1.0))
+        self._restore_shape()
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
                        bounds=(0.1, 600.0), read_only=True)
         self.exclude_radius = declare(self, 'suggest_exclude_radius', 0.01,
@@ -154,13 +161,42 @@ class StiffnessLearnerNode(Node):
             'marker_depth': lambda v: lambda: self._set_marker('marker_depth', v),
             'marker_suggestions': lambda v: lambda: self._set_marker('marker_suggestions', v)})
 
+    def _restore_shape(self):
+        """Take the shape function last set at run time (``shape.json``) over the parameters."""
+        try:
+            shape = load_shape(self.model_dir)
+        except PointforceError as exc:
+            self.get_logger().error(f'ignoring the persisted shape function: {exc}')
+            return
+        if shape is None:
+            return
+        c, decay = shape
+        decay_param = float(decay) if np.isfinite(decay) else 0.0
+        results = self.set_parameters([
+            Parameter('shape_constant', Parameter.Type.DOUBLE, c),
+            Parameter('shape_decay', Parameter.Type.DOUBLE, decay_param)])
+        refused = [r.reason for r in results if not r.successful]
+        if refused:
+            self.get_logger().error(f'persisted shape function refused: {refused}')
+            return
+        self.shape_constant, self.shape_decay = c, decay_param
+        self.get_logger().info(f'shape function restored from {self.model_dir}/shape.json: '
+                               f'c = {1e3 * c:.3f} mm, decay '
+                               + (f'{1e3 * decay:.3f} mm' if np.isfinite(decay) else 'none'))
+
     def _set_shape(self, name: str, value: float):
         """Take a new ``shape_constant`` or ``shape_decay`` (identified from data) into use.
 
-        rclpy has already refused values outside the declared bounds; an accepted value is,
-        once a model exists, saved as a new model version the contact service hot-swaps to.
+        rclpy has already refused values outside the declared bounds; an accepted value is
+        persisted (``shape.json`` beside the models, atomically: a restart keeps it) and, once a
+        model exists, saved as a new model version the contact service hot-swaps to.
         """
         setattr(self, name, float(value))
+        try:
+            save_shape(self.model_dir, self.shape_constant, _decay_length(self.shape_decay))
+        except (OSError, PointforceError) as exc:
+            self.get_logger().error(f'{name} = {value} is in use but NOT persisted (a restart '
+                                    f'loses it): {exc}')
         learner = self.learner
         if learner is not None:
             status = learner.set_shape_constant(self.shape_constant,
@@ -246,6 +282,10 @@ class StiffnessLearnerNode(Node):
         self._publish(status, learner)
 
     def _publish(self, status, learner):
+        saved = version_of_path(status.model_path) if status.model_path is not None else None
+        if saved is not None and saved != status.version:
+            # save_model gave the model the next free version: publish the one on disk
+            status = dataclasses.replace(status, version=saved)
         msg = ModelStatus(version=status.version, num_pokes=status.num_pokes,
                           training_rmse=status.training_rmse,
                           validation_rmse=status.validation_rmse,

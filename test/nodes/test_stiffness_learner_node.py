@@ -107,6 +107,43 @@ def test_shape_constant_set_at_run_time_saves_a_new_model(ros_graph, tmp_path):
     assert np.isinf(load_model(statuses[-1].model_path).shape_decay)
 
 
+def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(ros_graph,
+                                                                               tmp_path):
+    """Issue 16 item 8: c was lost on restart and the node published the version it asked for.
+
+    After c and L are set at run time (v5, v6) the learner is killed, a fifth poke lands and the
+    learner restarts: it must use the persisted (c, L), and its model (5 pokes, requested as
+    v5, a version taken by other content) is saved as v7, the version it must publish.
+    """
+    from rcl_interfaces.srv import SetParameters
+
+    store, records = _setup(tmp_path)
+    learner = _learner(ros_graph, tmp_path)
+    probe = ros_graph.add(Node('shape_probe', context=ros_graph.context))
+    statuses = []
+    probe.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
+    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 30, 'model v4')
+    client = probe.create_client(SetParameters, '/stiffness_learner/set_parameters')
+    assert client.wait_for_service(timeout_sec=10)
+    for name, value, version in [('shape_constant', 0.0007, 5), ('shape_decay', 0.008, 6)]:
+        request = SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()])
+        assert ros_graph.wait_future(client.call_async(request), 20, name).results[0].successful
+        ros_graph.wait_for(lambda: statuses[-1].version == version, 30, f'model v{version}')
+    ros_graph.remove(learner)  # the node is killed
+    store.add(records[4])
+    statuses.clear()
+    restarted = _learner(ros_graph, tmp_path)
+    ros_graph.wait_for(lambda: statuses and statuses[-1].num_pokes == 5, 30, 'model after restart')
+    status = statuses[-1]
+    model = load_model(status.model_path)
+    assert (model.shape_constant, model.shape_decay) == pytest.approx((0.0007, 0.008))
+    assert status.version == model.version == 7, (status.version, status.model_path)
+    assert status.model_path.endswith('model-v000007.npz')
+    assert restarted.get_parameter('shape_constant').value == pytest.approx(0.0007)
+    assert restarted.get_parameter('shape_decay').value == pytest.approx(0.008)
+
+
 # --------------------------------------------------------------------------- accepted effects
 
 SPOTS = np.array([[0.491, -0.01, 0.04], [0.511, 0.01, 0.04], [0.491, 0.015, 0.04]])

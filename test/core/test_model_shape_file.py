@@ -1,0 +1,56 @@
+"""The shape function set at run time is kept beside the models; a reproduced model keeps its file.
+
+Issue 16 item 8: a shape-constant update was lost on restart and the version went back down.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.lab.synthetic_contact import patch_contact_model
+from pointforce_ros.model.files import (ContactModel, load_shape, save_model, save_shape,
+                                        SHAPE, version_of_path)
+
+MODEL = patch_contact_model(spacing=0.006)
+
+
+def test_shape_round_trip_with_and_without_a_decay_length(tmp_path):
+    assert load_shape(tmp_path) is None
+    save_shape(tmp_path, 0.0007, 0.008)
+    assert load_shape(tmp_path) == pytest.approx((0.0007, 0.008))
+    save_shape(tmp_path, 0.003)
+    c, decay = load_shape(tmp_path)
+    assert c == pytest.approx(0.003) and np.isinf(decay)
+    assert [p.name for p in tmp_path.iterdir()] == [SHAPE]   # no temporary file left
+
+
+@pytest.mark.parametrize('c, decay', [(0.0, np.inf), (np.nan, np.inf), (0.004, -1.0)])
+def test_invalid_shapes_are_refused_before_writing(tmp_path, c, decay):
+    with pytest.raises(InvalidInput):
+        save_shape(tmp_path, c, decay)
+    assert not (tmp_path / SHAPE).exists()
+
+
+@pytest.mark.parametrize('text', ['', '{"shape_constant": -1}', '[1, 2]', 'not json',
+                                  '{"shape_constant": 0.004, "shape_decay": 0}'])
+def test_an_unreadable_shape_file_is_a_data_error(tmp_path, text):
+    (tmp_path / SHAPE).write_text(text)
+    with pytest.raises(DataError, match='shape'):
+        load_shape(tmp_path)
+
+
+def test_a_model_reproduced_under_a_lower_version_gets_the_newest_identical_file(tmp_path):
+    """v4 (c = 4 mm), v5 (c = 0.7 mm); a restarted learner with c = 0.7 mm asks for v4 again."""
+    v4 = dataclasses.replace(MODEL, version=4, shape_constant=0.004)
+    v5 = dataclasses.replace(MODEL, version=5, shape_constant=0.0007)
+    assert version_of_path(save_model(v4, tmp_path)) == 4
+    assert version_of_path(save_model(v5, tmp_path)) == 5
+    again = dataclasses.replace(v5, version=4)
+    assert version_of_path(save_model(again, tmp_path)) == 5       # same content: same file
+    other = ContactModel(surface=MODEL.surface, response=MODEL.response, shape_constant=0.002,
+                         version=4)
+    assert version_of_path(save_model(other, tmp_path)) == 6       # new content: next version
+    assert sorted(p.name for p in tmp_path.glob('model-v*.npz')) == [
+        'model-v000004.npz', 'model-v000005.npz', 'model-v000006.npz']

@@ -18,8 +18,10 @@ about the request.
 
 import dataclasses
 import hashlib
+import os
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple, Optional, Tuple
@@ -29,11 +31,12 @@ import numpy as np
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
 from pointforce_ros.contact.simulator import (BatchContactResult, normalise_approach,
-                                              poses_as_arrays)
+                                              poses_as_arrays, single_threaded_blas)
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.model.files import ContactModel, load_latest_model, load_model
-from pointforce_ros.types import ContactQuery, Pose
+from pointforce_ros.rotations import quaternion_to_matrix
+from pointforce_ros.types import as_array, ContactQuery, Mesh, Pose
 
 BYTES_PER_SAMPLE_POSE = 256
 """Working memory of one rigid sample at one pose in the simulator's first pass, bytes.
@@ -152,7 +155,8 @@ class WrenchServer:
     """Answers :class:`ContactQuery` objects from the latest loaded :class:`ContactModel`."""
 
     def __init__(self, spacing: float = 0.003, *, series_compliance: bool = True,
-                 hold_time: float = 0.0, limits: Optional[RequestLimits] = None):
+                 hold_time: float = 0.0, limits: Optional[RequestLimits] = None,
+                 workers: Optional[int] = None):
         """Create an empty server.
 
         Args:
@@ -161,6 +165,7 @@ class WrenchServer:
             hold_time: seconds a pose is held after a fast approach, for a viscoelastic
                 effect (0: the instantaneous force).
             limits: what one request may ask (default :class:`RequestLimits`).
+            workers: threads a batch's chunks are solved on (default: the cores, at most 4).
 
         """
         self.limits = RequestLimits() if limits is None else limits
@@ -177,6 +182,9 @@ class WrenchServer:
         self._sizes = {}    # mesh content -> (radius, sample count, first mesh object)
         self._facing = {}   # projection -> (it, deepest facing height, in-plane box lo, hi)
         self.loaded_path: Optional[Path] = None
+        self._workers = max(1, int(workers if workers is not None else
+                                   min(4, os.cpu_count() or 1)))
+        self._executor: Optional[ThreadPoolExecutor] = None
 
     @property
     def version(self) -> int:
@@ -259,8 +267,13 @@ class WrenchServer:
         """
         model, simulator, terms, bounds = self._snapshot()
         pose = query.poses[0]
-        chunk = self._admit(query, simulator, bounds, (pose,))
-        query = self._same_mesh(query)
+        if pose.frame != simulator.surface.frame:
+            poses_as_arrays([pose], simulator.surface.frame)    # raises, naming the frames
+        known = self._known_mesh(query.mesh)
+        chunk = self._admit(query.mesh, query.approach, query.torque_centre, simulator, bounds,
+                            pose.position[None], pose.rotation()[None], known)
+        if known[2] is not None and known[2] is not query.mesh:
+            query = dataclasses.replace(query, mesh=known[2])   # its samples are cached
         if terms.compliance > 0:
             shift = self._retreat(simulator, terms, query, query.poses[:1], chunk,
                                   time.monotonic() + self.limits.max_seconds)[0]
@@ -282,7 +295,8 @@ class WrenchServer:
             result = dataclasses.replace(result, wrench=wrench,
                                          contact_forces=result.contact_forces * k)
         row = np.concatenate([result.wrench.force, result.wrench.torque])[None]
-        self._check_answer(query, bounds, row, np.array([result.contact_count]),
+        self._check_answer(query.torque_centre, known[0], bounds, row,
+                           np.array([result.contact_count]),
                            np.array([result.max_displacement]), pose.position[None])
         return result, int(model.version)
 
@@ -298,26 +312,46 @@ class WrenchServer:
                 the batch ran out of its time budget.
 
         """
+        rows = _as_rows(query.poses, self._snapshot()[1].surface.frame)
+        return self.answer_rows(query.mesh, rows, query.approach, query.torque_centre)
+
+    def answer_rows(self, mesh: Mesh, rows, approach, torque_centre):
+        """Answer a batch given as a (B, 7) array ``[x, y, z, qx, qy, qz, qw]`` (``base``).
+
+        The form a batch request arrives in: no :class:`Pose` per row. Quaternions are
+        normalised as :class:`Pose` does. Returns (BatchContactResult, model version); row
+        ``i`` equals :meth:`answer_batch` of the same poses.
+
+        Raises:
+            ModelNotReady: no model loaded.
+            InvalidInput: a malformed array (naming the row), or as :meth:`answer_batch`.
+
+        """
         model, simulator, terms, bounds = self._snapshot()
         deadline = time.monotonic() + self.limits.max_seconds
-        poses = list(query.poses)
-        chunk = self._admit(query, simulator, bounds, poses)
-        query = self._same_mesh(query)
+        rows = _checked_rows(rows)
+        approach = normalise_approach(approach)
+        centre = as_array(torque_centre, 'torque_centre', (3,))
+        known = self._known_mesh(mesh)
+        positions, rotations = rows[:, :3], quaternion_to_matrix(rows[:, 3:])
+        chunk = self._admit(mesh, approach, centre, simulator, bounds, positions, rotations,
+                            known)
+        mesh = mesh if known[2] is None else known[2]
+        query = _Batch(mesh, approach, centre)
+        poses = rows
         if terms.compliance > 0:
-            shift = self._retreat(simulator, terms, query, poses, chunk, deadline)
-            poses = _shifted(poses, simulator.surface.frame, shift,
-                             normalise_approach(query.approach))
+            shift = self._retreat(simulator, terms, query, rows, chunk, deadline)
+            poses = _shifted(rows, simulator.surface.frame, shift, approach)
         batch = self._solve_in_time(simulator, query, poses, chunk, deadline)
         if terms.force_scale != 1.0:
             batch = dataclasses.replace(batch, wrenches=batch.wrenches * terms.force_scale)
-        positions = np.array([p.position for p in query.poses])
-        self._check_answer(query, bounds, batch.wrenches, batch.contact_count,
+        self._check_answer(centre, known[0], bounds, batch.wrenches, batch.contact_count,
                            batch.max_displacement, positions)
         return batch, int(model.version)
 
     # ------------------------------------------------------------------ request checks
-    def _admit(self, query: ContactQuery, simulator: ContactSimulator, bounds: _Bounds,
-               poses) -> int:
+    def _admit(self, mesh: Mesh, approach, torque_centre, simulator: ContactSimulator,
+               bounds: _Bounds, positions: np.ndarray, rotations: np.ndarray, known) -> int:
         """Refuse a request beyond :attr:`limits` before any work; return the pose chunk.
 
         Raises:
@@ -327,12 +361,11 @@ class WrenchServer:
 
         """
         limits = self.limits
-        mesh = query.mesh
-        radius, samples = self._mesh_size(mesh)
+        radius, samples = known[:2]
         if samples > MAX_SAMPLES:
             raise InvalidInput(f'mesh: {samples} samples at {1e3 * self._spacing:g} mm spacing '
                                f'(more than {MAX_SAMPLES}); send a smaller or coarser mesh')
-        count = len(poses)
+        count = len(positions)
         work = float(samples) * count
         if work > limits.max_sample_poses:
             most = max(int(limits.max_sample_poses // samples), 0)
@@ -346,8 +379,7 @@ class WrenchServer:
             raise InvalidInput(f'mesh: one pose of its {samples} samples needs about '
                                f'{per_pose / _MIB:.0f} MiB, above the service limit of '
                                f'{limits.max_memory / _MIB:.0f} MiB; send a smaller mesh')
-        chunk = int(max(1, min(limits.chunk, limits.max_memory // per_pose)))
-        positions = np.array([p.position for p in poses], dtype=np.float64).reshape(-1, 3)
+        chunk = int(max(1, min(limits.chunk, limits.max_memory // (per_pose * self._workers))))
         far = _box_distance(positions, bounds.lo, bounds.hi)
         worst = int(np.argmax(far))
         if not far[worst] <= limits.max_distance:
@@ -355,7 +387,7 @@ class WrenchServer:
                                f'{np.array2string(positions[worst], precision=4)} m is '
                                f'{far[worst]:.3g} m from the object (limit '
                                f'{limits.max_distance:g} m); check the frame and units')
-        centre = np.asarray(query.torque_centre, dtype=np.float64)
+        centre = np.asarray(torque_centre, dtype=np.float64)
         off = float(_box_distance(centre[None], bounds.lo, bounds.hi)[0])
         if not off <= limits.max_distance:
             raise InvalidInput(f'torque_centre: {off:.3g} m from the object (limit '
@@ -367,18 +399,8 @@ class WrenchServer:
             raise InvalidInput(f'torque_centre: {arm[worst]:.3g} m from '
                                f'{_where(count, worst)} (limit {limits.max_torque_arm:g} m); '
                                'take the torque about a point near the body')
-        self._check_geometry(query, simulator, poses, positions, samples, radius)
+        self._check_geometry(mesh, approach, simulator, rotations, positions, samples, radius)
         return chunk
-
-    def _mesh_size(self, mesh) -> Tuple[float, int]:
-        """(radius m, sample count) of ``mesh``, cached by content (planners resend meshes).
-
-        Raises:
-            InvalidInput: a vertex farther than ``max_distance`` from the mesh origin, or
-                edges the sampler cannot count (huge coordinates).
-
-        """
-        return self._known_mesh(mesh)[:2]
 
     def _known_mesh(self, mesh) -> Tuple[float, int, object]:
         """(radius, sample count, the first mesh seen with this content), cached by content.
@@ -392,13 +414,17 @@ class WrenchServer:
         digest.update(mesh.triangles.tobytes())
         key = (digest.digest(), len(mesh.vertices), self._spacing)
         hit = self._sizes.get(key)
-        if hit is not None:
-            return hit
-        with np.errstate(over='ignore'):
-            radius = float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
+        if hit is None:
+            with np.errstate(over='ignore'):
+                radius = float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
+        else:
+            radius = hit[0]
+        # checked on every request: max_distance can change at run time
         if not radius <= self.limits.max_distance:
             raise InvalidInput(f'mesh: a vertex lies {radius:.3g} m from the mesh origin '
                                f'(limit {self.limits.max_distance:g} m); check the mesh units')
+        if hit is not None:
+            return hit
         samples = mesh_sample_count(mesh, self._spacing)
         known = (radius, samples, mesh if samples <= _CACHED_SAMPLES else None)
         if len(self._sizes) >= 64:
@@ -406,15 +432,9 @@ class WrenchServer:
         self._sizes[key] = known
         return known
 
-    def _same_mesh(self, query: ContactQuery) -> ContactQuery:
-        """``query`` with its mesh replaced by the cached object of equal content, if any."""
-        canonical = self._known_mesh(query.mesh)[2]
-        if canonical is None or canonical is query.mesh:
-            return query
-        return dataclasses.replace(query, mesh=canonical)
-
-    def _check_geometry(self, query: ContactQuery, simulator: ContactSimulator, poses,
-                        positions: np.ndarray, samples: int, radius: float) -> None:
+    def _check_geometry(self, mesh: Mesh, approach, simulator: ContactSimulator,
+                        rotations: np.ndarray, positions: np.ndarray, samples: int,
+                        radius: float) -> None:
         """Refuse a mesh too deep in the object, or with too many possible contacts.
 
         Depth: a mesh vertex over the surface deeper than ``max_depth`` past all of it, along
@@ -429,12 +449,13 @@ class WrenchServer:
         for a pose over the limit then under the oriented bounding box of its projected
         vertices (a 60 mm paddle covers a tenth of its circle).
         """
-        a = normalise_approach(query.approach)
+        a = normalise_approach(approach)
         proj = simulator.projection(a)
         if proj.tree is None:
             return  # no surface faces this approach: nothing can be touched
         limit = self.limits.max_memory
-        flagged = np.zeros(len(poses), dtype=bool)
+        count = len(positions)
+        flagged = np.zeros(count, dtype=bool)
         if float(min(samples, len(proj.index))) ** 2 * BYTES_PER_CONTACT_PAIR > limit:
             under = proj.tree.query_ball_point(positions @ proj.basis, r=radius + proj.max_gap,
                                                return_length=True)
@@ -450,11 +471,10 @@ class WrenchServer:
                 self._facing.clear()
             self._facing[id(proj)] = hit
         _, deepest, lo2, hi2 = hit
-        verts = query.mesh.vertices
-        rotations = np.array([p.rotation() for p in poses]).reshape(-1, 3, 3)
+        verts = mesh.vertices
         frame = np.column_stack([a, proj.basis])
         step = max(1, 1_000_000 // len(verts))
-        for s in range(0, len(poses), step):
+        for s in range(0, count, step):
             rot, pos = rotations[s:s + step], positions[s:s + step]
             coords = np.matmul(verts, rot.transpose(0, 2, 1) @ frame) + (pos @ frame)[:, None]
             over = np.all((coords[..., 1:] >= lo2) & (coords[..., 1:] <= hi2), axis=2)
@@ -462,7 +482,7 @@ class WrenchServer:
             worst = int(np.argmax(depth))
             if depth[worst] > self.limits.max_depth:
                 raise InvalidInput(
-                    f'{_where(len(poses), s + worst)}: the mesh reaches {depth[worst]:.3g} m '
+                    f'{_where(count, s + worst)}: the mesh reaches {depth[worst]:.3g} m '
                     f'past the deepest point of the object along the approach (limit '
                     f'{self.limits.max_depth:g} m): it would be inside the object; check the '
                     'pose, its frame and the approach direction')
@@ -470,13 +490,13 @@ class WrenchServer:
                 k = min(_under_footprint(proj, coords[j, :, 1:]), samples)
                 if float(k) ** 2 * BYTES_PER_CONTACT_PAIR > limit:
                     raise InvalidInput(
-                        f'{_where(len(poses), s + j)}: up to {k} contacts under the mesh would '
+                        f'{_where(count, s + j)}: up to {k} contacts under the mesh would '
                         f'need about {float(k) ** 2 * BYTES_PER_CONTACT_PAIR / _MIB:.0f} MiB to '
                         f'solve, above the service limit of {limit / _MIB:.0f} MiB; send a '
                         'smaller mesh')
 
-    def _check_answer(self, query: ContactQuery, bounds: _Bounds, wrenches: np.ndarray,
-                      contacts: np.ndarray, displacement: np.ndarray,
+    def _check_answer(self, torque_centre, radius: float, bounds: _Bounds,
+                      wrenches: np.ndarray, contacts: np.ndarray, displacement: np.ndarray,
                       positions: np.ndarray) -> None:
         """Refuse an answer that is not finite or more than the model's table can give.
 
@@ -496,8 +516,7 @@ class WrenchServer:
             raise InvalidInput(_NO_ANSWER.format(where=_where(count, i),
                                                  bad=int(np.sum(~finite)), count=count))
         force_cap = bounds.contact_force * np.maximum(np.asarray(contacts, float), 1.0)
-        radius = self._mesh_size(query.mesh)[0]
-        reach = np.linalg.norm(positions - np.asarray(query.torque_centre), axis=1) + radius
+        reach = np.linalg.norm(positions - np.asarray(torque_centre), axis=1) + radius
         force = np.linalg.norm(wrenches[:, :3], axis=1)
         torque = np.linalg.norm(wrenches[:, 3:], axis=1)
         deep = np.asarray(displacement, dtype=np.float64) > self.limits.max_depth
@@ -517,20 +536,33 @@ class WrenchServer:
                 f'{bounds.contact_force:.3g} N each): the mesh is deeper than the model '
                 'knows; check the pose')
 
-    def _solve_in_time(self, simulator: ContactSimulator, query: ContactQuery, poses,
-                       chunk: int, deadline: float) -> BatchContactResult:
+    def _solve_in_time(self, simulator: ContactSimulator, query, poses, chunk: int,
+                       deadline: float) -> BatchContactResult:
         """``simulator.query_batch`` chunk by chunk, refusing once ``deadline`` has passed.
 
-        Each chunk is the call ``query_batch`` itself would make, so the rows are the same.
+        Chunks run on the server's worker threads (numpy and the KD-tree release the GIL in
+        their loops, so two cores solve about twice the poses); a batch of more than 128
+        poses is cut into at least one chunk per worker. Each chunk is a ``query_batch`` call
+        of its own, so a row's answer does not depend on the others.
         """
-        parts = []
-        for start in range(0, len(poses), chunk):
-            self._in_time(deadline, start, len(poses))
-            parts.append(simulator.query_batch(query.mesh, poses[start:start + chunk],
-                                               query.approach, query.torque_centre,
-                                               chunk=chunk))
-        if len(parts) == 1:
-            return parts[0]
+        count = len(poses)
+        if count > 128 and self._workers > 1:
+            chunk = min(chunk, -(-count // self._workers))
+        starts = range(0, count, chunk)
+
+        def solve(start):
+            self._in_time(deadline, start, count)
+            return simulator.query_batch(query.mesh, poses[start:start + chunk],
+                                         query.approach, query.torque_centre, chunk=chunk)
+        if len(starts) == 1:
+            return solve(0)
+        with single_threaded_blas():
+            futures = [self._pool().submit(solve, start) for start in starts]
+            try:
+                parts = [f.result() for f in futures]
+            finally:
+                for f in futures:
+                    f.cancel()
         return BatchContactResult(
             wrenches=np.concatenate([p.wrenches for p in parts]),
             contact_count=np.concatenate([p.contact_count for p in parts]),
@@ -538,6 +570,13 @@ class WrenchServer:
             lcp_residual=np.concatenate([p.lcp_residual for p in parts]),
             torque_centres=np.concatenate([p.torque_centres for p in parts]),
             frame=parts[0].frame)
+
+    def _pool(self) -> ThreadPoolExecutor:
+        with self._swap_lock:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(self._workers,
+                                                    thread_name_prefix='contact-batch')
+            return self._executor
 
     def _in_time(self, deadline: float, done: int, count: int) -> None:
         """Raise InvalidInput when the request's time budget has run out."""
@@ -570,6 +609,30 @@ def _as_rows(poses, frame: str) -> np.ndarray:
     if isinstance(poses, np.ndarray):
         return np.array(poses, dtype=np.float64)
     return np.array([np.concatenate([p.position, p.orientation]) for p in poses])
+
+
+class _Batch(NamedTuple):
+    """The parts of a batch request the solving steps use."""
+
+    mesh: Mesh
+    approach: np.ndarray
+    torque_centre: np.ndarray
+
+
+def _checked_rows(rows) -> np.ndarray:
+    """(B, 7) float64 copy of ``rows`` with unit quaternions, or InvalidInput naming a row."""
+    rows = as_array(rows, 'poses', (None, 7))
+    if len(rows) == 0:
+        raise InvalidInput('poses: the batch is empty')
+    norm = np.linalg.norm(rows[:, 3:], axis=1)
+    bad = np.abs(norm - 1.0) > 1e-3
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise InvalidInput(f'{_where(len(rows), i)}: quaternion must be unit length, '
+                           f'|q| = {norm[i]:.4g}')
+    rows = rows.copy()
+    rows[:, 3:] /= norm[:, None]
+    return rows
 
 
 def _shifted(poses, frame: str, shift: np.ndarray, a: np.ndarray) -> np.ndarray:

@@ -98,14 +98,15 @@ def test_memory_limits_cut_batches_and_refuse_what_cannot_fit():
     roomy.swap(MODEL)
     depths = np.linspace(0.0, 0.005, 30)
     query = _query(SPHERE, [[0.5, 0.0, 0.06 - d] for d in depths], centre=[0.5, 0.0, 0.06])
-    small = WrenchServer(limits=RequestLimits(max_memory=6 * 2 ** 20))   # chunks of 20 poses
+    # 6 MiB shared by 2 worker threads: chunks of 10 poses (20 would fit one thread alone)
+    small = WrenchServer(limits=RequestLimits(max_memory=6 * 2 ** 20), workers=2)
     small.swap(MODEL)
     calls = []
     original = small.simulator().query_batch
     small.simulator().query_batch = lambda *a, **k: calls.append(k['chunk']) or original(*a, **k)
     np.testing.assert_allclose(small.answer_batch(query)[0].wrenches,
                                roomy.answer_batch(query)[0].wrenches, rtol=0, atol=1e-12)
-    chunk = 6 * 2 ** 20 // (mesh_sample_count(SPHERE, 0.003) * BYTES_PER_SAMPLE_POSE)
+    chunk = 6 * 2 ** 20 // (2 * mesh_sample_count(SPHERE, 0.003) * BYTES_PER_SAMPLE_POSE)
     assert chunk < len(depths) and calls == [chunk] * int(np.ceil(len(depths) / chunk))
 
 

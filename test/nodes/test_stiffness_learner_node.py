@@ -107,8 +107,8 @@ def test_shape_constant_set_at_run_time_saves_a_new_model(ros_graph, tmp_path):
     assert np.isinf(load_model(statuses[-1].model_path).shape_decay)
 
 
-def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(ros_graph,
-                                                                               tmp_path):
+def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
+        ros_graph, tmp_path):
     """Issue 16 item 8: c was lost on restart and the node published the version it asked for.
 
     After c and L are set at run time (v5, v6) the learner is killed, a fifth poke lands and the

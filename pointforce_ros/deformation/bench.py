@@ -20,7 +20,7 @@ from pointforce_ros.deformation.fem import CorotationalFem, load_columns, surfac
 from pointforce_ros.deformation.force import (estimate_force, estimate_force_nelder_mead,
                                               ForceConfig)
 from pointforce_ros.deformation.identify import (identify_elasticity, identify_nelder_mead,
-                                                 Poke)
+                                                 IdentifyConfig, Poke)
 from pointforce_ros.deformation.mesh import block_mesh, TetMesh
 from pointforce_ros.errors import InvalidInput
 
@@ -63,7 +63,10 @@ def bench_deformation(element_size: float = 0.004, layers: int = 8, repeats: int
         seed: seed of the contact points, forces and noise.
 
     Returns:
-        A JSON-ready dict: mesh size, medians in seconds, errors, and the ratios
+        A JSON-ready dict: mesh size, medians in seconds, errors, the identification both
+        cold (the model built inside the call) and from the model built when the surface was
+        scanned (``identify_from_scan_model_*``, as the node runs it; the scan-time build is
+        ``scan_model_cpu_seconds``), and the ratios
         ``force_speedup`` / ``identify_speedup`` (Nelder-Mead time / ours); ``figure`` holds
         the force speedup.
 
@@ -97,6 +100,15 @@ def bench_deformation(element_size: float = 0.004, layers: int = 8, repeats: int
     c0 = time.process_time()
     fit, fem = identify_elasticity(mesh, pokes)
     c_identify = time.process_time() - c0
+    # as the node runs it: the object's model is built (factorised at the reference nu) when
+    # its surface is scanned, so an identification starts from it
+    config = IdentifyConfig()
+    c0 = time.process_time()
+    scanned = CorotationalFem(mesh, 5e4, config.reference_poisson)
+    c_scan = time.process_time() - c0
+    c0 = time.process_time()
+    warm, _ = identify_elasticity(mesh, pokes, config, fem=scanned)
+    c_warm = time.process_time() - c0
     out = dict(mesh_nodes=int(mesh.n_nodes), mesh_tets=int(len(mesh.tets)),
                free_dofs=int(len(fem.free)), element_size_m=float(element_size),
                model_build_seconds=t_model, identify_seconds=fit.seconds,
@@ -104,7 +116,13 @@ def bench_deformation(element_size: float = 0.004, layers: int = 8, repeats: int
                identify_factorise_seconds=fit.factorise_seconds,
                identify_young_error=fit.young / TRUTH[0] - 1.0,
                identify_poisson_error=fit.poisson - TRUTH[1],
-               identify_evaluations=fit.evaluations)
+               identify_evaluations=fit.evaluations,
+               identify_poisson_interval=list(fit.poisson_interval),
+               identify_young_interval=list(fit.young_interval),
+               scan_model_cpu_seconds=c_scan, identify_from_scan_model_seconds=warm.seconds,
+               identify_from_scan_model_cpu_seconds=c_warm,
+               identify_from_scan_model_young_error=warm.young / TRUTH[0] - 1.0,
+               identify_from_scan_model_poisson_error=warm.poisson - TRUTH[1])
     config = ForceConfig()
     times, cpu, est = [], [], None
     for _ in range(int(repeats)):

@@ -190,11 +190,15 @@ class CorotationalFem:
             self._k_mu_g = sp.csr_matrix(
                 ((field[:, None, None] * self._k_mu).ravel(), (self._rows, self._cols)),
                 shape=(n, n))
+            # the free-free blocks, sliced once per field: a new nu only adds them
+            free = self.free
+            self._k_lam_ff = self._k_lam_g[free][:, free].tocsc()
+            self._k_mu_ff = self._k_mu_g[free][:, free].tocsc()
         self.young = scale
         self.poisson = float(poisson)
         self._lam, self._mu = lam1, mu1
         self.k = lam1 * self._k_lam_g + mu1 * self._k_mu_g
-        kff = self.k[self.free][:, self.free].tocsc()
+        kff = (lam1 * self._k_lam_ff + mu1 * self._k_mu_ff).tocsc()
         self._lu = spla.splu(kff, permc_spec='MMD_AT_PLUS_A', options=dict(SymmetricMode=True))
         self._lu_scale = 1.0
         self._element_k = None

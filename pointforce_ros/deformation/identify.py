@@ -111,6 +111,14 @@ class ElasticityFit:
         error: the minimised objective (method-specific: sum of squares m^2 or eq. 7).
         factorise_seconds: of ``seconds``, the time spent factorising the stiffness (the model
             built for the call when none was given, and the final model at the found nu).
+        poisson_interval: (lo, hi) of the nu values whose best fit is within one unit of
+            chi-square of the best (``(SSE(nu) - SSE_min) / sigma^2 <= 1``), clipped to the
+            search bounds; ``sigma^2`` is the residual variance at the fit scaled by points per
+            paired surface node (points on the same elements share their discretisation
+            error, so the nodes, not the points, count as independent). About a 68 %
+            interval; an interval reaching a bound says the data does not pin nu.
+        young_interval: (lo, hi) of E over the same nu interval, widened by E's own
+            standard error at each nu (same ``sigma^2``), Pa.
 
     """
 
@@ -122,6 +130,8 @@ class ElasticityFit:
     seconds: float
     error: float
     factorise_seconds: float = 0.0
+    poisson_interval: Tuple[float, float] = (float('nan'), float('nan'))
+    young_interval: Tuple[float, float] = (float('nan'), float('nan'))
 
 
 def _loads(mesh: TetMesh, pokes: Sequence[Poke], radius: float) -> np.ndarray:
@@ -157,8 +167,8 @@ class ReducedPoissonFamily:
 
     def __init__(self, fem: CorotationalFem, loads: np.ndarray, krylov: int):
         free = fem.free
-        k_lam = fem._k_lam_g[free][:, free]
-        k_mu = fem._k_mu_g[free][:, free]
+        k_lam = fem._k_lam_ff
+        k_mu = fem._k_mu_ff
         scale = fem.young
         vecs = []
         v = fem.solve_linear(loads)[free] * scale  # every load at once: (n_free, n)
@@ -184,8 +194,12 @@ class ReducedPoissonFamily:
         return out
 
 
-def _best_compliance(matches, unit, corr) -> Tuple[float, float, int]:
-    """Closed-form ``s = 1/E`` over all pokes; returns (s, sum of squares, points)."""
+def _best_compliance(matches, unit, corr, with_information: bool = False):
+    """Closed-form ``s = 1/E`` over all pokes; returns (s, sum of squares, points).
+
+    With ``with_information`` also ``sum a^2`` (the information on ``s`` per unit noise
+    variance: ``var(s) = sigma^2 / sum a^2``).
+    """
     num = den = 0.0
     parts = []
     for j, m in enumerate(matches):
@@ -198,7 +212,55 @@ def _best_compliance(matches, unit, corr) -> Tuple[float, float, int]:
         raise InvalidInput('identify: the clouds do not see the poke displacements')
     s = num / den
     sse = sum(float(np.sum((b - s * a) ** 2)) for a, b in parts)
+    if with_information:
+        return s, sse, sum(len(a) for a, _ in parts), den
     return s, sse, sum(len(a) for a, _ in parts)
+
+
+PROFILE_POINTS = 13
+"""nu values of the profile that gives :attr:`ElasticityFit.poisson_interval`."""
+
+
+def _poisson_profile(matches, family: 'ReducedPoissonFamily', corr, bounds, nu: float
+                     ) -> Tuple[Tuple[float, float], Tuple[float, float]]:
+    """(nu interval, E interval) from the profile of the residual over nu (see ElasticityFit).
+
+    The profile is evaluated on a grid over the bounds plus the fitted nu (reduced-basis
+    solutions, each a few milliseconds); the interval ends are interpolated linearly where the
+    profile crosses one unit of chi-square.
+    """
+    grid = np.union1d(np.linspace(bounds[0], bounds[1], PROFILE_POINTS), [nu])
+    rows = []
+    for v in grid:
+        s, sse, npts, den = _best_compliance(matches, family.displacements(v), corr,
+                                             with_information=True)
+        rows.append((v, s, sse, den))
+    v, s, sse, den = (np.array(c) for c in zip(*rows))
+    best = int(np.argmin(sse))
+    sigma2 = sse[best] / max(npts - 2, 1)
+    # points paired with the same surface nodes share those nodes' discretisation error:
+    # count the nodes, not the points, as the independent measurements
+    independent = sum(len(np.unique(m.nodes)) for m in matches)
+    share = min(1.0, independent / max(npts, 1))
+    sigma2 /= share
+    chi = (sse - sse[best]) / sigma2
+    inside = chi <= 1.0
+
+    def crossing(i, k):  # linear interpolation between grid index i (inside) and k (outside)
+        return float(v[i] + (v[k] - v[i]) * (1.0 - chi[i]) / (chi[k] - chi[i]))
+    lo_i = best
+    while lo_i > 0 and inside[lo_i - 1]:
+        lo_i -= 1
+    hi_i = best
+    while hi_i < len(v) - 1 and inside[hi_i + 1]:
+        hi_i += 1
+    lo = float(v[0]) if lo_i == 0 else crossing(lo_i, lo_i - 1)
+    hi = float(v[-1]) if hi_i == len(v) - 1 else crossing(hi_i, hi_i + 1)
+    keep = slice(max(lo_i - 1, 0), min(hi_i + 2, len(v)))
+    s_std = np.sqrt(sigma2 / np.maximum(den[keep], 1e-300))
+    s_lo = np.clip(s[keep] - s_std, 1e-300, None)
+    young = (float(np.min(1.0 / (s[keep] + s_std))), float(np.max(1.0 / s_lo)))
+    return (lo, hi), young
 
 
 def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
@@ -272,10 +334,13 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
         corr = np.column_stack([fem.solve_linear(fem.nonlinear_force(u[:, j]))
                                 for j in range(len(pokes))])
     s, sse, npts = _best_compliance(state['matches'], unit, corr)
+    nu_interval, young_interval = _poisson_profile(state['matches'], family, corr,
+                                                   config.poisson_bounds, nu)
     fem.set_material(1.0 / s, nu)
     fit = ElasticityFit(young=1.0 / s, poisson=nu, residual_rms=float(np.sqrt(sse / npts)),
                         points=npts, evaluations=state['evals'],
-                        seconds=time.perf_counter() - t0, error=sse, factorise_seconds=t_fact)
+                        seconds=time.perf_counter() - t0, error=sse, factorise_seconds=t_fact,
+                        poisson_interval=nu_interval, young_interval=young_interval)
     return fit, fem
 
 

@@ -76,6 +76,25 @@ def test_closed_loop_identification_and_force(mesh):
     np.testing.assert_allclose(slow.force, f, atol=0.05 * np.linalg.norm(f))
 
 
+def test_identification_reports_an_interval_that_covers_the_truth_and_widens_with_noise(mesh):
+    truth = CorotationalFem(mesh, 3e4, 0.3)
+    points = [[0.49, -0.008, SIZE[2]], [0.51, 0.01, SIZE[2]]]
+    forces = [[0.05, 0.0, -0.6], [-0.1, 0.05, -0.8]]
+    widths = []
+    for noise in (1e-4, 6e-4):
+        pokes = [Poke(p, f, _sample_surface(mesh, _push(truth, p, f), 4000, noise, 20 + k))
+                 for k, (p, f) in enumerate(zip(points, forces))]
+        fit, _ = identify_elasticity(mesh, pokes)
+        lo, hi = fit.poisson_interval
+        assert lo <= fit.poisson <= hi
+        assert lo - 0.01 <= 0.3 <= hi + 0.01, (noise, fit.poisson_interval)
+        e_lo, e_hi = fit.young_interval
+        assert e_lo <= fit.young <= e_hi and e_lo < 3e4 * 1.02 and e_hi > 3e4 * 0.98
+        widths.append(hi - lo)
+    # six times the noise: a wider interval (a fixed-width report would not widen)
+    assert widths[1] > 2 * widths[0], widths
+
+
 def test_bad_requests_are_refused(mesh):
     fem = CorotationalFem(mesh, 3e4, 0.4)
     p = [0.5, 0.0, SIZE[2]]

@@ -102,6 +102,13 @@ class OnlineLearner:
             trials) replaces ``shape_constant``.
         min_peak_force: N; a poke whose force never exceeded this made no real contact (the
             point was off the object or the surface is wrong) and is not learned from.
+            ``None`` (the default): the threshold is relative to the data, the larger of
+            ``contact_snr`` times the poke's own noise and ``min_peak_fraction`` times the
+            largest peak force learned so far (a soft region's small forces are learned
+            from; step data has no fixed force scale).
+        contact_snr: noise sigmas a poke's peak must exceed (relative threshold).
+        min_peak_fraction: share of the largest peak learned so far a poke's peak must
+            exceed (relative threshold).
 
     Raises:
         InvalidInput: a non-positive shape constant or decay length, or malformed effects.
@@ -112,7 +119,8 @@ class OnlineLearner:
                  depths: np.ndarray = DEFAULT_DEPTHS,
                  model_factory: Callable[[], object] = ContactGpModel,
                  corrections: Optional[Callable] = None, effects: Optional[dict] = None,
-                 min_peak_force: float = 0.3, shape_decay: float = np.inf):
+                 min_peak_force: Optional[float] = None, shape_decay: float = np.inf,
+                 contact_snr: float = 8.0, min_peak_fraction: float = 0.02):
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
@@ -131,7 +139,12 @@ class OnlineLearner:
             self.shape_constant = float(coupling['shape_constant'])
         # every poke read (time, point, normal, peak normal force): plastic-set counts
         self._spots: List[tuple] = []
-        self.min_peak_force = float(min_peak_force)
+        self.min_peak_force = None if min_peak_force is None else float(min_peak_force)
+        if not (contact_snr >= 0 and 0 <= min_peak_fraction < 1):
+            raise InvalidInput(f'contact_snr must be >= 0 and min_peak_fraction in [0, 1), got '
+                               f'{contact_snr} and {min_peak_fraction}')
+        self.contact_snr = float(contact_snr)
+        self.min_peak_fraction = float(min_peak_fraction)
         self._failed_points: List[np.ndarray] = []
         self.model = None
         self.curves: List[PokeCurve] = []
@@ -171,7 +184,7 @@ class OnlineLearner:
             self.skipped[poke_id] = f'not learned from: {record.outcome}'
             return None
         peak = float(np.max(record.normal_force())) if len(record) else 0.0
-        if peak < self.min_peak_force:
+        if self.min_peak_force is not None and peak < self.min_peak_force:
             self._failed_points.append(record.point.copy())
             self.skipped[poke_id] = (f'no contact: peak force {peak:.3f} N < '
                                      f'{self.min_peak_force:g} N ({record.outcome}); '
@@ -182,7 +195,35 @@ class OnlineLearner:
             record = self.corrections([record])[0]
         elif self.effects:
             record = correct_record(record, self.effects, count)
-        return extract_curve(record)
+        try:
+            curve = extract_curve(record)
+        except PointforceError as exc:
+            if 'no contact' in str(exc):
+                self._failed_points.append(record.point.copy())
+            raise
+        if self.min_peak_force is None:
+            threshold = self.contact_threshold(curve)
+            if curve.meta['peak_force'] < threshold:
+                self._failed_points.append(record.point.copy())
+                self.skipped[poke_id] = (
+                    f'no contact: peak force {curve.meta["peak_force"]:.3f} N < {threshold:.3f}'
+                    f' N (max of {self.contact_snr:g} x its noise '
+                    f'{curve.meta["noise_std"]:.3f} N and {self.min_peak_fraction:g} x the '
+                    f'largest peak learned, {self._largest_peak():.3f} N; {record.outcome})')
+                return None
+        return curve
+
+    def _largest_peak(self) -> float:
+        return max((float(c.meta.get('peak_force', 0.0)) for c in self.curves), default=0.0)
+
+    def contact_threshold(self, curve: PokeCurve) -> float:
+        """Peak force (N) ``curve`` must exceed to count as a contact (relative threshold).
+
+        The larger of ``contact_snr`` times the curve's own noise and ``min_peak_fraction``
+        times the largest peak force learned so far.
+        """
+        return max(self.contact_snr * float(curve.meta.get('noise_std', 0.0)),
+                   self.min_peak_fraction * self._largest_peak())
 
     def learn_records(self, records: Sequence) -> Optional[LearnerStatus]:
         """Learn from ``records`` (point pokes, in time order) as if they had landed in the store.

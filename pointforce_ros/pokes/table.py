@@ -28,7 +28,7 @@ import numpy as np
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.pokes.store import PokeStore, read_poke_bag
 from pointforce_ros.rotations import rotvec_aligning_z
-from pointforce_ros.types import PokeRecord
+from pointforce_ros.types import PokeRecord, Surface
 
 TABLE_COLUMNS = ('poke_id', 't', 'px', 'py', 'pz', 'nx', 'ny', 'nz', 'depth', 'force')
 FORCE_COLUMNS = ('fx', 'fy', 'fz')
@@ -145,6 +145,27 @@ def read_poke_table(path) -> List[PokeRecord]:
         except InvalidInput as exc:
             raise DataError(f'{path}: poke {poke_id}: {exc}') from exc
     return records
+
+
+def surface_from_records(records: Sequence[PokeRecord]) -> Surface:
+    """The equilibrium surface a table without a cloud implies: its poked points and normals.
+
+    Data from another rig often comes without a depth-camera cloud; the learner then bakes
+    its model on the poked points themselves (one surface point per distinct poke point, in
+    first-seen order, no colour), enough to learn, score and serve point pokes there.
+
+    Raises:
+        InvalidInput: no records, or records that are not PokeRecords.
+
+    """
+    records = list(records)
+    if not records or not all(isinstance(r, PokeRecord) for r in records):
+        raise InvalidInput('surface_from_records: need a non-empty sequence of PokeRecords')
+    points = np.array([r.point for r in records])
+    normals = np.array([r.normal for r in records])
+    _, first = np.unique(points, axis=0, return_index=True)
+    keep = np.sort(first)
+    return Surface(points=points[keep], normals=normals[keep])
 
 
 def load_pokes(data) -> List[PokeRecord]:

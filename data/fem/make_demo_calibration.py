@@ -7,7 +7,11 @@ solve (:func:`pointforce_ros.sim.fem.indentation.probe_wrench_full`, element siz
 ``mesh_live``), as the F/T sensor would read it without noise. Writes
 ``demo_calibration_<object>.npz`` (depths (T,) m, force (T, 3) N, base frame).
 
-Usage: python data/fem/make_demo_calibration.py [--object lamb]   (minutes)
+A second push with a rod (``--probe rod``, :func:`~pointforce_ros.bringup.demo.
+calibration_rod_push`) writes ``demo_calibration_rod_<object>.npz``: with the sphere it fixes
+both ``c`` and the tail decay length ``L``.
+
+Usage: python data/fem/make_demo_calibration.py [--object lamb] [--probe sphere|rod] (minutes)
 """
 
 import argparse
@@ -18,7 +22,7 @@ import numpy as np
 
 from pointforce_ros.sim.fem.indentation import probe_wrench_full
 from pointforce_ros.sim.objects import load_object
-from pointforce_ros.bringup.demo import calibration_push
+from pointforce_ros.bringup.demo import CALIBRATIONS
 
 HERE = Path(__file__).resolve().parent
 
@@ -27,9 +31,11 @@ def main():
     """Compute and write the fixture."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--object', default='lamb')
+    parser.add_argument('--probe', default='sphere', choices=sorted(CALIBRATIONS))
     args = parser.parse_args()
     spec = load_object(args.object)
-    mesh, poses, depths = calibration_push(spec)
+    pattern, push = CALIBRATIONS[args.probe]
+    mesh, poses, depths = push(spec)
     start = time.monotonic()
     force = []
     for k, pose in enumerate(poses):
@@ -37,7 +43,7 @@ def main():
         force.append(f)
         print(f'{k + 1}/{len(poses)}: F = {np.round(f, 3)} N, {time.monotonic() - start:.0f} s',
               flush=True)
-    np.savez(HERE / f'demo_calibration_{spec.name}.npz',
+    np.savez(HERE / pattern.format(spec.name),
              depths=np.asarray(depths), force=np.array(force))
 
 

@@ -59,10 +59,16 @@ def demo_query_set(spec):
 
 
 CALIBRATION_OFFSET = (-0.02, -0.012)
-"""Where the calibration sphere pushes, relative to the object's centre (x, y), metres."""
+"""Where the calibration pushes press, relative to the object's centre (x, y), metres."""
 
 CALIBRATION_DEPTHS = (0.003, 0.005)
-"""Depths of the calibration push below the top surface, metres."""
+"""Depths of the calibration sphere below the top surface, metres."""
+
+ROD_DEPTHS = (0.002, 0.004)
+"""Depths of the calibration rod below the top surface, metres."""
+
+ROD_LENGTH = 0.03
+"""Length of the calibration rod (a cylinder of radius 10 mm lying along x), metres."""
 
 
 def calibration_push(spec):
@@ -77,6 +83,27 @@ def calibration_push(spec):
     down = np.array([0.0, 0.0, -1.0])
     poses = [pose_for_push(top + down * d, down, 0.0) for d in CALIBRATION_DEPTHS]
     return sphere_probe(0.02), poses, np.array(CALIBRATION_DEPTHS)
+
+
+def calibration_rod_push(spec):
+    """Return the demo's second calibration push, a rod: ``(mesh, poses, depths)``.
+
+    A cylinder of radius 10 mm and :data:`ROD_LENGTH` lying along x, pushed straight down at
+    the sphere's site (:data:`CALIBRATION_OFFSET`, where the first poke lands) to
+    :data:`ROD_DEPTHS`. The sphere shares displacement over a small disc, the rod over a line
+    ten times longer: the two together determine both ``c`` and the tail's decay length ``L``
+    (one push with one probe fixes only a curve of ``(c, L)`` pairs).
+    """
+    cx, cy = spec.centre
+    top = np.asarray(spec.top_point(cx + CALIBRATION_OFFSET[0], cy + CALIBRATION_OFFSET[1]))
+    down = np.array([0.0, 0.0, -1.0])
+    poses = [pose_for_push(top + down * d, down, 0.0) for d in ROD_DEPTHS]
+    return cylinder_probe(0.01, ROD_LENGTH), poses, np.array(ROD_DEPTHS)
+
+
+CALIBRATIONS = {'sphere': ('demo_calibration_{}.npz', calibration_push),
+                'rod': ('demo_calibration_rod_{}.npz', calibration_rod_push)}
+"""Calibration pushes of the demo: name -> (fixture file pattern, push builder)."""
 
 
 def _calibrate(cell, spec):

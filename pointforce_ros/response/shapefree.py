@@ -21,7 +21,7 @@ but does not bake or serialise yet, so the learner still uses ``ContactGpModel``
 """
 
 import time
-from typing import List, Sequence
+from typing import Dict, List, Sequence
 
 import numpy as np
 from sklearn.isotonic import IsotonicRegression
@@ -42,17 +42,27 @@ EPS = 0.05
 """Offset of the log-force targets, newtons."""
 
 
-def curve_knots(curve: PokeCurve, knots: np.ndarray = KNOTS) -> np.ndarray:
+MIN_PAST_ONSET = 3
+"""Fewest samples past the contact onset a curve needs (a step poke may have only a few)."""
+
+
+def curve_knots(curve: PokeCurve, knots: np.ndarray = KNOTS,
+                min_past_onset: int = MIN_PAST_ONSET) -> np.ndarray:
     """``log(f(s_k) + EPS)`` (K,) of one loading curve (monotone fit, power-law tail).
 
+    The tail exponent is fitted on the samples of the curve's last 40 % that carry more than
+    2 % of its deepest force (at least 3; else 1.5): relative, so step data with a few samples
+    and a soft region's small forces get a fitted tail too.
+
     Raises:
-        InvalidInput: fewer than 5 samples past the onset.
+        InvalidInput: fewer than ``min_past_onset`` samples past the onset.
 
     """
     s = curve.d - curve.onset_d
     keep = s > 0
-    if int(keep.sum()) < 5:
-        raise InvalidInput(f'poke {curve.poke_id}: fewer than 5 samples past the contact onset')
+    if int(keep.sum()) < min_past_onset:
+        raise InvalidInput(f'poke {curve.poke_id}: {int(keep.sum())} samples past the contact '
+                           f'onset, fewer than {min_past_onset}')
     s, f = s[keep], curve.f[keep]
     iso = IsotonicRegression(increasing=True, out_of_bounds='clip').fit(s, f)
     s_max = float(s.max())
@@ -61,9 +71,9 @@ def curve_knots(curve: PokeCurve, knots: np.ndarray = KNOTS) -> np.ndarray:
     out[inside] = iso.predict(knots[inside])
     tail = s > 0.6 * s_max
     f_tail = iso.predict(s[tail])
-    ok = f_tail > 0.1
+    ok = f_tail > 0.02 * max(float(f_tail.max()), 1e-12)
     exponent = 1.5
-    if int(ok.sum()) > 10 and np.ptp(np.log(s[tail][ok])) > 0:
+    if int(ok.sum()) >= 3 and np.ptp(np.log(s[tail][ok])) > 0:
         exponent = float(np.polyfit(np.log(s[tail][ok]), np.log(f_tail[ok]), 1)[0])
     exponent = float(np.clip(exponent, 1.0, 4.0))
     f_end = float(iso.predict([s_max])[0])
@@ -79,14 +89,19 @@ class ShapeFreeGpModel:
         onset_prior: prior standard deviation of the onset about its mean, metres.
         shape_prior: prior standard deviation of the log-force targets about their mean.
         grid: GP hyperparameter grid.
+        min_past_onset: fewest samples past the onset a curve needs; a curve with fewer is
+            skipped with its reason in :attr:`skipped` (a fit or a learning curve goes on).
 
     """
 
     kind = 'pointforce.response.shape_free_gp'
 
     def __init__(self, max_surface_distance: float = DEFAULT_MAX_SURFACE_DISTANCE,
-                 onset_prior: float = 0.003, shape_prior: float = 1.0, grid=None):
+                 onset_prior: float = 0.003, shape_prior: float = 1.0, grid=None,
+                 min_past_onset: int = MIN_PAST_ONSET):
         self.max_surface_distance = float(max_surface_distance)
+        self.min_past_onset = int(min_past_onset)
+        self.skipped: Dict[str, str] = {}
         self.onset_prior = float(onset_prior)
         self.shape_prior = float(shape_prior)
         self.grid = grid or GpGrid()
@@ -103,14 +118,30 @@ class ShapeFreeGpModel:
     def fit(self, curves: Sequence[PokeCurve], surface: Surface) -> 'ShapeFreeGpModel':
         """Fit from scratch on ``curves`` poked on ``surface``; returns ``self``.
 
+        A curve with too few samples past its onset is skipped (:attr:`skipped` says which
+        and why).
+
         Raises:
-            InvalidInput: no curves, duplicate ids, pokes off the surface, too short curves.
+            InvalidInput: no curves, duplicate ids, pokes off the surface, or no usable curve.
 
         """
         start = time.perf_counter()
         curves = check_curves(curves, surface)
+        self.skipped = {}
+        usable, rows = [], []
+        for curve in curves:
+            try:
+                rows.append(curve_knots(curve, min_past_onset=self.min_past_onset))
+            except InvalidInput as exc:
+                self.skipped[curve.poke_id] = str(exc)
+                continue
+            usable.append(curve)
+        if not usable:
+            raise InvalidInput('ShapeFreeGpModel.fit: no usable curve ('
+                               + '; '.join(list(self.skipped.values())[:3]) + ')')
+        curves = usable
         x = curve_features(curves, surface, self.max_surface_distance)
-        y = np.array([curve_knots(c) for c in curves])                  # (n, K)
+        y = np.array(rows)                                              # (n, K)
         onsets = np.array([c.onset_d for c in curves])
         frame = FeatureFrame.of_surface(surface.points, surface.colors)
         with single_threaded_blas():

@@ -61,7 +61,41 @@ def test_knots_follow_the_curve_and_errors_are_clear():
     assert np.exp(np.interp(s_mid, KNOTS, y)) - 0.05 == pytest.approx(truth, abs=0.15)
     short = PokeCurve(poke_id='short', point=c.point, normal=c.normal, d=c.d[:3], f=c.f[:3],
                       onset_d=0.0, t=c.t[:3])
-    with pytest.raises(InvalidInput, match='fewer than 5'):
+    with pytest.raises(InvalidInput, match='fewer than 3'):
         curve_knots(short)
     with pytest.raises(ModelNotReady):
         ShapeFreeGpModel().predict(np.zeros((1, 9)), [0.0])
+
+
+def test_a_curve_too_short_past_its_onset_is_skipped_not_fatal():
+    surface, curves = _softening_world(count=9)
+    c = curves[4]
+    s = c.d - c.onset_d
+    cut = np.flatnonzero(s > 0)[1] + 1          # two samples past the onset
+    short = PokeCurve(poke_id=c.poke_id, point=c.point, normal=c.normal, d=c.d[:cut],
+                      f=c.f[:cut], onset_d=c.onset_d, t=c.t[:cut])
+    pool = curves[:4] + [short] + curves[5:]
+    model = ShapeFreeGpModel().fit(pool, surface)
+    assert list(model.skipped) == [c.poke_id] and 'past the contact onset' in \
+        model.skipped[c.poke_id]
+    assert c.poke_id not in model.poke_ids and len(model.poke_ids) == 8
+    # and a learning curve over the pool runs to the end
+    rows = learning_curve(pool, surface, {'shape_free': ShapeFreeGpModel}, sizes=(3, 5),
+                          repeats=3, seed=1)
+    assert [r['size'] for r in rows] == [3, 5]
+    assert all(np.isfinite(r['median']) for r in rows)
+
+
+def test_step_data_curves_of_ten_samples_are_learned():
+    surface, curves = _softening_world(count=12, seed=7)
+    steps = []
+    for c in curves:
+        take = np.round(np.linspace(0, len(c.d) - 1, 10)).astype(int)
+        steps.append(PokeCurve(poke_id=c.poke_id, point=c.point, normal=c.normal, d=c.d[take],
+                               f=c.f[take], onset_d=c.onset_d, t=c.t[take]))
+    model = ShapeFreeGpModel().fit(steps[:9], surface)
+    assert not model.skipped
+    x = curve_features(curves[9:], surface)
+    err = np.concatenate([model.predict(row[None].repeat(len(c.d), 0), c.d) - c.f
+                          for row, c in zip(x, curves[9:])])
+    assert np.sqrt(np.mean(err ** 2)) < 0.1 * 6.0

@@ -12,6 +12,7 @@ import numpy as np
 from geometry_msgs.msg import Wrench as WrenchMsg
 from pointforce_interfaces.action import Poke
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch, SuggestPoke
+from std_msgs.msg import Header
 
 from msg_adapters.geometry import (mesh_from_flat, mesh_from_msg, pose_from_msg, to_point,
                                    to_vector3, unit_vector, vec, wrench_to_msg)
@@ -134,9 +135,11 @@ def poke_goal_from_msg(goal: Poke.Goal) -> PokeGoal:
     ``surface_index`` is -1 (none) or an index >= 0, nothing else.
 
     Raises:
-        InvalidInput: NaN fields, a non-unit normal, or ``surface_index`` below -1.
+        InvalidInput: a ``header.frame_id`` other than ``base`` (empty: ``base``), NaN fields,
+            a non-unit normal, or ``surface_index`` below -1.
 
     """
+    check_frame(goal.header)
     if goal.surface_index < -1:
         raise InvalidInput(f'surface_index {goal.surface_index}: must be -1 (use point and '
                            'normal) or a surface point index >= 0')
@@ -149,8 +152,9 @@ def poke_goal_from_msg(goal: Poke.Goal) -> PokeGoal:
 
 
 def poke_goal_to_msg(goal: PokeGoal) -> Poke.Goal:
-    """Convert a :class:`PokeGoal` to a Poke goal message."""
-    return Poke.Goal(point=to_point(goal.point), normal=to_vector3(goal.normal),
+    """Convert a :class:`PokeGoal` to a Poke goal message stamped in ``base``."""
+    return Poke.Goal(header=Header(frame_id=MODEL_FRAME),
+                     point=to_point(goal.point), normal=to_vector3(goal.normal),
                      surface_index=goal.surface_index, force_limit=goal.force_limit,
                      depth_limit=goal.depth_limit, speed=goal.speed, standoff=goal.standoff)
 
@@ -170,9 +174,14 @@ def poke_feedback_msg(depth: float, normal_force: float, samples: int,
 
 
 def fill_suggest_response(resp: SuggestPoke.Response, indices, points, normals,
-                          uncertainty) -> SuggestPoke.Response:
-    """Write suggested poke locations into a SuggestPoke response (success=True)."""
+                          uncertainty, frame: str = MODEL_FRAME) -> SuggestPoke.Response:
+    """Write suggested poke locations into a SuggestPoke response (success=True).
+
+    ``header.frame_id`` is ``frame``, the frame of ``points`` and ``normals``; the caller stamps
+    the header.
+    """
     resp.success = True
+    resp.header.frame_id = frame
     resp.message = ''
     resp.surface_indices = [int(i) for i in indices]
     resp.points = [to_point(p) for p in np.asarray(points).reshape(-1, 3)]

@@ -685,7 +685,8 @@ class UrArm:
                    accel: float = 0.1, approach_speed: float = 0.05, retract_speed: float = 0.01,
                    stop_decel: float = 10.0, cancel: Optional[Callable[[], bool]] = None,
                    settle_samples: int = 5, max_force: float = 100.0,
-                   max_travel: float = 0.1) -> PushResult:
+                   max_travel: float = 0.1,
+                   phase: Optional[Callable[[str], None]] = None) -> PushResult:
         """Push from a stand-off pose along ``direction`` until a limit, then retract.
 
         Sequence: moveL to ``standoff_pose6`` (asynchronous, watched for faults), wait
@@ -694,7 +695,8 @@ class UrArm:
         check the push-back force ``-wrench[:3] . direction`` against ``force_limit``,
         ``cancel()`` and the fault events. On a stop condition: ``stopL(stop_decel)``, settle,
         retract to the stand-off pose. Samples are recorded from just before the push starts
-        until the retract ends.
+        until the retract ends. ``phase(name)`` is called as each step begins: ``approach``,
+        ``tare``, ``push``, ``hold`` (stopped at the limit, settling) and ``retract``.
 
         Args:
             standoff_pose6: (6,) start pose, ``base``.
@@ -710,6 +712,8 @@ class UrArm:
             settle_samples: samples to wait after arriving and after stopping.
             max_force: upper bound accepted for ``force_limit``, N.
             max_travel: upper bound accepted for ``travel_limit``, m.
+            phase: called with the name of each step as it begins (the Poke action's
+                ``PHASE_*`` values), on this thread; it must return quickly and not raise.
 
         Returns:
             :class:`PushResult` with outcome ``force_limit``, ``depth_limit`` or ``canceled``.
@@ -763,9 +767,15 @@ class UrArm:
                     initial=0.0))),
                 standoff=standoff, direction=unit, events=events)
 
+        def enter(name: str) -> None:
+            if phase is not None:
+                phase(name)
+
         # approach and tare (no recording yet)
+        enter('approach')
         self._move_watched(standoff, approach_speed, 1.2, 'approach')
         self.wait_samples(settle_samples, 1.0)
+        enter('tare')
         self.tare()
         with self._cond:
             state['events_seen'] = self._event_count
@@ -774,6 +784,7 @@ class UrArm:
 
         outcome = None
         fault = None
+        enter('push')
         try:
             with self._cmd_lock:
                 ok = self._ctrl.moveL(target.tolist(), speed, accel, True)
@@ -817,6 +828,8 @@ class UrArm:
         detected = time.time()
         stoppable = fault is None or fault[0] in (EVENT_FT_FROZEN, 'timeout') or (
             fault[0] == EVENT_STALL and self._controller_alive())
+        if fault is None:
+            enter('hold')
         if stoppable and self._safe_connected(self._ctrl):
             try:
                 with self._cmd_lock:
@@ -825,6 +838,7 @@ class UrArm:
                 pass
         if fault is None:
             self.wait_samples(settle_samples, 1.0)
+            enter('retract')
             try:
                 self._move_watched(standoff, retract_speed, 0.5, 'retract')
             except DeviceFault as exc:
@@ -839,6 +853,7 @@ class UrArm:
         if stoppable and self.is_connected():
             try:
                 self.wait_samples(settle_samples, 0.5)
+                enter('retract')
                 self._move_watched(standoff, retract_speed, 0.5, 'retract', ignore=kind)
                 retracted = True
             except DeviceFault:

@@ -76,6 +76,23 @@ def _show(value):
     return list(value) if not isinstance(value, (str, bool, int, float)) else value
 
 
+def contained(node: Node, what: str, callback: Callable) -> Callable:
+    """Wrap a topic or timer callback so that no exception (``MemoryError`` too) reaches rclpy.
+
+    An exception is logged (throttled to one line per 5 s per callback) and the callback returns
+    ``None``; the node keeps serving. Services fill their response with the reason instead.
+    """
+    def wrapper(*args):
+        try:
+            return callback(*args)
+        except Exception as exc:  # noqa: BLE001 - a callback never raises into the executor
+            node.get_logger().error(f'{what}: {type(exc).__name__}: {exc}',
+                                    throttle_duration_sec=5.0)
+            return None
+    wrapper.__name__ = getattr(callback, '__name__', what)
+    return wrapper
+
+
 def qos_watch(node: Node, topic: str) -> SubscriptionEventCallbacks:
     """Event callbacks for a subscription to ``topic``: an incompatible-QoS match is logged.
 

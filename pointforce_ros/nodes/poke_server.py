@@ -6,6 +6,9 @@ stand-off along the normal, tare, push along ``-n`` at constant speed until the 
 limit, retract (:meth:`pointforce_ros.drivers.ur_arm.UrArm.push_until`). The driver's own
 receive interface streams TCP pose and wrench at 250 Hz, de-duplicated on controller time, to
 ``~/tcp_pose`` (``base``) and ``~/wrench`` (``tool0_controller``) and into the poke record.
+Feedback names the phase (``PHASE_*`` of Poke.action): one message as each of approach, tare,
+push, hold and retract begins, and ``feedback_rate`` messages per second during the push. A goal
+whose ``header.frame_id`` is not ``base`` (empty: ``base``) is rejected with the reason.
 Cancel stops the arm (asynchronous moveL + stopL) and retracts. A protective stop, a lost
 connection or a stalled F/T stream aborts with a message, after retracting where possible.
 Every poke, completed, canceled or aborted, is written to the poke store (rosbag2 MCAP) before
@@ -108,6 +111,7 @@ class PokeServerNode(Node):
         self._accepted_at = 0.0
         self._executing = False
         self.samples_streamed = 0
+        self.last_rejection = ''   # why the last goal was rejected (also logged)
         self.surface = None
         group = ReentrantCallbackGroup()
         self.wrench_pub = self.create_publisher(WrenchStamped, '~/wrench', STREAM)
@@ -219,7 +223,8 @@ class PokeServerNode(Node):
                 stale = (not self._executing
                          and time.monotonic() - self._accepted_at > self.START_TIMEOUT)
                 if not stale:
-                    self.get_logger().warn('poke goal rejected: another poke is running')
+                    self.last_rejection = 'another poke is running'
+                    self.get_logger().warn(f'poke goal rejected: {self.last_rejection}')
                     return GoalResponse.REJECT
                 self.get_logger().error(f'the last accepted poke goal did not start within '
                                         f'{self.START_TIMEOUT:g} s; taking its lock back')
@@ -229,6 +234,7 @@ class PokeServerNode(Node):
                 self._busy.release()
                 reason = str(exc) if isinstance(exc, PointforceError) else (
                     f'{type(exc).__name__}: {exc}')
+                self.last_rejection = reason
                 self.get_logger().warn(f'poke goal rejected: {reason}')
                 return GoalResponse.REJECT
             self._accepted_at = time.monotonic()
@@ -265,17 +271,33 @@ class PokeServerNode(Node):
             return poke_result_msg('', 0, 0.0, 0.0, 'aborted', str(exc))
         standoff = np.concatenate([point + goal.standoff * normal, rotvec_aligning_z(-normal)])
         period = 1.0 / self.feedback_hz
-        last = {'t': 0.0, 'first': self.samples_streamed}
+        last = {'t': 0.0, 'first': self.samples_streamed, 'phase': Poke.Feedback.PHASE_APPROACH}
 
-        def cancel_and_feedback():
+        def send_feedback():
             sample = arm.latest()
-            now = time.monotonic()
-            if sample is not None and now - last['t'] >= period:
-                last['t'] = now
+            depth = force = 0.0
+            if sample is not None:
                 depth = float(-(sample.pose[:3] - point) @ normal)
                 force = float(sample.wrench[:3] @ normal)
-                goal_handle.publish_feedback(poke_feedback_msg(
-                    depth, force, self.samples_streamed - last['first'], 'push'))
+            last['t'] = time.monotonic()
+            goal_handle.publish_feedback(poke_feedback_msg(
+                depth, force, self.samples_streamed - last['first'], last['phase']))
+
+        def try_feedback():
+            try:
+                send_feedback()
+            except Exception as exc:  # noqa: BLE001 - feedback never breaks the arm's sequence
+                self.get_logger().warn(f'{last["phase"]} feedback not sent: {exc}',
+                                       throttle_duration_sec=5.0)
+
+        def on_phase(name):
+            """Report each step as it begins (approach, tare, push, hold, retract)."""
+            last['phase'] = name
+            try_feedback()
+
+        def cancel_and_feedback():
+            if time.monotonic() - last['t'] >= period and arm.latest() is not None:
+                try_feedback()
             return goal_handle.is_cancel_requested
 
         poke_id = self.store.next_id()
@@ -287,7 +309,7 @@ class PokeServerNode(Node):
                                     retract_speed=self.retract_speed,
                                     cancel=cancel_and_feedback,
                                     max_force=self.limits.max_force,
-                                    max_travel=self.limits.max_depth + 0.05)
+                                    max_travel=self.limits.max_depth + 0.05, phase=on_phase)
         except DeviceFault as exc:
             fault = exc
             result = getattr(exc, 'result', None)

@@ -43,7 +43,7 @@ from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.files import (load_model, load_shape, load_surface, save_shape,
                                         version_of_path)
-from pointforce_ros.nodes.common import declare, live, qos_watch, run
+from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
 
@@ -132,23 +132,28 @@ class StiffnessLearnerNode(Node):
                 self._set_surface(load_surface(surface_file))
             except PointforceError as exc:
                 self.get_logger().error(f'cannot load surface_file: {exc}')
-        self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,
+        self.create_subscription(PointCloud2, 'cloud_capture/surface',
+                                 contained(self, 'surface', self._on_surface),
                                  LATCHED, callback_group=refit_group,
                                  event_callbacks=qos_watch(self, 'cloud_capture/surface'))
-        self.create_subscription(String, 'poke_server/poke_landed', self._on_poke,
+        self.create_subscription(String, 'poke_server/poke_landed',
+                                 contained(self, 'poke_landed', self._on_poke),
                                  RELIABLE, callback_group=refit_group,
                                  event_callbacks=qos_watch(self, 'poke_server/poke_landed'))
-        self.create_timer(poll, self.refit, callback_group=refit_group)
+        self.create_timer(poll, contained(self, 'refit', self.refit), callback_group=refit_group)
         if self.recorder is not None:
             self._record_store = PokeStore(self.store_dir)
             stream = ReentrantCallbackGroup()
-            self.create_subscription(PoseStamped, 'poke_server/tcp_pose', self._on_pose,
+            self.create_subscription(PoseStamped, 'poke_server/tcp_pose',
+                                     contained(self, 'tcp_pose', self._on_pose),
                                      RECORDER, callback_group=stream,
                                      event_callbacks=qos_watch(self, 'poke_server/tcp_pose'))
-            self.create_subscription(WrenchStamped, 'poke_server/wrench', self._on_wrench,
+            self.create_subscription(WrenchStamped, 'poke_server/wrench',
+                                     contained(self, 'wrench', self._on_wrench),
                                      RECORDER, callback_group=stream,
                                      event_callbacks=qos_watch(self, 'poke_server/wrench'))
-            self.create_subscription(String, 'poke_server/poke_record', self._on_record,
+            self.create_subscription(String, 'poke_server/poke_record',
+                                     contained(self, 'poke_record', self._on_record),
                                      RELIABLE, callback_group=refit_group,
                                      event_callbacks=qos_watch(self, 'poke_server/poke_record'))
         self.create_service(SuggestPoke, '~/suggest_poke', self._on_suggest,
@@ -324,6 +329,13 @@ class StiffnessLearnerNode(Node):
             stamp=self.get_clock().now().nanoseconds * 1e-9))
 
     def _on_suggest(self, request, response):
+        try:
+            return self._suggest(request, response)
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            self.get_logger().error(f'suggest_poke: {type(exc).__name__}: {exc}')
+            return fail(response, f'suggest_poke failed: {type(exc).__name__}: {exc}')
+
+    def _suggest(self, request, response):
         learner = self.learner
         if learner is None:
             return fail(response, 'no equilibrium surface yet')
@@ -333,8 +345,10 @@ class StiffnessLearnerNode(Node):
         except PointforceError as exc:
             return fail(response, str(exc))
         s = learner.surface
-        return fill_suggest_response(response, indices, s.points[indices], s.normals[indices],
-                                     std)
+        fill_suggest_response(response, indices, s.points[indices], s.normals[indices], std,
+                              frame=s.frame)
+        sec_to_stamp(self.get_clock().now().nanoseconds * 1e-9, response.header.stamp)
+        return response
 
 
 def main(args=None):

@@ -52,7 +52,7 @@ class ScriptedArm:
         self.tares += 1
 
     def push_until(self, standoff, direction, *, force_limit, travel_limit, speed,
-                   approach_speed, retract_speed, cancel, max_force, max_travel):
+                   approach_speed, retract_speed, cancel, max_force, max_travel, phase=None):
         self.pushes += 1
         deadline = time.monotonic() + self.duration
         while time.monotonic() < deadline:
@@ -208,3 +208,22 @@ def test_samples_a_record_refuses_are_kept_raw_and_the_message_says_where(script
         assert len(z['t_controller']) == arm.samples and z['t_controller'][50] == z[
             't_controller'][10]
         assert 'strictly increasing' in json.loads(bytes(z['header']).decode())['error']
+
+
+@pytest.mark.parametrize('frame, accepted', [('', True), ('base', True), ('tool0', False),
+                                             ('camera_depth_optical_frame', False)])
+def test_a_goal_in_another_frame_is_rejected_with_the_reason(scripted, frame, accepted):
+    """Issue 21: the goal's point and normal had ``base`` implied; a frame mistake was silent."""
+    graph, server, client, arms, _ = scripted
+    goal = _goal()
+    assert goal.header.frame_id == 'base'     # the adapter stamps what it converts
+    goal.header.frame_id = frame
+    handle = graph.wait_future(client.send_goal_async(goal), 20, 'goal response')
+    assert handle.accepted == accepted, server.last_rejection
+    if accepted:
+        assert graph.wait_future(handle.get_result_async(), 30, 'result').status == 4
+        assert arms[0].pushes == 1
+    else:
+        assert 'header.frame_id' in server.last_rejection
+        assert repr(frame) in server.last_rejection and "'base'" in server.last_rejection
+        assert not arms or arms[0].pushes == 0

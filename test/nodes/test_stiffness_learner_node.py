@@ -60,6 +60,9 @@ def test_refit_on_landed_poke_survives_restart_and_suggests(ros_graph, tmp_path)
     assert client.wait_for_service(timeout_sec=10)
     bad = ros_graph.wait_future(client.call_async(SuggestPoke.Request(count=0)), 20, 'bad')
     assert not bad.success and 'count' in bad.message
+    good = ros_graph.wait_future(client.call_async(SuggestPoke.Request(count=2)), 20, 'good')
+    assert good.success and len(good.points) == 2
+    assert good.header.frame_id == 'base' and good.header.stamp.sec > 0   # issue 21: stamped
     ros_graph.remove(learner)  # the node is killed
     statuses.clear()
     _learner(ros_graph, tmp_path)

@@ -1,56 +1,83 @@
 """Ours: a monotone contact law per poke whose parameters a Gaussian process spreads over x.
 
-The seed's Extra-Trees regressor treats ``(x, d)`` as ten anonymous inputs. Three facts it does
+Public API (what other modules may rely on; shapes: ``features`` (M, 9) ``[p, rgb, n]``,
+``d`` (M,) or scalar, metres, forces in newtons):
+
+- :meth:`ContactGpModel.predict` -- the predictive MEAN force ``E[f(theta, d)]`` at each
+  query, the expectation over the predictive distribution of the point's law parameters
+  ``theta`` (point 6 below). ``mean='median'`` gives ``f(E[theta], d)`` instead (the force at
+  the parameters' predictive mean: a geometric-mean-like value, biased low; what this model
+  returned before issue 17).
+- :meth:`~ContactGpModel.predict_std` -- the standard deviation of ``f(theta, d)`` over the
+  same distribution, ``sqrt(E[f^2] - E[f]^2)`` (the spread of the force *curve* at that
+  point, including the scatter of a new poke about the smooth field; not F/T sample noise).
+- :meth:`~ContactGpModel.predict_param_dist` -- mean (M, P) and covariance (M, P, P) of
+  ``theta`` at each point (Gaussian; correlated within a point, marginal across points).
+- :meth:`~ContactGpModel.sample_params` -- (S, M, P) draws of ``theta`` from that
+  distribution, and :meth:`~ContactGpModel.force_from_params` -- ``f(theta, d)`` for given
+  rows: together a Monte-Carlo spread of any derived quantity.
+- :attr:`~ContactGpModel.law` (``power`` or ``stiffening``) and
+  :attr:`~ContactGpModel.param_names` say what the P columns of ``theta`` are.
+
+The seed's Extra-Trees regressor treats ``(x, d)`` as ten anonymous inputs. Facts it does
 not use are built in here:
 
-1. **Zero before contact, monotone in depth.** Each poke's loading curve is fitted with
-   ``f = F * ((d - d0)_+ / s_ref) ** p`` (``F`` = force at the reference contact depth
-   ``s_ref``, ``p`` > 0), which is zero before the onset ``d0`` (where camera bias puts it)
-   and increasing after it, and extrapolates beyond the poked depth like the material does
-   (``p = 1.5`` is Hertz for a sphere; ``p`` is fitted).
-2. **Smooth over the surface.** The parameters ``theta = (d0, log F, p)`` vary smoothly over
-   the object: each is a Gaussian process over ``x = [p, rgb, n]`` (:mod:`.gp`; position
-   dominates, colour and normal enter when the likelihood says they help).
-3. **Uncertainty.** The processes give a mean and a standard deviation of ``theta`` anywhere;
-   the force's standard deviation follows by the delta method::
+1. **Zero before contact, monotone in depth.** Each poke's loading curve is fitted with a law
+   that is zero before the onset ``d0`` (where camera bias puts it) and increasing after it,
+   and extrapolates beyond the poked depth like the material does. Two laws, ``s = d - d0``:
 
-       var f = f^2 var(log F) + (f log(s / s_ref))^2 var(p) + (f p / s)^2 var(d0)
+   - ``power``: ``f = F * (s / s_ref) ** p`` (``F`` = force at the reference contact depth
+     ``s_ref``, ``p`` > 0; ``p = 1.5`` is Hertz for a sphere), parameters ``(d0, log F, p)``;
+   - ``stiffening``: ``f = F * (s / s_ref) ** p * exp(q * (s / s_ref - 1))``, ``q >= 0``, a
+     local exponent ``d log f / d log s = p + q s / s_ref`` that grows with depth (strain
+     stiffening: on stiff parts a power law pushed ``p`` onto its cap and still fell short
+     at the deepest samples), parameters ``(d0, log F, p, q)``.
 
-   (zero before the predicted onset; the ``d0`` term dominates just after it).
-
+   ``law='auto'`` chooses per object by held-out error inside the fit (point 7).
+2. **Smooth over the surface.** The parameters vary smoothly over the object: each is a
+   Gaussian process over ``x = [p, rgb, n]`` (:mod:`.gp`): position, colour and normal each
+   have a length scale (``inf`` = irrelevant) chosen by the marginal likelihood, so an
+   object where colour or normal means nothing does not use them.
+3. **Uncertainty.** The processes give a mean and a standard deviation of ``theta`` anywhere.
 4. **No extrapolation beyond the pokes.** Far from every poke (the object's sides, a corner
    the pokes never reached) a process's mean follows its basis and hyperparameters, not data.
    The predicted parameters are therefore kept within what the pokes showed: the onset within
    the pokes' detected onsets +- :data:`ONSET_MARGIN`, ``log F`` within the fitted values +-
-   :data:`LOG_FORCE_MARGIN`, ``p`` within the fitted exponents. On lamb one stiffening curve
-   fitted ``d0`` 2 mm before its detected onset, and the onset process spread -5 mm onsets
-   over the sides: a line probe then touched them early and the predicted force tripled.
-
-5. **The three processes spread decorrelated parameters.** One curve's ``(d0, log F, p)`` trade
+   :data:`LOG_FORCE_MARGIN`, ``p`` and ``q`` within the fitted values. On lamb one stiffening
+   curve fitted ``d0`` 2 mm before its detected onset, and the onset process spread -5 mm
+   onsets over the sides: a line probe then touched them early and the predicted force tripled.
+5. **The processes spread decorrelated parameters.** One curve's ``(d0, log F, p)`` trade
    against each other (an earlier onset with a softer, steeper law fits the same curve), and
    over an object they move together: on the simulated cell's lamb and dome their pairwise
-   correlations are 0.94-1.00. Spread by three independent processes, each parameter misses
-   by its own error and the combination falls off the curve family the pokes showed (lamb, 10
-   pokes: a held-out poke's own ``log F`` with a predicted onset and exponent scores 4.2 N
-   RMSE, worse than all three predicted, 0.56 N). So the processes spread ``y = L^-1 z``: ``z``
-   the parameters standardised over the training pokes, ``L`` the Cholesky factor of their
-   covariance in the order ``(d0, log F, p)``, shrunk towards the identity by
-   :data:`DECORRELATE_PRIOR_POKES` pseudo-pokes (a covariance from five pokes alone gave rare
-   but large misses). ``y_0`` is the onset, ``y_1`` the part of ``log F`` the onset does not
-   explain, ``y_2`` the rest of ``p``. A prediction maps back with ``L``; the parameters'
-   standard deviations combine the components'. With fewer than
-   :data:`DECORRELATE_MIN_POKES` pokes the processes are independent, as before. Measured
-   by :mod:`pointforce_ros.lab.figures`, figure 1 (``ours`` against ``ours_independent``).
+   correlations are 0.94-1.00. So the processes spread ``y = L^-1 z``: ``z`` the parameters
+   standardised over the training pokes, ``L`` the Cholesky factor of their covariance in
+   the order of ``theta``, shrunk towards the identity by :data:`DECORRELATE_PRIOR_POKES`
+   pseudo-pokes. A prediction maps back with ``L``, so the parameters' covariance at a point
+   is ``S L diag(var y) L^T S``. With fewer than :data:`DECORRELATE_MIN_POKES` pokes the
+   processes are independent.
+6. **Mean force, not force at the mean parameters.** ``log f`` is linear in ``(log F, p, q)``
+   for a fixed onset, so given ``d0`` the force is log-normal and its mean is
+   ``exp(m + v / 2)`` (the log-space retransformation); the onset is integrated out with
+   :data:`ONSET_NODES`-point Gauss-Hermite quadrature over its conditional Gaussian. The
+   variance of ``log f`` is capped at :data:`LOG_VAR_CAP` (far from every poke, deep in
+   contact, it would otherwise inflate the mean without bound).
+7. **Law chosen by held-out error.** With ``law='auto'`` and at least
+   :data:`LAW_SELECT_MIN_POKES` pokes, both laws are fitted and each is scored by
+   leave-one-poke-out: the processes (hyperparameters of the full fit) are conditioned on the
+   other pokes and predict the left-out poke's mean force over its contact samples; the law
+   with the lower pooled RMSE wins (the power law unless the stiffening law is better by
+   :data:`LAW_SELECT_MARGIN`). Fewer pokes: the power law.
 
-A refit is: one bounded least-squares fit for the new poke (cached for the others), then three
-small GP fits on a fixed hyperparameter grid; baking 40 000 points is a handful of (N, K) numpy
-expressions (see :mod:`.bench` for timings).
+A refit is: one bounded least-squares fit per law for the new poke (cached for the others),
+then small GP fits on a fixed hyperparameter grid and the leave-one-out scores; baking 40 000
+points is a handful of (N, K) numpy expressions per quadrature node.
 """
 
 import time
-from typing import List, Mapping, Optional, Sequence, Tuple
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.pokes.curves import fit_power_onset, PokeCurve
@@ -59,23 +86,44 @@ from pointforce_ros.response.common import (check_curves, check_depths, check_qu
                                             curve_features, DEFAULT_MAX_SURFACE_DISTANCE,
                                             single_threaded_blas)
 from pointforce_ros.response.gp import BASES, FeatureFrame, FeatureGp, GpGrid, GpState
+from pointforce_ros.response.scoring import CONTACT_MARGIN
 from pointforce_ros.types import Surface
 
 KIND = 'pointforce.response.contact_gp'
-FORMAT = 1
-PARAMS = ('d0', 'log_force', 'exponent')
+FORMAT = 2
+"""Saved-model format: 2 adds the law, the mean mode and per-law parameters (1 still loads)."""
+LAWS = ('power', 'stiffening')
+LAW_PARAMS = {'power': ('d0', 'log_force', 'exponent'),
+              'stiffening': ('d0', 'log_force', 'exponent', 'stiffening')}
+PARAMS = LAW_PARAMS['power']
+MEANS = ('mean', 'median')
 ONSET_MARGIN = 0.0005
 """How far (m) a predicted onset may lie outside the training pokes' detected onsets."""
 LOG_FORCE_MARGIN = 0.3
 """How far a predicted ``log F`` may lie outside the training pokes' fitted values."""
+STIFFENING_BOUNDS = (0.0, 6.0)
+"""Allowed range of the stiffening rate ``q`` (per reference depth)."""
 DECORRELATE_MIN_POKES = 3
 """Fewest pokes whose parameter covariance the processes are decorrelated with."""
 DECORRELATE_RIDGE = 1e-3
 """Added to the diagonal of the standardised parameters' covariance (keeps it invertible)."""
 DECORRELATE_PRIOR_POKES = 2.0
 """Pseudo-pokes of zero correlation the parameter covariance is shrunk with."""
-SCALE_FLOOR = np.array([1e-5, 1e-3, 1e-3])
-"""Smallest standard deviation of ``(d0 [m], log F, p)`` used to standardise them."""
+SCALE_FLOOR = np.array([1e-5, 1e-3, 1e-3, 1e-2])
+"""Smallest standard deviation of ``(d0 [m], log F, p, q)`` used to standardise them."""
+ONSET_NODES = 5
+"""Gauss-Hermite nodes over the onset in the mean force (module docstring, point 6)."""
+LOG_VAR_CAP = 0.5
+"""Largest variance of ``log f`` given the onset used in the mean force."""
+LAW_SELECT_MIN_POKES = 4
+"""Fewest pokes with which ``law='auto'`` compares the laws by leave-one-out."""
+LAW_SELECT_MARGIN = 0.02
+"""Relative held-out improvement the stiffening law needs to be chosen over the power law."""
+CV_SAMPLES = 40
+"""Contact samples per poke kept for the leave-one-out law choice."""
+
+_GH_Z, _GH_W = np.polynomial.hermite_e.hermegauss(ONSET_NODES)
+_GH_W = _GH_W / _GH_W.sum()
 
 
 class ContactGpModel:
@@ -84,28 +132,32 @@ class ContactGpModel:
     Args:
         ref_depth: reference contact depth ``s_ref`` at which ``F`` is defined, metres.
         exponent_bounds: allowed range of the contact exponent ``p``.
-        prior_scales: prior standard deviations of ``(d0 [m], log F, p)`` about their mean
-            over the object (they matter only with very few pokes).
+        prior_scales: prior standard deviations of ``(d0 [m], log F, p[, q])`` about their
+            mean over the object (they matter only with very few pokes; ``q``: 1.0 if absent).
         max_surface_distance: farthest a poke may be from the surface, metres.
-        bases: linear-term basis of the process of each parameter ``(d0, log F, p)``:
+        bases: linear-term basis of the process of each parameter ``(d0, log F, p[, q])``:
             ``rigid`` (camera extrinsic error: the onset's natural structure), ``colour``,
-            ``none`` (see :mod:`.gp`).
+            ``none`` (see :mod:`.gp`; ``q``: ``none`` if absent).
         grid: GP hyperparameter grid (:class:`~pointforce_ros.response.gp.GpGrid`).
         decorrelate: spread decorrelated parameters (module docstring, point 5); ``False``
-            spreads ``d0``, ``log F`` and ``p`` by independent processes.
+            spreads each parameter by an independent process.
+        law: ``auto`` (chosen by held-out error, point 7), ``power`` or ``stiffening``.
+        mean: ``mean`` (predictive mean force, point 6) or ``median`` (force at the
+            parameters' predictive mean).
 
     Raises:
-        InvalidInput: non-positive ``ref_depth`` or prior scales, bad exponent bounds.
+        InvalidInput: non-positive ``ref_depth`` or prior scales, bad exponent bounds, unknown
+            law or mean.
 
     """
 
     kind = KIND
 
     def __init__(self, ref_depth: float = 0.003, exponent_bounds=(0.7, 3.5),
-                 prior_scales=(0.003, 1.0, 0.4),
+                 prior_scales=(0.003, 1.0, 0.4, 1.0),
                  max_surface_distance: float = DEFAULT_MAX_SURFACE_DISTANCE,
-                 bases=('rigid', 'colour', 'none'), grid: Optional[GpGrid] = None,
-                 decorrelate: bool = True):
+                 bases=('rigid', 'colour', 'none', 'none'), grid: Optional[GpGrid] = None,
+                 decorrelate: bool = True, law: str = 'auto', mean: str = 'mean'):
         if not (np.isfinite(ref_depth) and ref_depth > 0):
             raise InvalidInput(f'ContactGpModel: ref_depth must be > 0 m, got {ref_depth}')
         lo, hi = (float(v) for v in exponent_bounds)
@@ -113,31 +165,53 @@ class ContactGpModel:
             raise InvalidInput(f'ContactGpModel: exponent_bounds must satisfy 0 < lo < hi, got '
                                f'{exponent_bounds}')
         scales = np.asarray(prior_scales, dtype=float)
-        if scales.shape != (3,) or not np.all(scales > 0):
-            raise InvalidInput('ContactGpModel: prior_scales must be three positive numbers')
+        if scales.shape == (3,):
+            scales = np.append(scales, 1.0)
+        if scales.shape != (4,) or not np.all(scales > 0):
+            raise InvalidInput('ContactGpModel: prior_scales must be three or four positive '
+                               'numbers')
+        bases = tuple(bases)
+        if len(bases) == 3:
+            bases = bases + ('none',)
+        if len(bases) != 4 or any(b not in BASES for b in bases):
+            raise InvalidInput(f'ContactGpModel: bases must be three or four of {BASES}, got '
+                               f'{bases}')
+        if law not in LAWS + ('auto',):
+            raise InvalidInput(f'ContactGpModel: law must be auto or one of {LAWS}, got {law!r}')
+        if mean not in MEANS:
+            raise InvalidInput(f'ContactGpModel: mean must be one of {MEANS}, got {mean!r}')
         self.ref_depth = float(ref_depth)
         self.exponent_bounds = (lo, hi)
         self.prior_scales = tuple(float(s) for s in scales)
         self.max_surface_distance = float(max_surface_distance)
-        bases = tuple(bases)
-        if len(bases) != 3 or any(b not in BASES for b in bases):
-            raise InvalidInput(f'ContactGpModel: bases must be three of {BASES}, got {bases}')
         self.bases = bases
         self.grid = grid or GpGrid()
         self.decorrelate = bool(decorrelate)
+        self.law_setting = law
+        self.mean = mean
+        self.law = 'power' if law == 'auto' else law
+        self.law_scores: Dict[str, float] = {}
         self.version = 0
         self._ids: List[str] = []
         self._features = np.zeros((0, 9))
-        self._theta = np.zeros((0, 3))
+        self._thetas: Dict[str, np.ndarray] = {k: np.zeros((0, len(LAW_PARAMS[k])))
+                                               for k in LAWS}
+        self._rms: Dict[str, np.ndarray] = {k: np.zeros(0) for k in LAWS}
+        self._samples: List[Optional[Tuple[np.ndarray, np.ndarray]]] = []
         self._onsets = np.zeros(0)
-        self._fit_rms = np.zeros(0)
         self._frame: Optional[FeatureFrame] = None
         self._gps: Optional[List[FeatureGp]] = None
         self._mix: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
+        self._param_bounds = None
         self._surface: Optional[Surface] = None
         self.fit_seconds = 0.0
 
     # ----------------------------------------------------------------------------- fitting
+    @property
+    def param_names(self) -> Tuple[str, ...]:
+        """Names of the P columns of ``theta`` under the current law."""
+        return LAW_PARAMS[self.law]
+
     @property
     def poke_ids(self) -> List[str]:
         """Ids of the training pokes, in training order."""
@@ -150,16 +224,32 @@ class ContactGpModel:
 
     @property
     def poke_params(self) -> np.ndarray:
-        """(n, 3) per-poke ``(d0 [m], log F [log N], p)`` fitted to each training curve."""
-        return self._theta.copy()
+        """(n, P) per-poke parameters of the current law (:attr:`param_names`)."""
+        return self._thetas[self.law].copy()
 
-    def fit_curve(self, curve: PokeCurve) -> Tuple[np.ndarray, float]:
-        """Fit the contact law to one curve; return ``((d0, log F, p), rms)``; stores nothing.
+    @property
+    def _theta(self) -> np.ndarray:
+        return self._thetas[self.law]
+
+    @property
+    def _fit_rms(self) -> np.ndarray:
+        return self._rms[self.law]
+
+    def _laws_to_fit(self) -> Tuple[str, ...]:
+        return LAWS if self.law_setting == 'auto' else (self.law_setting,)
+
+    def fit_curve(self, curve: PokeCurve, law: Optional[str] = None
+                  ) -> Tuple[np.ndarray, float]:
+        """Fit a contact law to one curve; return ``(theta, rms)``; stores nothing.
+
+        ``law``: ``power`` (``theta = (d0, log F, p)``) or ``stiffening`` (``(d0, log F, p,
+        q)``); default the model's current law.
 
         Raises:
             InvalidInput: the curve has no force above zero (nothing to fit).
 
         """
+        law = law or self.law
         if not np.any(curve.f > 0):
             raise InvalidInput(f'poke {curve.poke_id}: no positive force, cannot fit a contact '
                                'law')
@@ -167,7 +257,62 @@ class ContactGpModel:
             fit = fit_power_onset(curve.d, curve.f, with_bias=False,
                                   exponent_bounds=self.exponent_bounds, max_samples=600)
         force_ref = max(fit.a * self.ref_depth ** fit.p, 1e-9)
-        return np.array([fit.d0, np.log(force_ref), fit.p]), float(fit.rms)
+        power = np.array([fit.d0, np.log(force_ref), fit.p])
+        if law == 'power':
+            return power, float(fit.rms)
+        return self._fit_stiffening(curve, power, fit.noise)
+
+    def _fit_stiffening(self, curve: PokeCurve, power: np.ndarray, noise: float
+                        ) -> Tuple[np.ndarray, float]:
+        """Least-squares fit of the stiffening law, started from the power fit and from a
+        softer exponent with stiffening; returns the better."""
+        d, f = curve.d, curve.f
+        if len(d) > 600:
+            keep = np.round(np.linspace(0, len(d) - 1, 600)).astype(int)
+            d, f = d[keep], f[keep]
+        sref = self.ref_depth
+        x = d / sref
+        span = float(d.max() - d.min()) / sref
+        lo_p, hi_p = self.exponent_bounds
+        lower = np.array([x.min() - 0.5 * span - 1.0, -30.0, lo_p, STIFFENING_BOUNDS[0]])
+        upper = np.array([x.max(), 30.0, hi_p, STIFFENING_BOUNDS[1]])
+
+        def residual(z):
+            s = x - z[0]
+            pos = s > 0
+            out = np.zeros_like(s)
+            sp = s[pos]
+            out[pos] = np.exp(z[1] + z[2] * np.log(sp) + z[3] * (sp - 1.0))
+            return out - f
+
+        f_scale = max(2.0 * noise, 1e-6 * max(1.0, float(np.abs(f).max())))
+        best = None
+        starts = [np.array([power[0] / sref, power[1], power[2], 0.0]),
+                  np.array([power[0] / sref, power[1], max(lo_p, min(1.2, power[2])), 1.0])]
+        for z0 in starts:
+            z0 = np.clip(z0, lower + 1e-9, upper - 1e-9)
+            try:
+                sol = least_squares(residual, z0, bounds=(lower, upper), method='trf',
+                                    loss='soft_l1', f_scale=f_scale, x_scale='jac',
+                                    max_nfev=200)
+            except ValueError:
+                continue
+            if best is None or sol.cost < best.cost:
+                best = sol
+        if best is None:
+            theta = np.append(power, 0.0)
+        else:
+            theta = np.array([best.x[0] * sref, best.x[1], best.x[2], best.x[3]])
+        res = self.force_from_params(np.repeat(theta[None], len(curve.d), 0), curve.d,
+                                     law='stiffening') - curve.f
+        return theta, float(np.sqrt(np.mean(res ** 2)))
+
+    @staticmethod
+    def _cv_samples(curve: PokeCurve) -> Tuple[np.ndarray, np.ndarray]:
+        keep = np.flatnonzero(curve.d >= curve.onset_d - CONTACT_MARGIN)
+        if len(keep) > CV_SAMPLES:
+            keep = keep[np.round(np.linspace(0, len(keep) - 1, CV_SAMPLES)).astype(int)]
+        return curve.d[keep].copy(), curve.f[keep].copy()
 
     def fit(self, curves: Sequence[PokeCurve], surface: Surface) -> 'ContactGpModel':
         """Fit from scratch on ``curves`` poked on ``surface``; returns ``self``.
@@ -179,12 +324,16 @@ class ContactGpModel:
         start = time.perf_counter()
         curves = check_curves(curves, surface)
         feats = curve_features(curves, surface, self.max_surface_distance)
-        fits = [self.fit_curve(c) for c in curves]
+        self._thetas = {k: np.zeros((0, len(LAW_PARAMS[k]))) for k in LAWS}
+        self._rms = {k: np.zeros(0) for k in LAWS}
+        for law in self._laws_to_fit():
+            fits = [self.fit_curve(c, law) for c in curves]
+            self._thetas[law] = np.stack([th for th, _ in fits])
+            self._rms[law] = np.array([rms for _, rms in fits])
+        self._samples = [self._cv_samples(c) for c in curves]
         self._ids = [c.poke_id for c in curves]
         self._features = feats
-        self._theta = np.stack([th for th, _ in fits])
         self._onsets = np.array([c.onset_d for c in curves], dtype=float)
-        self._fit_rms = np.array([rms for _, rms in fits])
         self._frame = FeatureFrame.of_surface(surface.points, surface.colors)
         self._surface = surface
         self._fit_processes()
@@ -207,12 +356,16 @@ class ContactGpModel:
         if curve.poke_id in self._ids:
             raise InvalidInput(f'partial_fit: poke {curve.poke_id} is already in the model')
         feat = curve_features([curve], surface, self.max_surface_distance)
-        theta, rms = self.fit_curve(curve)
+        for law in self._laws_to_fit():
+            if len(self._thetas[law]) != len(self._ids):
+                continue                    # loaded without this law's fits: stays out
+            theta, rms = self.fit_curve(curve, law)
+            self._thetas[law] = np.vstack([self._thetas[law], theta[None]])
+            self._rms[law] = np.append(self._rms[law], rms)
         self._ids.append(curve.poke_id)
+        self._samples.append(self._cv_samples(curve))
         self._features = np.vstack([self._features, feat])
-        self._theta = np.vstack([self._theta, theta[None]])
         self._onsets = np.append(self._onsets, float(curve.onset_d))
-        self._fit_rms = np.append(self._fit_rms, rms)
         if self._frame is None or surface is not self._surface:
             self._frame = FeatureFrame.of_surface(surface.points, surface.colors)
         self._surface = surface
@@ -222,59 +375,128 @@ class ContactGpModel:
 
     def _fit_processes(self, states: Optional[Sequence[GpState]] = None) -> None:
         with single_threaded_blas():
-            self._fit_processes_inner(states)
+            if states is not None:
+                self._install(self.law, self._condition(self.law, states))
+            else:
+                self._choose_law()
+            if states is None:
+                self.version += 1
 
-    def _decorrelation(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Tuple[float, ...]]:
+    def _choose_law(self) -> None:
+        """Fit the processes of each candidate law; keep the one with the lower LOO error."""
+        n = len(self._ids)
+        usable = [k for k in self._laws_to_fit() if len(self._thetas[k]) == n]
+        if self.law_setting == 'auto' and (n < LAW_SELECT_MIN_POKES
+                                           or any(s is None for s in self._samples)):
+            usable = ['power'] if 'power' in usable else usable[:1]
+        fields = {k: self._condition(k, None) for k in usable}
+        self.law_scores = {}
+        if len(usable) > 1:
+            self.law_scores = {k: self._loo_rmse(k, fields[k][0]) for k in usable}
+            best = 'stiffening' if self.law_scores['stiffening'] < \
+                (1.0 - LAW_SELECT_MARGIN) * self.law_scores['power'] else 'power'
+        else:
+            best = usable[0]
+        self.law = best
+        self._install(best, fields[best])
+
+    def _decorrelation(self, theta: np.ndarray
+                       ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Tuple[float, ...]]:
         """``(mu, scale, L, priors)``: ``theta = mu + scale * (L @ y)`` (module docstring, 5).
 
         ``priors``: the prior scale of each process of ``y``. A function of the training
         parameters only, so a loaded model recomputes it. Independent processes (``L = I``)
         keep ``theta`` itself as the targets (``mu = 0``, ``scale = 1``, the configured prior
-        scales), as models saved before decorrelation expect.
+        scales).
         """
-        theta = self._theta
+        k = theta.shape[1]
         if not self.decorrelate or len(theta) < DECORRELATE_MIN_POKES:
-            return np.zeros(3), np.ones(3), np.eye(3), self.prior_scales
+            return np.zeros(k), np.ones(k), np.eye(k), self.prior_scales[:k]
         mu = theta.mean(axis=0)
-        scale = np.maximum(theta.std(axis=0), SCALE_FLOOR)
+        scale = np.maximum(theta.std(axis=0), SCALE_FLOOR[:k])
         z = (theta - mu) / scale
         n = len(z)
-        cov = (z.T @ z + DECORRELATE_PRIOR_POKES * np.eye(3)) / (n + DECORRELATE_PRIOR_POKES)
-        cov += DECORRELATE_RIDGE * np.eye(3)
-        return mu, scale, np.linalg.cholesky(cov), (1.0, 1.0, 1.0)
+        cov = (z.T @ z + DECORRELATE_PRIOR_POKES * np.eye(k)) / (n + DECORRELATE_PRIOR_POKES)
+        cov += DECORRELATE_RIDGE * np.eye(k)
+        return mu, scale, np.linalg.cholesky(cov), (1.0,) * k
 
-    def _fit_processes_inner(self, states: Optional[Sequence[GpState]]) -> None:
-        mu, scale, chol, priors = self._decorrelation()
-        y = np.linalg.solve(chol, ((self._theta - mu) / scale).T).T
+    def _bounds(self, theta: np.ndarray, onsets: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        lo, hi = theta.min(axis=0), theta.max(axis=0)
+        lower = [onsets.min() - ONSET_MARGIN, lo[1] - LOG_FORCE_MARGIN,
+                 max(lo[2], self.exponent_bounds[0])]
+        upper = [onsets.max() + ONSET_MARGIN, hi[1] + LOG_FORCE_MARGIN,
+                 min(hi[2], self.exponent_bounds[1])]
+        if theta.shape[1] > 3:
+            lower.append(lo[3])
+            upper.append(hi[3])
+        return np.array(lower), np.array(upper)
+
+    def _condition(self, law: str, states: Optional[Sequence[GpState]],
+                   rows: Optional[np.ndarray] = None):
+        """``(gps, mix, bounds)`` of ``law``'s processes on the training pokes ``rows``.
+
+        ``states``: hyperparameters to condition with (``None``: choose them on the grid).
+        """
+        rows = np.arange(len(self._ids)) if rows is None else rows
+        theta = self._thetas[law][rows]
+        mu, scale, chol, priors = self._decorrelation(theta)
+        y = np.linalg.solve(chol, ((theta - mu) / scale).T).T
         gps = []
-        for j in range(3):
+        for j in range(theta.shape[1]):
             gp = FeatureGp(self._frame, priors[j], basis=self.bases[j], grid=self.grid)
             if states is None:
-                gp.fit(self._features, y[:, j])
+                gp.fit(self._features[rows], y[:, j])
             else:
-                gp.condition(self._features, y[:, j], states[j])
+                gp.condition(self._features[rows], y[:, j], states[j])
             gps.append(gp)
-        self._gps = gps
-        self._mix = (mu, scale, chol)
-        lo, hi = self._theta.min(axis=0), self._theta.max(axis=0)
-        self._param_bounds = (
-            np.array([self._onsets.min() - ONSET_MARGIN, lo[1] - LOG_FORCE_MARGIN,
-                      max(lo[2], self.exponent_bounds[0])]),
-            np.array([self._onsets.max() + ONSET_MARGIN, hi[1] + LOG_FORCE_MARGIN,
-                      min(hi[2], self.exponent_bounds[1])]))
-        if states is None:
-            self.version += 1
+        return gps, (mu, scale, chol), self._bounds(theta, self._onsets[rows])
+
+    def _install(self, law: str, field) -> None:
+        self.law = law
+        self._gps, self._mix, self._param_bounds = field
+
+    def _loo_rmse(self, law: str, gps: Sequence[FeatureGp]) -> float:
+        """Pooled leave-one-poke-out RMSE (N) of ``law``'s mean force on the contact samples."""
+        n = len(self._ids)
+        states = [gp.state for gp in gps]
+        errs = []
+        for i in range(n):
+            rows = np.delete(np.arange(n), i)
+            field = self._condition(law, states, rows)
+            mean, cov = self._param_dist(field, self._features[i:i + 1])
+            d, f = self._samples[i]
+            if self.mean == 'median':
+                pred = self.force_from_params(np.repeat(mean, len(d), 0), d, law=law)
+            else:
+                pred = self._mean_force(law, mean[0], cov[0], d)[0]
+            errs.append(pred - f)
+        e = np.concatenate(errs)
+        return float(np.sqrt(np.mean(e ** 2))) if len(e) else np.inf
 
     # ---------------------------------------------------------------------------- prediction
     def _require(self) -> None:
         if self._gps is None:
             raise ModelNotReady('ContactGpModel: no pokes yet; fit the model first')
 
-    def predict_params(self, features: np.ndarray, return_std: bool = False):
-        """Mean (M, 3) and optionally std (M, 3) of ``(d0 [m], log F, p)`` at ``features``.
+    def _param_dist(self, field, features: np.ndarray, with_cov: bool = True):
+        gps, (mu, scale, chol), bounds = field
+        sq = {}
+        out = [gp.predict(features, return_std=with_cov, sq=sq) for gp in gps]
+        y = np.stack([o[0] for o in out] if with_cov else out, axis=1)
+        mean = np.clip(mu + scale * (y @ chol.T), *bounds)
+        if not with_cov:
+            return mean, None
+        var_y = np.stack([o[1] for o in out], axis=1) ** 2                 # (M, P)
+        a = scale[:, None] * chol                                          # (P, P)
+        cov = np.einsum('ij,mj,kj->mik', a, var_y, a)
+        return mean, cov
 
-        The means are kept within the training pokes' range (module docstring, point 4); the
-        std is the process's own (it still grows away from the pokes).
+    def predict_param_dist(self, features: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """Mean (M, P) and covariance (M, P, P) of the law parameters ``theta`` at ``features``.
+
+        Gaussian (the processes' predictive distribution mapped back through the
+        decorrelation); the mean is kept within the training pokes' range (module docstring,
+        point 4). Columns: :attr:`param_names`.
 
         Raises:
             ModelNotReady: before the first fit.
@@ -283,51 +505,96 @@ class ContactGpModel:
         """
         self._require()
         features, _ = check_query(features, 0.0)
-        sq = {}
         with single_threaded_blas():
-            out = [gp.predict(features, return_std=return_std, sq=sq) for gp in self._gps]
-        mu, scale, chol = self._mix
-        y = np.stack([o[0] for o in out] if return_std else out, axis=1)
-        mean = np.clip(mu + scale * (y @ chol.T), *self._param_bounds)
+            return self._param_dist((self._gps, self._mix, self._param_bounds), features)
+
+    def predict_params(self, features: np.ndarray, return_std: bool = False):
+        """Mean (M, P) and optionally std (M, P) of ``theta`` (:attr:`param_names`).
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: features not (M, 9) or not finite.
+
+        """
+        self._require()
+        features, _ = check_query(features, 0.0)
+        with single_threaded_blas():
+            mean, cov = self._param_dist((self._gps, self._mix, self._param_bounds), features,
+                                         with_cov=return_std)
         if not return_std:
             return mean
-        var_y = np.stack([o[1] for o in out], axis=1) ** 2
-        return mean, scale * np.sqrt(var_y @ (chol ** 2).T)
+        return mean, np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
 
-    def _law(self, d0, log_f, p, d, dtype=np.float64):
-        """Force ``f``, ``s = d - d0`` and ``log(s / s_ref)`` of the contact law.
+    def sample_params(self, features: np.ndarray, n_samples: int,
+                      rng: np.random.Generator) -> np.ndarray:
+        """(S, M, P) draws of ``theta`` at each point from :meth:`predict_param_dist`.
 
-        All arguments broadcast against each other (queries: all (M,); bake: parameters
-        (1, N) against depths (K, 1), so numpy's inner loops run over the N points). Where
-        ``s <= 0`` the force is 0 (the log is then meaningless but finite). ``dtype`` float32
-        halves the work of a bake.
+        Draws at different points are independent (marginal per point). Pass them with the
+        depths to :meth:`force_from_params` for a Monte-Carlo spread.
+
+        Raises:
+            ModelNotReady: before the first fit.
+            InvalidInput: features malformed or ``n_samples < 1``.
+
         """
-        s = np.asarray(d, dtype=dtype) - np.asarray(d0, dtype=dtype)
-        log_rel = np.maximum(s, dtype(1e-9))
-        log_rel *= dtype(1.0 / self.ref_depth)
-        np.log(log_rel, out=log_rel)
-        f = np.asarray(p, dtype=dtype) * log_rel
-        f += np.asarray(log_f, dtype=dtype)
-        np.exp(f, out=f)
-        f *= s > 0
-        return f, s, log_rel
+        if int(n_samples) < 1:
+            raise InvalidInput(f'sample_params: n_samples must be >= 1, got {n_samples}')
+        mean, cov = self.predict_param_dist(features)
+        k = mean.shape[1]
+        chol = np.linalg.cholesky(cov + 1e-15 * np.eye(k))
+        z = rng.standard_normal((int(n_samples), len(mean), k))
+        return mean[None] + np.einsum('mij,smj->smi', chol, z)
 
-    def _std(self, p, sd_d0, sd_log_f, sd_p, f, s, log_rel):
-        """Delta-method force std (same shape as ``f``) from the parameters' std."""
-        dtype = f.dtype.type
-        var = np.asarray(p, dtype=dtype) / np.maximum(s, dtype(1e-9))
-        var *= np.asarray(sd_d0, dtype=dtype)
-        var *= var
-        term = log_rel * np.asarray(sd_p, dtype=dtype)
-        term *= term
-        var += term
-        var += np.asarray(sd_log_f, dtype=dtype) ** 2
-        np.sqrt(var, out=var)
-        var *= f
-        return var
+    def _mean_force(self, law: str, mean: np.ndarray, cov: np.ndarray, d,
+                    second: bool = False, dtype=np.float64):
+        """Predictive mean force (and optionally ``E[f^2]``) over Gaussian parameters.
+
+        ``mean`` (..., P) and ``cov`` (..., P, P) broadcast against ``d``: queries (M,) each,
+        or the bake's (1, N) parameters against (K, 1) depths (the leading axes of ``mean``
+        are then (N,)). Module docstring, point 6.
+        """
+        mean = np.asarray(mean, dtype=float)
+        cov = np.asarray(cov, dtype=float)
+        stiff = law == 'stiffening'
+        c00 = np.maximum(cov[..., 0, 0], 1e-18)
+        sd0 = np.sqrt(c00)
+        k = mean.shape[-1]
+        gain = cov[..., 1:, 0] / sd0[..., None]                       # (..., P-1)
+        cr = cov[..., 1:, 1:] - gain[..., :, None] * gain[..., None, :]
+        c = [cr[..., i, j].astype(dtype) for i in range(k - 1) for j in range(k - 1)]
+        d = np.asarray(d, dtype=dtype)
+        inv_ref = dtype(1.0 / self.ref_depth)
+        total = None
+        total2 = None
+        for z, w in zip(_GH_Z, _GH_W):
+            d0 = (mean[..., 0] + z * sd0).astype(dtype)
+            m = (mean[..., 1:] + z * gain).astype(dtype)
+            s = d - d0
+            lr = np.log(np.maximum(s, dtype(1e-9)) * inv_ref)
+            logm = m[..., 0] + m[..., 1] * lr
+            var = c[0] + lr * (2 * c[1] + lr * c[3]) if not stiff else None
+            if stiff:
+                t = s * inv_ref - dtype(1.0)
+                logm = logm + m[..., 2] * t
+                # c indices for 3x3: 0 (11) 1 (12) 2 (13) 4 (22) 5 (23) 8 (33)
+                var = (c[0] + lr * (2 * c[1] + lr * c[4])
+                       + t * (2 * c[2] + 2 * lr * c[5] + t * c[8]))
+            var = np.clip(var, 0.0, LOG_VAR_CAP)
+            on = s > 0
+            term = np.exp(logm + dtype(0.5) * var) * on
+            total = term * dtype(w) if total is None else total + term * dtype(w)
+            if second:
+                term2 = np.exp(dtype(2.0) * (logm + var)) * on
+                total2 = term2 * dtype(w) if total2 is None else total2 + term2 * dtype(w)
+        return total, total2
+
+    def _median_force(self, law: str, mean: np.ndarray, d, dtype=np.float64):
+        return self.force_from_params(mean, d, law=law, dtype=dtype, check=False)
 
     def predict(self, features: np.ndarray, d) -> np.ndarray:
-        """Mean force (M,), newtons, at ``features`` (M, 9) and depths ``d`` (M,) metres.
+        """Predictive mean force (M,), newtons, at ``features`` (M, 9) and depths ``d`` (M,) m.
+
+        ``mean='median'``: the force at the parameters' predictive mean instead.
 
         Raises:
             ModelNotReady: before the first fit.
@@ -336,31 +603,45 @@ class ContactGpModel:
         """
         self._require()
         features, d = check_query(features, d)
-        theta = self.predict_params(features)
-        f, _, _ = self._law(theta[:, 0], theta[:, 1], theta[:, 2], d)
-        return f
+        if self.mean == 'median':
+            return self._median_force(self.law, self.predict_params(features), d)
+        mean, cov = self.predict_param_dist(features)
+        return self._mean_force(self.law, mean, cov, d)[0]
 
-    def force_from_params(self, params, d) -> np.ndarray:
-        """Force (M,), newtons, of the contact law with per-row ``params`` (M, 3) at ``d`` (M,).
+    def force_from_params(self, params, d, law: Optional[str] = None, dtype=np.float64,
+                          check: bool = True) -> np.ndarray:
+        """Force (M,), newtons, of the contact law with per-row ``params`` (M, P) at ``d`` (M,).
 
-        ``params`` are ``(d0 [m], log F, p)`` as :attr:`poke_params` and :meth:`predict_params`
-        give them (for example a held-out poke's own fit, in an error budget).
+        ``params`` are :attr:`param_names` as :attr:`poke_params`, :meth:`predict_params` and
+        :meth:`sample_params` give them; ``law`` defaults to the model's. Leading axes of
+        ``params`` (..., P) broadcast against ``d``.
 
         Raises:
             InvalidInput: shapes disagree or values are not finite.
 
         """
+        law = law or self.law
+        k = len(LAW_PARAMS[law])
         params = np.asarray(params, dtype=float)
         d = np.asarray(d, dtype=float)
-        if params.ndim != 2 or params.shape[1] != 3 or d.shape != (len(params),) \
-                or not (np.all(np.isfinite(params)) and np.all(np.isfinite(d))):
-            raise InvalidInput(f'force_from_params: need finite (M, 3) params and (M,) depths, '
-                               f'got {params.shape} and {d.shape}')
-        f, _, _ = self._law(params[:, 0], params[:, 1], params[:, 2], d)
-        return f
+        if check and (params.ndim < 2 or params.shape[-1] != k
+                      or d.shape != params.shape[:-1]
+                      or not (np.all(np.isfinite(params)) and np.all(np.isfinite(d)))):
+            raise InvalidInput(f'force_from_params: need finite (..., {k}) params and matching '
+                               f'depths for the {law} law, got {params.shape} and {d.shape}')
+        s = d.astype(dtype) - params[..., 0].astype(dtype)
+        lr = np.log(np.maximum(s, dtype(1e-9)) * dtype(1.0 / self.ref_depth))
+        logf = params[..., 1].astype(dtype) + params[..., 2].astype(dtype) * lr
+        if k > 3:
+            logf = logf + params[..., 3].astype(dtype) * (s * dtype(1.0 / self.ref_depth)
+                                                          - dtype(1.0))
+        return np.exp(logf) * (s > 0)
 
     def predict_std(self, features: np.ndarray, d) -> np.ndarray:
-        """Predictive standard deviation (M,) of the force curve, newtons (delta method).
+        """Predictive standard deviation (M,) of the force curve, newtons.
+
+        ``sqrt(E[f^2] - E[f]^2)`` over the parameters' predictive distribution (the same
+        quadrature as :meth:`predict`).
 
         Raises:
             ModelNotReady: before the first fit.
@@ -369,9 +650,9 @@ class ContactGpModel:
         """
         self._require()
         features, d = check_query(features, d)
-        theta, sd = self.predict_params(features, return_std=True)
-        f, s, log_rel = self._law(theta[:, 0], theta[:, 1], theta[:, 2], d)
-        return self._std(theta[:, 2], sd[:, 0], sd[:, 1], sd[:, 2], f, s, log_rel)
+        mean, cov = self.predict_param_dist(features)
+        m1, m2 = self._mean_force(self.law, mean, cov, d, second=True)
+        return np.sqrt(np.maximum(m2 - m1 * m1, 0.0))
 
     def bake(self, surface: Surface, depths) -> BakedResponse:
         """Tabulate force, std and extrapolation slope on every point of ``surface``.
@@ -382,8 +663,9 @@ class ContactGpModel:
                 earliest onset (negative depths are fine) so the table begins at zero force.
 
         Returns:
-            ``BakedResponse`` with forces (N, K), std (N, K) and slopes (N,) = the law's
-            derivative ``F p s^(p-1) / s_ref^p`` at ``depths[-1]`` (0 where not yet in contact).
+            ``BakedResponse`` with forces (N, K) = :meth:`predict`, std (N, K) =
+            :meth:`predict_std` and slopes (N,) = the derivative of :meth:`predict` at
+            ``depths[-1]`` (a one-sided difference over 10 um; 0 where not yet in contact).
 
         Raises:
             ModelNotReady: before the first fit.
@@ -394,20 +676,24 @@ class ContactGpModel:
         if not isinstance(surface, Surface):
             raise InvalidInput(f'bake: expected a Surface, got {type(surface).__name__}')
         depths = check_depths(depths)
-        theta, sd = self.predict_params(surface.features, return_std=True)
-        th, sdt = theta.T[:, None, :], sd.T[:, None, :]                 # (3, 1, N)
-        f_t, s_t, log_t = self._law(th[0], th[1], th[2], depths[:, None], dtype=np.float32)
-        std_t = self._std(th[2], sdt[0], sdt[1], sdt[2], f_t, s_t, log_t)  # (K, N) float32
-        forces = np.ascontiguousarray(f_t.T, dtype=np.float64)
-        std = np.ascontiguousarray(std_t.T, dtype=np.float64)
-        s_last = depths[-1] - theta[:, 0]
-        f_last = forces[:, -1]
-        slopes = np.where(s_last > 0, f_last * theta[:, 2] / np.where(s_last > 0, s_last, 1.0),
-                          0.0)
+        h = 1e-5
+        grid = np.append(depths, depths[-1] + h)[:, None]                  # (K+1, 1)
+        mean, cov = self.predict_param_dist(surface.features)
+        with single_threaded_blas():
+            q1, q2 = self._mean_force(self.law, mean, cov, grid, second=True,
+                                      dtype=np.float32)                 # (K+1, N)
+            m1 = q1 if self.mean == 'mean' else \
+                self._median_force(self.law, mean, grid, dtype=np.float32)
+        m1 = m1.astype(np.float64)
+        q1 = q1.astype(np.float64)
+        forces = np.ascontiguousarray(m1[:-1].T)
+        std = np.ascontiguousarray(np.sqrt(np.maximum(q2[:-1] - q1[:-1] ** 2, 0.0)).T)
+        slopes = np.maximum((m1[-1] - m1[-2]) / h, 0.0)
         return BakedResponse(depths=depths, forces=forces, slopes=slopes, std=std,
                              version=self.version,
                              meta={'model': self.kind, 'n_pokes': len(self._ids),
-                                   'poke_ids': list(self._ids), 'ref_depth': self.ref_depth})
+                                   'poke_ids': list(self._ids), 'ref_depth': self.ref_depth,
+                                   'law': self.law, 'mean': self.mean})
 
     def reference_depth(self) -> float:
         """Return a depth (m) where every trained location is in contact: max onset + ref."""
@@ -416,19 +702,35 @@ class ContactGpModel:
 
     # ------------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict:
-        """JSON-serialisable state (config, per-poke parameters, GP hyperparameters)."""
+        """JSON-serialisable state (config, per-poke parameters of each law, GP hyperparameters).
+
+        Format 2: ``config`` adds ``law`` (the setting), ``mean``; the top level adds ``law``
+        (the chosen law); each poke's ``params`` are the chosen law's and ``params_by_law``
+        holds every fitted law's, ``samples`` the contact samples of the law choice.
+        """
+        n = len(self._ids)
         return {
             'kind': self.kind, 'format': FORMAT, 'version': int(self.version),
             'config': {'ref_depth': self.ref_depth, 'exponent_bounds': list(self.exponent_bounds),
                        'prior_scales': list(self.prior_scales),
                        'max_surface_distance': self.max_surface_distance,
                        'bases': list(self.bases), 'grid': _grid_to_dict(self.grid),
-                       'decorrelate': self.decorrelate},
+                       'decorrelate': self.decorrelate, 'law': self.law_setting,
+                       'mean': self.mean},
+            'law': self.law,
+            'law_scores': {k: float(v) for k, v in self.law_scores.items()},
             'frame': None if self._frame is None else self._frame.to_dict(),
-            'pokes': [{'poke_id': i, 'features': f.tolist(), 'params': th.tolist(),
-                       'fit_rms': float(r), 'onset': float(o)}
-                      for i, f, th, r, o in zip(self._ids, self._features, self._theta,
-                                                self._fit_rms, self._onsets)],
+            'pokes': [{'poke_id': self._ids[i], 'features': self._features[i].tolist(),
+                       'params': self._theta[i].tolist(),
+                       'params_by_law': {k: self._thetas[k][i].tolist() for k in LAWS
+                                         if len(self._thetas[k]) == n},
+                       'fit_rms': float(self._fit_rms[i]),
+                       'rms_by_law': {k: float(self._rms[k][i]) for k in LAWS
+                                      if len(self._rms[k]) == n},
+                       'onset': float(self._onsets[i]),
+                       'samples': None if self._samples[i] is None
+                       else [self._samples[i][0].tolist(), self._samples[i][1].tolist()]}
+                      for i in range(n)],
             'processes': None if self._gps is None else [gp.state.to_dict() for gp in self._gps],
         }
 
@@ -436,13 +738,17 @@ class ContactGpModel:
     def from_dict(cls, data: Mapping) -> 'ContactGpModel':
         """Rebuild a model saved by :meth:`to_dict` (no refit: hyperparameters are reused).
 
+        A format-1 model (before issue 17) loads as it was fitted: the power law, the force
+        at the parameters' mean (``mean='median'``).
+
         Raises:
             InvalidInput: wrong kind or format, or missing fields.
 
         """
-        if data.get('kind') != KIND or data.get('format') != FORMAT:
-            raise InvalidInput(f'ContactGpModel.from_dict: not a {KIND} v{FORMAT} model '
-                               f'(kind={data.get("kind")!r}, format={data.get("format")!r})')
+        fmt = data.get('format')
+        if data.get('kind') != KIND or fmt not in (1, FORMAT):
+            raise InvalidInput(f'ContactGpModel.from_dict: not a {KIND} v1/v{FORMAT} model '
+                               f'(kind={data.get("kind")!r}, format={fmt!r})')
         try:
             cfg = data['config']
             model = cls(ref_depth=cfg['ref_depth'], exponent_bounds=cfg['exponent_bounds'],
@@ -450,16 +756,32 @@ class ContactGpModel:
                         max_surface_distance=cfg['max_surface_distance'],
                         bases=cfg['bases'], grid=_grid_from_dict(cfg['grid']),
                         # saved before decorrelation existed: its processes are independent
-                        decorrelate=cfg.get('decorrelate', False))
+                        decorrelate=cfg.get('decorrelate', False),
+                        law=cfg.get('law', 'power'), mean=cfg.get('mean', 'median'))
             pokes = data['pokes']
+            law = data.get('law', 'power')
+            model.law = law
+            model.law_scores = dict(data.get('law_scores', {}))
             model.version = int(data['version'])
             model._frame = None if data['frame'] is None \
                 else FeatureFrame.from_dict(data['frame'])
             model._ids = [p['poke_id'] for p in pokes]
             model._features = np.array([p['features'] for p in pokes], dtype=float
                                        ).reshape(-1, 9)
-            model._theta = np.array([p['params'] for p in pokes], dtype=float).reshape(-1, 3)
-            model._fit_rms = np.array([p['fit_rms'] for p in pokes], dtype=float)
+            for k in LAWS:
+                size = len(LAW_PARAMS[k])
+                rows = [p.get('params_by_law', {}).get(k) for p in pokes]
+                if k == law:
+                    rows = [p['params'] for p in pokes]
+                if pokes and any(r is None for r in rows):
+                    rows = []
+                model._thetas[k] = np.array(rows, dtype=float).reshape(-1, size)
+                rms = [p.get('rms_by_law', {}).get(k, p['fit_rms'] if k == law else None)
+                       for p in pokes]
+                model._rms[k] = np.array(rms, dtype=float) if len(rows) else np.zeros(0)
+            model._samples = [None if p.get('samples') is None
+                              else tuple(np.array(v, dtype=float) for v in p['samples'])
+                              for p in pokes]
             # models saved before onsets were kept: the law's own onset stands in
             model._onsets = np.array([p.get('onset', p['params'][0]) for p in pokes],
                                      dtype=float)

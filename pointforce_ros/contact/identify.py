@@ -13,6 +13,9 @@ Two ways are implemented:
   (a flat punch, cylinder or paddle) once the point response is known: ``c`` sets how much
   neighbouring contacts share displacement, hence the second probe's force; it is fitted to
   the measured forces by the same scan + refinement over the contact simulator.
+* :func:`shape_fit_covariance`: how well the pushes determine ``(log c, 1 / L)``: the
+  Gauss-Newton (Laplace) covariance at the fit, for the wrench's uncertainty
+  (:mod:`pointforce_ros.contact.uncertainty`).
 """
 
 from dataclasses import dataclass
@@ -294,3 +297,58 @@ def shape_fits_from_probes(simulator, pokes: Sequence[tuple],
     if not fits:
         raise failure
     return fits
+
+
+SHAPE_PRIOR_STD = (1.0, 200.0)
+"""Prior standard deviations of ``(log c, 1 / L [1/m])`` that keep the covariance finite
+where the pushes do not determine a direction (``1 / L`` = 200 /m is a 5 mm decay length)."""
+
+
+def _predicted(sim, prepared) -> np.ndarray:
+    out = []
+    for mesh, poses, a, measured in prepared:
+        force = sim.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3]
+        out.append((-force @ a if measured.ndim == 1 else force).ravel())
+    return np.concatenate(out)
+
+
+def shape_fit_covariance(simulator, pokes: Sequence[tuple], fit: ShapeFit,
+                         steps: Tuple[float, float] = (0.05, 5.0),
+                         prior_std: Tuple[float, float] = SHAPE_PRIOR_STD) -> np.ndarray:
+    """Covariance (2, 2) of ``(log c, 1 / L [1/m])`` at a probe fit (Gauss-Newton).
+
+    ``sigma^2 (J^T J + sigma^2 P)^-1`` with ``J`` the derivative of the predicted forces by
+    forward differences of ``steps``, ``sigma^2`` the fit's residual variance over its degrees
+    of freedom (at least 1 % of the mean measured force, squared) and ``P`` the precision of
+    ``prior_std``. ``1 / L = 0`` is the paper's ``g``.
+
+    Args:
+        simulator: as for :func:`identify_shape_constant_from_probes`.
+        pokes: the pokes the fit was made on, as there.
+        fit: the fit (its ``c`` and ``decay``).
+        steps: finite-difference steps of ``log c`` and ``1 / L`` (1/m).
+        prior_std: prior standard deviations of ``log c`` and ``1 / L``.
+
+    Raises:
+        InvalidInput: no pokes, non-positive steps or prior.
+
+    """
+    if not pokes:
+        raise InvalidInput('shape_fit_covariance: no pokes')
+    if min(steps) <= 0 or min(prior_std) <= 0:
+        raise InvalidInput('shape_fit_covariance: steps and prior_std must be > 0')
+    prepared = [(mesh, poses, np.asarray(a, dtype=np.float64),
+                 np.asarray(m, dtype=np.float64)) for mesh, poses, a, m in pokes]
+    measured = np.concatenate([m.ravel() for *_, m in prepared])
+    inv = 0.0 if not np.isfinite(fit.decay) else 1.0 / fit.decay
+    base = _predicted(simulator.with_shape_constant(fit.c, fit.decay), prepared)
+    jac = np.column_stack([
+        (_predicted(simulator.with_shape_constant(fit.c * np.exp(steps[0]), fit.decay),
+                    prepared) - base) / steps[0],
+        (_predicted(simulator.with_shape_constant(fit.c, 1.0 / (inv + steps[1])), prepared)
+         - base) / steps[1]])
+    dof = max(len(measured) - 2, 1)
+    sigma2 = max(float(np.sum((base - measured) ** 2)) / dof,
+                 (0.01 * float(np.mean(np.abs(measured)))) ** 2)
+    precision = np.diag(1.0 / np.asarray(prior_std, dtype=np.float64) ** 2)
+    return sigma2 * np.linalg.inv(jac.T @ jac + sigma2 * precision)

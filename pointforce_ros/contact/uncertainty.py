@@ -1,0 +1,186 @@
+"""An uncertainty with every contact answer: the wrench's standard deviation from its sources.
+
+A contact query's wrench depends on the learned point response (the baked force table, which
+carries the model's predictive standard deviation per surface point and depth) and on the
+shape function's constant ``c`` and tail decay length ``L`` (identified from calibration
+pushes, :mod:`pointforce_ros.contact.identify`). :func:`wrench_uncertainty` propagates both to
+the wrench by linearisation, with a finite difference per source (four contact solves per
+query, all through the public :class:`~pointforce_ros.contact.simulator.ContactSimulator`):
+
+* **response**: the force table raised by one standard deviation everywhere (the errors of a
+  smooth process over a probe's footprint, a few centimetres, move together: full
+  correlation is the conservative limit and what one extra solve can give);
+* **shape**: ``(log c, 1 / L)`` moved by one standard deviation each (``1 / L`` so that the
+  paper's ``g``, ``L = inf``, is the ordinary point ``1 / L = 0``); the two differences form the
+  Jacobian ``J`` and the shape part of the covariance is ``J S J^T`` with ``S`` the 2x2
+  covariance of ``(log c, 1 / L [1/m])`` (:func:`~pointforce_ros.contact.identify.
+  shape_fit_covariance` gives it from the calibration pushes);
+* **relative**: an optional share of the wrench (model discrepancy not in the two above).
+
+The three parts are independent and add in variance. The perturbed simulators are built once
+per model and kept (the first query on a new model or approach direction pays for their spatial
+structures).
+"""
+
+import threading
+from dataclasses import dataclass, field
+from typing import Dict, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+from scipy.special import ndtri
+
+from pointforce_ros.contact.simulator import ContactSimulator
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.response.baked import BakedResponse
+from pointforce_ros.types import Mesh, Pose
+
+Z90 = 1.6448536269514722
+"""Half-width of a two-sided 90 % normal interval in standard deviations."""
+
+ContactModel = object
+"""A :class:`pointforce_ros.model.files.ContactModel` (taken by its fields: ``surface``,
+``response``, ``shape_constant``, ``shape_decay``, ``meta``; ``contact`` does not import the
+``model`` wing, which imports it)."""
+
+MODEL_FIELDS = ('surface', 'response', 'shape_constant', 'shape_decay', 'meta')
+
+
+@dataclass(frozen=True)
+class WrenchUncertainty:
+    """Wrench of a contact query with its standard deviation (``base``).
+
+    Attributes:
+        wrench: (B, 6) ``[fx, fy, fz, tx, ty, tz]`` of the model's own simulator, N and N m.
+        std: (B, 6) standard deviation of each component, N and N m.
+        parts: source -> (B, 6) standard deviation from that source alone (``'response'``,
+            ``'shape'``, ``'relative'``); ``std**2`` is the sum of their squares.
+
+    """
+
+    wrench: np.ndarray
+    std: np.ndarray
+    parts: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def interval(self, level: float = 0.9) -> Tuple[np.ndarray, np.ndarray]:
+        """Two-sided normal interval ``(low, high)`` (B, 6) at ``level`` (0.9: 1.645 sigma).
+
+        Raises:
+            InvalidInput: ``level`` outside (0, 1).
+
+        """
+        if not 0.0 < level < 1.0:
+            raise InvalidInput(f'interval level must be in (0, 1), got {level}')
+        z = float(ndtri(0.5 + level / 2))
+        return self.wrench - z * self.std, self.wrench + z * self.std
+
+
+class _Perturbed:
+    """The model's simulator and its one-sigma response copy, built once per model."""
+
+    def __init__(self, model: ContactModel, spacing: float):
+        response = model.response
+        self.nominal = ContactSimulator(model.surface, response, model.shape_constant,
+                                        spacing=spacing, decay=model.shape_decay)
+        self.raised = None
+        if response.std is not None:
+            forces = response.forces + response.std
+            ratio = np.where(response.forces[:, -1] > 0,
+                             forces[:, -1] / np.maximum(response.forces[:, -1], 1e-12), 1.0)
+            raised = BakedResponse(depths=response.depths, forces=forces,
+                                   slopes=response.slopes * ratio, std=None,
+                                   version=response.version, meta=response.meta)
+            self.raised = ContactSimulator(model.surface, raised, model.shape_constant,
+                                           spacing=spacing, decay=model.shape_decay)
+
+
+_CACHE: Dict[int, Tuple[object, float, _Perturbed]] = {}
+_LOCK = threading.Lock()
+
+
+def _perturbed(model: ContactModel, spacing: float) -> _Perturbed:
+    key = id(model)
+    with _LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None and hit[0] is model and hit[1] == spacing:
+            return hit[2]
+    built = _Perturbed(model, spacing)
+    with _LOCK:
+        if len(_CACHE) >= 4:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[key] = (model, spacing, built)
+    return built
+
+
+def _check_cov(shape_cov) -> np.ndarray:
+    cov = np.asarray(shape_cov, dtype=np.float64)
+    if cov.shape != (2, 2) or not np.all(np.isfinite(cov)) or not np.allclose(cov, cov.T) \
+            or np.any(np.diag(cov) < 0):
+        raise InvalidInput('shape_cov: need a finite symmetric 2x2 covariance of (log c, 1/L '
+                           f'[1/m]) with a non-negative diagonal, got {cov.tolist()}')
+    return cov
+
+
+def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Sequence[Pose]],
+                       approach, torque_centre, *, shape_cov=None,
+                       relative_std: Optional[float] = None, response: bool = True,
+                       spacing: float = 0.003) -> WrenchUncertainty:
+    """Standard deviation of the contact wrench of ``mesh`` at ``poses`` (module docstring).
+
+    Args:
+        model: the contact model the service answers from; its baked response's ``std``
+            (N, K) is the point model's spread (none: no response part).
+        mesh: rigid mesh in its own frame.
+        poses: one :class:`Pose` or ``B`` of them (or a (B, 7) array), ``base``.
+        approach: (3,) unit push direction, ``base``.
+        torque_centre: (3,) or (B, 3), metres, ``base``.
+        shape_cov: (2, 2) covariance of ``(log c, 1 / L)`` (dimensionless, 1/m); ``None``:
+            ``model.meta['shape_cov']`` if present, else no shape part.
+        relative_std: share of the wrench added as an independent discrepancy (>= 0);
+            ``None``: ``model.meta['relative_std']`` if present, else 0.
+        response: include the response part.
+        spacing: rigid-mesh sampling step of the simulator, metres (the service's).
+
+    Returns:
+        :class:`WrenchUncertainty` with ``B`` rows (1 for a single pose).
+
+    Raises:
+        InvalidInput: a malformed covariance or share, or a query the simulator refuses.
+
+    """
+    if not all(hasattr(model, name) for name in MODEL_FIELDS):
+        raise InvalidInput(f'wrench_uncertainty: expected a ContactModel, got '
+                           f'{type(model).__name__}')
+    if shape_cov is None:
+        shape_cov = model.meta.get('shape_cov', np.zeros((2, 2)))
+    cov = _check_cov(shape_cov)
+    rel = float(model.meta.get('relative_std', 0.0) if relative_std is None else relative_std)
+    if not (np.isfinite(rel) and rel >= 0):
+        raise InvalidInput(f'relative_std: must be a finite share >= 0, got {rel}')
+    poses = [poses] if isinstance(poses, Pose) else poses
+    sims = _perturbed(model, float(spacing))
+    base = sims.nominal.query_batch(mesh, poses, approach, torque_centre).wrenches
+    parts = {}
+    if response and sims.raised is not None:
+        parts['response'] = np.abs(
+            sims.raised.query_batch(mesh, poses, approach, torque_centre).wrenches - base)
+    if np.any(np.diag(cov) > 0):
+        c, decay = model.shape_constant, model.shape_decay
+        inv = 0.0 if not np.isfinite(decay) else 1.0 / decay
+        steps = np.sqrt(np.diag(cov))
+        jac = np.zeros(base.shape + (2,))
+        if steps[0] > 0:
+            sim = sims.nominal.with_shape_constant(c * np.exp(steps[0]))
+            jac[..., 0] = (sim.query_batch(mesh, poses, approach, torque_centre).wrenches
+                           - base) / steps[0]
+        if steps[1] > 0:
+            sim = sims.nominal.with_shape_constant(c, 1.0 / (inv + steps[1]))
+            jac[..., 1] = (sim.query_batch(mesh, poses, approach, torque_centre).wrenches
+                           - base) / steps[1]
+        var = np.einsum('bki,ij,bkj->bk', jac, cov, jac)
+        parts['shape'] = np.sqrt(np.maximum(var, 0.0))
+    if rel > 0:
+        parts['relative'] = rel * np.abs(base)
+    total = np.zeros_like(base)
+    for part in parts.values():
+        total += part ** 2
+    return WrenchUncertainty(wrench=base, std=np.sqrt(total), parts=parts)

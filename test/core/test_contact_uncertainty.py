@@ -1,0 +1,100 @@
+"""Wrench uncertainty: closed forms for the response part, Monte Carlo for the shape part."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pointforce_ros.contact.identify import shape_fit_covariance, ShapeFit
+from pointforce_ros.contact.simulator import ContactSimulator
+from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.lab.synthetic_contact import patch_contact_model
+from pointforce_ros.response.baked import BakedResponse
+from pointforce_ros.shapes import box, icosphere
+from pointforce_ros.types import Pose
+
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+def _with_std(model, share, decay=np.inf):
+    r = model.response
+    baked = BakedResponse(depths=r.depths, forces=r.forces, slopes=r.slopes,
+                          std=share * r.forces, version=r.version)
+    return replace(model, response=baked, shape_decay=decay)
+
+
+def _queries():
+    sphere = icosphere(0.01, 3)
+    paddle = box([0.04, 0.006, 0.02])
+    at = np.array([0.505, 0.004, 0.04])
+    return [(sphere, [Pose(position=at + [0, 0, 0.01 - 0.003]),
+                      Pose(position=at + [-0.01, 0.005, 0.01 - 0.002])], at),
+            (paddle, [Pose(position=at + [0, 0, -0.002])], at)]
+
+
+def test_response_part_is_the_share_of_the_wrench_for_a_uniform_relative_spread():
+    # forces f_i = y(d~_i); raising y by 10 % everywhere leaves the displacements (the LCP is
+    # geometric) and raises every force by 10 %: the response std is 10 % of each component
+    model = _with_std(patch_contact_model(), 0.1)
+    for mesh, poses, centre in _queries():
+        out = wrench_uncertainty(model, mesh, poses, DOWN, centre)
+        assert out.wrench.shape == (len(poses), 6) and np.all(out.wrench[:, 2] > 0.2)
+        np.testing.assert_allclose(out.parts['response'], 0.1 * np.abs(out.wrench),
+                                   rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(out.std, out.parts['response'], rtol=1e-12)
+        low, high = out.interval(0.9)
+        np.testing.assert_allclose(high - out.wrench, Z90 * out.std, rtol=1e-9)
+        # the nominal wrench is the model's own simulator's
+        sim = ContactSimulator(model.surface, model.response, model.shape_constant)
+        np.testing.assert_allclose(out.wrench, sim.query_batch(mesh, poses, DOWN,
+                                                               centre).wrenches, atol=1e-12)
+
+
+def test_shape_part_matches_monte_carlo_over_c_and_decay():
+    model = _with_std(patch_contact_model(), 0.0, decay=0.02)
+    cov = np.array([[0.02 ** 2, 0.3 * 0.02 * 4.0], [0.3 * 0.02 * 4.0, 4.0 ** 2]])
+    rng = np.random.default_rng(12)
+    draws = rng.multivariate_normal([np.log(model.shape_constant), 1.0 / 0.02], cov, 300)
+    sim = ContactSimulator(model.surface, model.response, model.shape_constant, decay=0.02)
+    mesh, poses, centre = _queries()[1]
+    out = wrench_uncertainty(model, mesh, poses, DOWN, centre, shape_cov=cov, response=False)
+    samples = np.array([sim.with_shape_constant(np.exp(a), 1.0 / b).query_batch(
+        mesh, poses, DOWN, centre).wrenches[0] for a, b in draws])
+    mc = samples.std(axis=0)
+    assert mc[2] > 0.01 * abs(out.wrench[0, 2])          # the shape matters for a paddle
+    np.testing.assert_allclose(out.parts['shape'][0, 2], mc[2], rtol=0.2)
+    assert set(out.parts) == {'shape'}
+
+
+def test_relative_part_and_bad_input():
+    model = patch_contact_model()                   # no std in the table: no response part
+    mesh, poses, centre = _queries()[0]
+    out = wrench_uncertainty(model, mesh, poses, DOWN, centre, relative_std=0.05)
+    assert set(out.parts) == {'relative'}
+    np.testing.assert_allclose(out.std, 0.05 * np.abs(out.wrench))
+    with pytest.raises(InvalidInput, match='shape_cov'):
+        wrench_uncertainty(model, mesh, poses, DOWN, centre, shape_cov=[[1.0, 2.0], [0.0, 1]])
+    with pytest.raises(InvalidInput, match='relative_std'):
+        wrench_uncertainty(model, mesh, poses, DOWN, centre, relative_std=-0.1)
+    with pytest.raises(InvalidInput, match='level'):
+        out.interval(1.5)
+
+
+def test_shape_covariance_shrinks_with_more_informative_pushes():
+    model = patch_contact_model()
+    sim = ContactSimulator(model.surface, model.response, model.shape_constant, decay=0.02)
+    queries = _queries()
+    pokes = []
+    for mesh, poses, centre in queries:
+        measured = -sim.query_batch(mesh, poses, DOWN, centre).wrenches[:, :3] @ DOWN
+        pokes.append((mesh, poses, DOWN, measured * (1 + 0.02 * np.arange(len(poses)))))
+    fit = ShapeFit(c=model.shape_constant, u0=np.nan, rmse=0.0, n_points=3, method='probe',
+                   decay=0.02)
+    both = shape_fit_covariance(sim, pokes, fit)
+    sphere_only = shape_fit_covariance(sim, pokes[:1], fit)
+    assert both.shape == (2, 2) and np.all(np.linalg.eigvalsh(both) > 0)
+    # adding the paddle (a wide contact) pins 1/L down
+    assert both[1, 1] < sphere_only[1, 1]
+    with pytest.raises(InvalidInput):
+        shape_fit_covariance(sim, [], fit)

@@ -1,4 +1,4 @@
-"""A real pointforce cell: the four nodes on a UR arm and a depth camera, one namespace.
+"""A real pointforce cell: the five nodes on a UR arm and a depth camera, one namespace.
 
     ros2 launch pointforce_ros cell.launch.py robot_ip:=192.168.1.10 \
         params_file:=$HOME/cell/nodes.yaml namespace:=cell1 \
@@ -7,8 +7,9 @@
 The camera driver (realsense-ros) and the hand-eye calibration publisher are launched by the
 cell's own bringup; ``cloud_topic`` points cloud_capture at the camera and ``camera_pose`` in the
 parameter file (or a ``cloud_capture/camera_pose`` publisher) places it in ``base``. Every node
-reads ``params_file`` (``config/nodes.yaml`` by default: every parameter of the four nodes); the
-launch arguments ``robot_ip`` and ``cloud_topic``, when given, override the file. Cross-node
+reads ``params_file`` (``config/nodes.yaml`` by default: every parameter of the five nodes); the
+launch arguments ``robot_ip`` and ``cloud_topic`` (for cloud_capture and deformation_force, which
+both read the camera), when given, override the file. Cross-node
 names are relative, so ``namespace:=cell1`` keeps the cell together next to another one.
 """
 
@@ -20,16 +21,19 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-EXECUTABLES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench')
+EXECUTABLES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench',
+               'deformation_force')
 
 
 def _nodes(context, *args, **kwargs):
-    """Return the four nodes, each with the parameter file and the overrides given."""
+    """Return the five nodes, each with the parameter file and the overrides given."""
     params_file = LaunchConfiguration('params_file').perform(context)
     namespace = LaunchConfiguration('namespace').perform(context)
+    cloud_topic = LaunchConfiguration('cloud_topic').perform(context)
     overrides = {
         'poke_server': {'robot_ip': LaunchConfiguration('robot_ip').perform(context)},
-        'cloud_capture': {'cloud_topic': LaunchConfiguration('cloud_topic').perform(context)},
+        'cloud_capture': {'cloud_topic': cloud_topic},
+        'deformation_force': {'cloud_topic': cloud_topic},
     }
     nodes = []
     for executable in EXECUTABLES:
@@ -44,12 +48,12 @@ def _nodes(context, *args, **kwargs):
 
 
 def generate_launch_description():
-    """Declare the arguments and start the four nodes."""
+    """Declare the arguments and start the five nodes."""
     default_params = os.path.join(get_package_share_directory('pointforce_ros'), 'config',
                                   'nodes.yaml')
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=default_params,
-                              description='Parameter file of the four nodes (nodes.yaml)'),
+                              description='Parameter file of the five nodes (nodes.yaml)'),
         DeclareLaunchArgument('namespace', default_value='',
                               description='Namespace of this cell (e.g. cell1)'),
         DeclareLaunchArgument('robot_ip', default_value='',

@@ -1,12 +1,13 @@
 """``pointforce cell``: the whole node suite on the simulated cell (or on a real UR and camera).
 
 Simulated (default): the RTDE controller emulator runs as its own process with the object's
-contact physics and the scenario's sensor effects; ``sim_camera`` renders the object; the four
-product nodes (``cloud_capture``, ``poke_server``, ``stiffness_learner``, ``contact_wrench``) run
-in this process, each on its own supervised executor (a callback that raises is logged and the
-node keeps serving; a slow one cannot starve the others). Real: ``--robot-ip`` points
-``poke_server`` at a UR controller and ``--camera-topic`` points ``cloud_capture`` at a camera
-driver; nothing is simulated.
+contact physics and the scenario's sensor effects; ``sim_camera`` renders the object; the five
+product nodes (``cloud_capture``, ``poke_server``, ``stiffness_learner``, ``contact_wrench``,
+``deformation_force``) run in this process, each on its own supervised executor (a callback
+that raises is logged and the node keeps serving; a slow one cannot starve the others).
+Real: ``--robot-ip`` points ``poke_server`` at a UR controller and ``--camera-topic`` points
+``cloud_capture`` at a camera driver (``deformation_force`` reads the same camera); nothing is
+simulated.
 
 Supervision (:meth:`CellSession.supervise`, every 0.5 s in ``pointforce cell``): an emulator that
 exits is restarted (up to ``EMULATOR_RESTARTS`` times, the poke server pointed at the new one);
@@ -31,6 +32,7 @@ from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.bringup.sim_camera import SimCameraNode
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
+from pointforce_ros.nodes.deformation_force import DeformationForceNode
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import LATCHED, StiffnessLearnerNode
 from pointforce_ros.shapes import box
@@ -55,7 +57,7 @@ class CellSession:
         robot_ip: a real UR controller; ``None`` starts the emulator.
         camera_topic: a real PointCloud2 topic; ``None`` starts ``sim_camera``.
         shape_constant: ``c`` of the shape function used by the learner, metres.
-        params_file: a ROS parameter file for the four nodes (``config/nodes.yaml``); the
+        params_file: a ROS parameter file for the five nodes (``config/nodes.yaml``); the
             cell's own settings (paths under ``out``, the robot and camera, the simulated
             object's ROI, ``shape_constant``) win over it; on a real camera the file's ROI holds.
 
@@ -104,7 +106,8 @@ class CellSession:
                 args=['--ros-args', '--params-file', str(params_file)] if params_file else None)
             ctx = self.launcher.context
             paths = {'store': self.out / 'pokes', 'models': self.out / 'models',
-                     'surface': self.out / 'surface.npz'}
+                     'surface': self.out / 'surface.npz',
+                     'deformation': self.out / 'deformation'}
             self.paths = paths
             if camera_topic is None:
                 mesh, rgb = self.spec.mesh, self.spec.rgb
@@ -131,6 +134,10 @@ class CellSession:
                     Parameter('model_dir', value=str(paths['models'])),
                     Parameter('shape_constant', value=float(shape_constant))]), isolated=True)
             self.wrench_node = self.launcher.add(ContactWrenchNode(context=ctx), isolated=True)
+            self.deformation_node = self.launcher.add(DeformationForceNode(
+                context=ctx, parameter_overrides=[
+                    Parameter('model_dir', value=str(paths['deformation'])),
+                    Parameter('cloud_topic', value=camera_topic)]), isolated=True)
             # the driver's clients get their own context and executor, like a separate process:
             # clients sharing a busy server's executor can lose futures (rclpy 7.1.6)
             self.client_launcher = InProcessLauncher(threads=4)
@@ -145,7 +152,8 @@ class CellSession:
     def _clients(self):
         from pointforce_interfaces.action import Poke
         from pointforce_interfaces.msg import ModelStatus
-        from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch, SuggestPoke
+        from pointforce_interfaces.srv import (ContactWrench, ContactWrenchBatch, EstimateForce,
+                                               IdentifyDeformation, SuggestPoke)
         from rclpy.action import ActionClient
         from std_srvs.srv import Trigger
 
@@ -158,6 +166,10 @@ class CellSession:
         self.wrench_client = c.create_client(ContactWrench, '/contact_wrench/contact_wrench')
         self.batch_client = c.create_client(ContactWrenchBatch,
                                             '/contact_wrench/contact_wrench_batch')
+        self.estimate_client = c.create_client(EstimateForce,
+                                               '/deformation_force/estimate_force')
+        self.identify_client = c.create_client(IdentifyDeformation,
+                                               '/deformation_force/identify')
         self.triggers = {name: c.create_client(Trigger, f'/cloud_capture/{name}')
                          for name in ('add_scan', 'capture', 'clear')}
         if self.camera is not None:
@@ -166,7 +178,7 @@ class CellSession:
             if not client.wait_for_server(timeout_sec=20.0):
                 raise DeviceFault(f'action /poke_server/{name} did not appear within 20 s')
         for client in [self.suggest_client, self.wrench_client, self.batch_client,
-                       *self.triggers.values()]:
+                       self.estimate_client, self.identify_client, *self.triggers.values()]:
             if not client.wait_for_service(timeout_sec=20.0):
                 raise DeviceFault(f'service {client.srv_name} did not appear within 20 s')
 
@@ -360,7 +372,8 @@ def run_cell(out='out/cell', object_name='lamb', scenario='realistic', robot_ip=
                          camera_topic=camera_topic, params_file=params_file) as cell:
             print(f'[cell] running: poke action /poke_server/poke on {cell.robot_ip}, '
                   'services /contact_wrench/contact_wrench(_batch), '
-                  '/stiffness_learner/suggest_poke, /cloud_capture/{add_scan,capture}. '
+                  '/stiffness_learner/suggest_poke, /cloud_capture/{add_scan,capture}, '
+                  '/deformation_force/{identify,estimate_force}. '
                   'Ctrl-C to stop.', flush=True)
             start = time.monotonic()
             while duration is None or time.monotonic() - start < duration:

@@ -60,7 +60,8 @@ def _cmd_demo(args) -> int:
         pokes=args.pokes)
 
 
-NODES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench')
+NODES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench',
+         'deformation_force')
 """The product nodes a parameter file may configure."""
 
 
@@ -146,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
     cell.add_argument('--camera-topic', default=None,
                       help='a real PointCloud2 topic (no simulated camera)')
     cell.add_argument('--params-file', default=None,
-                      help='ROS parameter file of the four nodes (config/nodes.yaml); the '
+                      help='ROS parameter file of the five nodes (config/nodes.yaml); the '
                       'cell\'s own settings (output paths, --robot-ip, --camera-topic, the '
                       'simulated object\'s ROI) win over it')
     cell.add_argument('--out', default=None, help='output directory')

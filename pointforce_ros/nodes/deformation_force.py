@@ -67,7 +67,7 @@ from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, 
                                               save_model)
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import load_surface
-from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.nodes.common import declare, live, run
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
 
@@ -96,24 +96,26 @@ class DeformationForceNode(Node):
         self.model_dir = declare(self, 'model_dir', 'out/cell/deformation',
                                  'Directory of versioned deformation-v*.npz models (newest '
                                  'loaded at start, identified ones saved there); empty: keep '
-                                 'identified models in memory only')
+                                 'identified models in memory only', read_only=True)
         surface_file = declare(self, 'surface_file', '',
                                'Rest (equilibrium) surface .npz to mesh at start-up; empty: '
-                               'wait for the latched cloud_capture/surface')
+                               'wait for the latched cloud_capture/surface', read_only=True)
         self.cloud_topic = declare(self, 'cloud_topic', DEFAULT_TOPIC,
                                    'PointCloud2 of the deformed object, in frame_id or in the '
-                                   'camera frame (moved to base with the camera pose)')
+                                   'camera frame (moved to base with the camera pose)',
+                                   read_only=True)
         pose7 = declare(self, 'camera_pose', [0.5, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0],
                         'Camera optical frame in base when no cloud_capture/camera_pose is '
-                        'published: [x y z (m), qx qy qz qw]')
+                        'published: [x y z (m), qx qy qz qw]', read_only=True)
         self.frame = declare(self, 'frame_id', 'base',
                              'Robot base frame: clouds in it are not transformed, outputs are '
-                             'in it')
+                             'in it', read_only=True)
         self.element_size = declare(self, 'element_size', 0.004,
                                     'Volume mesh element size in x-y, m (base)',
-                                    bounds=(0.001, 0.05))
+                                    bounds=(0.001, 0.05), read_only=True)
         self.layers = declare(self, 'layers', 6, 'Volume mesh element layers through the '
-                              'object height (finer towards the top)', bounds=(1, 40))
+                              'object height (finer towards the top)', bounds=(1, 40),
+                              read_only=True)
         self.sigma = declare(self, 'consistency_sigma', 3.0,
                              'Camera and F/T disagree beyond this many standard deviations of '
                              'their combined uncertainty (Mahalanobis distance)',
@@ -129,6 +131,14 @@ class DeformationForceNode(Node):
                                      bounds=(0.0, 3600.0))
         self.max_observations = declare(self, 'max_observations', 100,
                                         'Observations held (oldest dropped)', bounds=(1, 10000))
+        # thresholds and sizes apply from the next message; paths, topic, frame, camera pose
+        # and mesh settings are read-only (the mesh is built once per surface)
+        live(self, {'consistency_sigma': lambda v: lambda: setattr(self, 'sigma', v),
+                    'ft_sigma': lambda v: lambda: setattr(self, 'ft_sigma', v),
+                    'contact_force': lambda v: lambda: setattr(self, 'contact_force', v),
+                    'landed_window': lambda v: lambda: setattr(self, 'landed_window', v),
+                    'max_observations':
+                        lambda v: lambda: setattr(self, 'max_observations', v)})
         try:
             self.default_pose = Pose(position=pose7[:3], orientation=pose7[3:])
         except PointforceError as exc:

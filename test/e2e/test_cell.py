@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import Vector3
-from pointforce_interfaces.srv import ContactWrench
+from pointforce_interfaces.srv import ContactWrench, EstimateForce
 
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
@@ -43,6 +43,14 @@ def test_capture_poke_learn_and_query_on_the_simulated_cell(tmp_path):
             approach=Vector3(x=0.0, y=0.0, z=-1.0), torque_centre=to_point(pose.position)))
         assert answer.success and answer.model_version == 2
         assert answer.wrench.force.z > 0.5 and answer.contact_count > 0
+        # issue 18: deformation_force runs with the others; it has meshed the captured surface
+        # and, with no FEM model identified yet, says so
+        cell.launcher.wait_for(lambda: cell.deformation_node._rest is not None, 60,
+                               'the deformation node to mesh the surface')
+        estimate = cell.call(cell.estimate_client, EstimateForce.Request(
+            contact_point=to_point([0.5, 0.0, 0.04])), 60, 'estimate_force')
+        assert not estimate.success and 'model' in estimate.message, estimate.message
+        assert cell.deformation_node.clouds_received > 0
 
 
 # --------------------------------------------------------------------------- supervision

@@ -16,6 +16,7 @@ from rclpy.parameter import Parameter
 
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
+from pointforce_ros.nodes.deformation_force import DeformationForceNode
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import StiffnessLearnerNode
 
@@ -46,7 +47,8 @@ class IdleArm:
 NODES = {'cloud_capture': (CloudCaptureNode, {}),
          'poke_server': (PokeServerNode, {'arm_factory': IdleArm}),
          'stiffness_learner': (StiffnessLearnerNode, {}),
-         'contact_wrench': (ContactWrenchNode, {})}
+         'contact_wrench': (ContactWrenchNode, {}),
+         'deformation_force': (DeformationForceNode, {})}   # issue 18: was missing
 
 
 def _file_params():
@@ -99,7 +101,7 @@ def test_rcl_loads_the_file_into_a_namespaced_node(context, tmp_path):
         rclpy.try_shutdown(context=ctx)
 
 
-def test_the_launch_file_starts_the_four_nodes_with_the_parameter_file():
+def test_the_launch_file_starts_the_five_nodes_with_the_parameter_file():
     tree = ast.parse(LAUNCH.read_text(), filename=str(LAUNCH))
     functions = {f.name for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)}
     assert 'generate_launch_description' in functions
@@ -108,7 +110,11 @@ def test_the_launch_file_starts_the_four_nodes_with_the_parameter_file():
     assert ('launch_ros.actions', 'Node') in imports and ('launch', 'LaunchDescription') in imports
     strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)
                and isinstance(n.value, str)}
-    assert set(NODES) <= strings                        # the four executables
+    assert set(NODES) <= strings                        # the five executables
+    executables, = [ast.literal_eval(n.value) for n in ast.walk(tree)
+                    if isinstance(n, ast.Assign) and getattr(n.targets[0], 'id', '') ==
+                    'EXECUTABLES']
+    assert sorted(executables) == sorted(NODES)        # each started, none twice
     assert {'nodes.yaml', 'params_file', 'robot_ip', 'cloud_topic', 'namespace',
             'pointforce_ros'} <= strings
     launch_args = {call.args[0].value for call in ast.walk(tree)

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from pointforce_interfaces.action import Poke
 from pointforce_interfaces.msg import ModelStatus
+from pointforce_interfaces.srv import SuggestPoke
 from rclpy.action import ActionClient
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -268,4 +269,11 @@ def test_learner_publishes_latched_stiffness_and_suggestion_markers(ros_graph, t
     tips = np.array([[a.points[1].x, a.points[1].y, a.points[1].z] for a in arrows])
     gaps = np.linalg.norm(tips[:, None] - model.surface.points[None], axis=2).min(axis=1)
     assert gaps.max() < 1e-6              # each arrow ends on a surface point
+    # the arrows are the pokes ~/suggest_poke suggests next, in its frame
+    client = probe.create_client(SuggestPoke, '/stiffness_learner/suggest_poke')
+    assert client.wait_for_service(timeout_sec=10)
+    answer = ros_graph.wait_future(client.call_async(SuggestPoke.Request(count=3)), 20,
+                                   'suggest_poke')
+    assert answer.success and answer.header.frame_id == arrows[0].header.frame_id
+    np.testing.assert_allclose(tips, [[p.x, p.y, p.z] for p in answer.points], atol=1e-9)
     assert '4.0 mm' in by_ns['legend'][0].text

@@ -120,7 +120,7 @@ class OnlineLearner:
                  model_factory: Callable[[], object] = ContactGpModel,
                  corrections: Optional[Callable] = None, effects: Optional[dict] = None,
                  min_peak_force: Optional[float] = None, shape_decay: float = np.inf,
-                 contact_snr: float = 8.0, min_peak_fraction: float = 0.02):
+                 contact_snr: float = 5.0, min_peak_fraction: float = 0.02):
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')

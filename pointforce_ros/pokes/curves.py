@@ -311,6 +311,11 @@ def curve_from_series(poke_id: str, point, normal, t, d, f, *, speed: Optional[f
     stop = max(int(cut[0]) + 1 if len(cut) else len(f_l), min(len(f_l), 10))
     fit = fit_power_onset(d_l[:stop], f_l[:stop], with_bias=True)
     noise = max(fit.noise, 1e-9)
+    if not step:
+        # the onset fit's residual over a short early stretch can fit the noise itself: a
+        # stream's sample-to-sample scatter bounds it from below (the signal changes little
+        # between two samples; for steps it changes a lot, and this would overstate it)
+        noise = max(noise, _mad(np.diff(f_l)) / np.sqrt(2.0))
     if peak - fit.bias < min_snr * noise:
         raise InvalidInput(f'poke {poke_id}: no contact detected (peak force {peak:.3g} N is '
                            f'within {min_snr:g} sigma = {min_snr * noise:.3g} N of the baseline)')

@@ -165,3 +165,25 @@ def test_the_tail_decay_length_reaches_the_saved_model_and_the_wrench_server(tmp
     with pytest.raises(InvalidInput, match='shape_decay'):
         OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface, shape_constant=0.004,
                       shape_decay=float('nan'))
+
+
+def test_contact_threshold_is_relative_to_the_data():
+    # a soft region: pokes stopped at 0.2 N, well under the old fixed 0.3 N threshold, with the
+    # F/T noise of a real sensor (0.03 N per sample); they are learned from, a poke in the air
+    # is not (its peak is within its own noise)
+    soft = simulate_campaign(OBJECT, load_scenario('ft_noise'), count=3, seed=4,
+                             force_limit=0.2, depth_limit=0.01, speed=0.004, gap=0.5,
+                             id_prefix='soft-')
+    air = simulate_campaign(OBJECT, load_scenario('ft_noise'), points=[[0.5, 0.0, 0.07]],
+                            normals=[[0.0, 0.0, 1.0]], force_limit=4.0, depth_limit=0.01,
+                            speed=0.004, id_prefix='air-')[0]
+    assert all(r.normal_force().max() < 0.3 for r in soft)
+    learner = OnlineLearner(None, None, _surface(), shape_constant=0.004)
+    status = learner.learn_records(soft + [air])
+    assert status.num_pokes == 3 and list(status.skipped) == [air.poke_id]
+    assert 'no contact' in status.skipped[air.poke_id]
+    # the fixed threshold is still there when asked for, and skips the soft pokes
+    fixed = OnlineLearner(None, None, _surface(), shape_constant=0.004, min_peak_force=0.3)
+    assert fixed.learn_records(soft) is None and len(fixed.skipped) == 3
+    with pytest.raises(InvalidInput, match='contact_snr'):
+        OnlineLearner(None, None, _surface(), shape_constant=0.004, contact_snr=-1.0)

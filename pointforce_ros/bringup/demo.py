@@ -24,7 +24,10 @@ from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup import plots
 from pointforce_ros.bringup.cell import CellSession
-from pointforce_ros.contact.identify import identify_shape_constant_from_probe
+from pointforce_ros.contact.identify import (DECAY_GRID, identify_shape_constant_from_probe,
+                                             identify_shape_constant_from_probes,
+                                             shape_fit_covariance)
+from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
 from pointforce_ros.paths import share_path
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.serving import WrenchServer
@@ -106,42 +109,106 @@ CALIBRATIONS = {'sphere': ('demo_calibration_{}.npz', calibration_push),
 """Calibration pushes of the demo: name -> (fixture file pattern, push builder)."""
 
 
+def _calibration_pokes(spec):
+    """The calibration pushes with their measured forces: ``{name: poke}`` (may be empty).
+
+    A poke is ``(mesh, poses, approach, measured push-back force (T,))`` as
+    :func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probes` takes it.
+    """
+    pokes = {}
+    for name, (pattern, push) in CALIBRATIONS.items():
+        path = DATA / pattern.format(spec.name)
+        if not path.exists():
+            print(f'[demo] no {name} calibration push for {spec.name} ({path.name})')
+            continue
+        mesh, poses, depths = push(spec)
+        with np.load(path, allow_pickle=False) as z:
+            if not np.allclose(z['depths'], depths):
+                print(f'[demo] {path.name} is for other depths: not used')
+                continue
+            measured = np.asarray(z['force'], dtype=float)
+        pokes[name] = (mesh, poses, [0.0, 0.0, -1.0], measured[:, 2])
+    return pokes
+
+
 def _calibrate(cell, spec):
-    """Identify ``c`` from the calibration push (second probe); None if it cannot be done."""
-    path = DATA / f'demo_calibration_{spec.name}.npz'
-    if not path.exists():
-        print(f'[demo] no calibration push for {spec.name} ({path.name}): c stays as set')
-        return None
-    mesh, poses, depths = calibration_push(spec)
-    with np.load(path, allow_pickle=False) as z:
-        if not np.allclose(z['depths'], depths):
-            print(f'[demo] {path.name} is for other depths: c stays as set')
-            return None
-        measured = np.asarray(z['force'], dtype=float)
+    """Identify ``c`` (sphere alone) and ``(c, L)`` (sphere and rod) from the calibration pushes.
+
+    Returns ``(c_only, c_and_l, shape_cov, relative_std)``: the two :class:`ShapeFit` (either
+    ``None`` when it cannot be done), the (2, 2) covariance of ``(log c, 1/L)`` at the joint
+    fit and the joint fit's relative residual (the share of the force the contact model does
+    not explain at the calibration pushes).
+    """
+    pokes = _calibration_pokes(spec)
+    if 'sphere' not in pokes:
+        return None, None, None, 0.0
     server = WrenchServer()
     server.load(cell.models[-1].model_path)
     simulator = server.simulator()
+    c_only = c_and_l = cov = None
+    rel = 0.0
     try:
-        fit = identify_shape_constant_from_probe(simulator, mesh, poses, [0.0, 0.0, -1.0],
-                                                 measured[:, 2])
+        c_only = identify_shape_constant_from_probe(simulator, *pokes['sphere'])
+        print(f'[demo] calibration push 1 (20 mm sphere at {1e3 * CALIBRATION_DEPTHS[0]:.0f} '
+              f'and {1e3 * CALIBRATION_DEPTHS[-1]:.0f} mm, '
+              f'{", ".join(f"{f:.2f}" for f in pokes["sphere"][3])} N measured): c = '
+              f'{1e3 * c_only.c:.2f} mm alone (fit RMSE {c_only.rmse:.2f} N)')
     except PointforceError as exc:
-        print(f'[demo] calibration failed ({exc}): c stays as set')
-        return None
-    print(f'[demo] calibration push (20 mm sphere at {1e3 * depths[0]:.0f} and '
-          f'{1e3 * depths[-1]:.0f} mm, {", ".join(f"{f:.2f}" for f in measured[:, 2])} N '
-          f'measured): identified c = {1e3 * fit.c:.2f} mm (fit RMSE {fit.rmse:.2f} N)')
-    return fit
+        print(f'[demo] calibration with the sphere failed ({exc})')
+    if 'rod' in pokes:
+        joint = [pokes['sphere'], pokes['rod']]
+        try:
+            c_and_l = identify_shape_constant_from_probes(simulator, joint, decays=DECAY_GRID)
+            cov = shape_fit_covariance(simulator, joint, c_and_l)
+            measured = np.concatenate([p[3] for p in joint])
+            rel = float(c_and_l.rmse / np.sqrt(np.mean(measured ** 2)))
+            decay = (f'{1e3 * c_and_l.decay:.0f} mm' if np.isfinite(c_and_l.decay)
+                     else "none (the paper's g)")
+            print(f'[demo] calibration push 2 ({1e3 * ROD_LENGTH:.0f} mm rod, r 10 mm, at '
+                  f'{1e3 * ROD_DEPTHS[0]:.0f} and {1e3 * ROD_DEPTHS[-1]:.0f} mm, '
+                  f'{", ".join(f"{f:.2f}" for f in pokes["rod"][3])} N measured): with the '
+                  f'sphere c = {1e3 * c_and_l.c:.2f} mm and tail decay length L = {decay} '
+                  f'(fit RMSE {c_and_l.rmse:.2f} N, {100 * rel:.0f} % of the pushes\' force; '
+                  f'std of log c {np.sqrt(cov[0, 0]):.2f}, of 1/L {np.sqrt(cov[1, 1]):.0f} /m)')
+        except PointforceError as exc:
+            print(f'[demo] calibration with sphere and rod failed ({exc})')
+    return c_only, c_and_l, cov, rel
 
 
-def _ask(cell, queries, gt, verbose: bool):
-    """Ask the contact service every query; return (force RMSE or None, first answer)."""
+def _set_shape(cell, c: float, decay: float) -> None:
+    """Set the learner's ``(c, L)`` and wait for the model version saved with them."""
+    current = cell.learner_node
+    changes = []
+    decay_param = float(decay) if np.isfinite(decay) else 0.0
+    if abs(float(current.shape_decay) - decay_param) > 1e-12:
+        changes.append(('shape_decay', decay_param))
+    if abs(float(current.shape_constant) - float(c)) > 1e-12:
+        changes.append(('shape_constant', float(c)))
+    # the learner saves a version per accepted parameter, and the service may swap to it
+    # before set_parameter returns: take the target version first
+    target = max(m.version for m in cell.models) + len(changes)
+    for name, value in changes:
+        cell.set_parameter('stiffness_learner', name, value)
+    if changes:
+        cell.wait_model(target)
+
+
+def _ask(cell, queries, gt, verbose: bool, shape_cov=None, relative_std: float = 0.0):
+    """Ask the contact service every query; return ``(summary or None, first answer)``.
+
+    With ground truth the summary (:func:`summarise`) compares the answers with it; the
+    standard deviations come from :func:`~pointforce_ros.contact.uncertainty.
+    wrench_uncertainty` on the served model (the response's spread, ``shape_cov`` of
+    ``(log c, 1/L)`` and ``relative_std``).
+    """
     from geometry_msgs.msg import Vector3
     from pointforce_interfaces.srv import ContactWrench
 
+    model = WrenchServer().load(cell.models[-1].model_path)
     if verbose:
-        print(f'[demo] {"query":16s} {"pred Fz (N)":>11s} {"true Fz":>8s} {"|dF| (N)":>9s} '
-              f'{"|dT| (mN m)":>11s} {"contacts":>8s}')
-    errors, first = [], None
+        print(f'[demo] {"query":16s} {"pred Fz (N)":>11s} {"90 % interval":>15s} '
+              f'{"true Fz":>8s} {"|dF| (N)":>9s} {"|dT| (mN m)":>11s} {"contacts":>8s}')
+    pred, std, first = [], [], None
     for i, (name, mesh, pose, approach, tc) in enumerate(queries):
         request = ContactWrench.Request(
             mesh=mesh_to_msg(mesh), pose=pose_to_msg(pose),
@@ -152,25 +219,51 @@ def _ask(cell, queries, gt, verbose: bool):
             raise RuntimeError(f'contact_wrench refused {name}: {answer.message}')
         f = np.array([answer.wrench.force.x, answer.wrench.force.y, answer.wrench.force.z])
         m = np.array([answer.wrench.torque.x, answer.wrench.torque.y, answer.wrench.torque.z])
+        spread = wrench_uncertainty(model, mesh, [pose], approach, tc, shape_cov=shape_cov,
+                                    relative_std=relative_std).std[0]
+        pred.append(np.concatenate([f, m]))
+        std.append(spread)
         first = answer if i == 0 else first
-        if gt is not None:
-            df = float(np.linalg.norm(f - gt['force'][i]))
-            dm = float(np.linalg.norm(m - gt['torque'][i]))
-            errors.append((df, float(np.linalg.norm(gt['force'][i]))))
-            if verbose:
-                print(f'[demo] {name:16s} {f[2]:11.2f} {gt["force"][i][2]:8.2f} {df:9.2f} '
-                      f'{1e3 * dm:11.1f} {answer.contact_count:8d}')
-        elif verbose:
-            print(f'[demo] {name:16s} {f[2]:11.2f} {"-":>8s} {"-":>9s} {"-":>11s} '
+        if verbose:
+            half = Z90 * spread[2]
+            band = f'{f[2] - half:.2f}..{f[2] + half:.2f}'
+            truth = (f'{gt["force"][i][2]:8.2f} {np.linalg.norm(f - gt["force"][i]):9.2f} '
+                     f'{1e3 * np.linalg.norm(m - gt["torque"][i]):11.1f}' if gt is not None
+                     else f'{"-":>8s} {"-":>9s} {"-":>11s}')
+            print(f'[demo] {name:16s} {f[2]:11.2f} {band:>15s} {truth} '
                   f'{answer.contact_count:8d}')
-    if not errors:
+    if gt is None:
         return None, first
-    rms = float(np.sqrt(np.mean([e[0] ** 2 for e in errors])))
-    if verbose:
-        peak = max(e[1] for e in errors)
-        print(f'[demo] force RMSE over {len(errors)} queries: {rms:.2f} N '
-              f'({100 * rms / peak:.0f} % of the largest true force, {peak:.1f} N)')
-    return rms, first
+    true = np.hstack([gt['force'], gt['torque']])
+    return summarise(np.array(pred), np.array(std), true), first
+
+
+def summarise(pred: np.ndarray, std: np.ndarray, true: np.ndarray) -> dict:
+    """Errors, sign balance and 90 % interval coverage of predicted wrenches (Q, 6) vs truth.
+
+    Returns ``rmse`` (force-vector RMSE, N), ``peak`` (largest true force norm, N),
+    ``below``/``above`` (queries whose normal force ``Fz`` is predicted below/above the
+    truth), ``coverage_fz`` (share of queries whose true ``Fz`` lies in the nominal 90 %
+    interval), ``coverage_all`` (the same over all six components of every query),
+    ``width_fz`` (mean 90 % interval width of ``Fz``, N) and the arrays.
+    """
+    err = pred - true
+    inside = np.abs(err) <= Z90 * std
+    return {'rmse': float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1)))),
+            'peak': float(np.max(np.linalg.norm(true[:, :3], axis=1))),
+            'below': int(np.sum(err[:, 2] < 0)), 'above': int(np.sum(err[:, 2] > 0)),
+            'coverage_fz': float(np.mean(inside[:, 2])), 'coverage_all': float(np.mean(inside)),
+            'width_fz': float(np.mean(2 * Z90 * std[:, 2])),
+            'pred': pred, 'std': std, 'true': true}
+
+
+def _report(label: str, summary: dict, count: int) -> None:
+    s = summary
+    print(f'[demo] {label}: force RMSE {s["rmse"]:.2f} N over {count} queries '
+          f'({100 * s["rmse"] / s["peak"]:.1f} % of the largest true force, {s["peak"]:.1f} N); '
+          f'Fz below truth in {s["below"]}, above in {s["above"]}; nominal 90 % intervals '
+          f'cover {100 * s["coverage_fz"]:.0f} % of true Fz (mean width {s["width_fz"]:.2f} N) '
+          f'and {100 * s["coverage_all"]:.0f} % of all wrench components')
 
 
 def _ground_truth(spec, queries):
@@ -246,18 +339,26 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
         print(f'[demo] planner queries through /contact_wrench/contact_wrench '
               f'(ground truth: {"FEM full solve, " + gt_path.name if gt else "not available"})')
         c_eye = float(cell.learner_node.shape_constant)
-        rms_eye, _ = _ask(cell, queries, gt, verbose=False)
-        if rms_eye is not None:
-            print(f'[demo] with c = {1e3 * c_eye:.1f} mm picked by eye (seed 000): force RMSE '
-                  f'{rms_eye:.2f} N over {len(queries)} queries')
-        fit = _calibrate(cell, spec)
-        if fit is not None:
-            # the learner saves the next version as it accepts the parameter, and the service
-            # may swap to it before set_parameter returns: take the target version first
-            target = max(m.version for m in cell.models) + 1
-            cell.set_parameter('stiffness_learner', 'shape_constant', float(fit.c))
-            cell.wait_model(target)
-        _, sphere_answer = _ask(cell, queries, gt, verbose=True)
+        eye, _ = _ask(cell, queries, gt, verbose=False)
+        if eye is not None:
+            _report(f'before: c = {1e3 * c_eye:.1f} mm picked by eye (seed 000), no tail decay',
+                    eye, len(queries))
+        c_only, c_and_l, shape_cov, rel = _calibrate(cell, spec)
+        if c_only is not None and gt is not None:
+            _set_shape(cell, c_only.c, np.inf)
+            alone, _ = _ask(cell, queries, gt, verbose=False)
+            _report(f'c = {1e3 * c_only.c:.2f} mm from the sphere alone, no tail decay', alone,
+                    len(queries))
+        final = c_and_l or c_only
+        if final is not None:
+            _set_shape(cell, final.c, final.decay)
+        summary, sphere_answer = _ask(cell, queries, gt, verbose=True,
+                                      shape_cov=shape_cov if c_and_l is not None else None,
+                                      relative_std=rel)
+        if summary is not None:
+            what = ('after: c and L from sphere and rod' if c_and_l is not None else
+                    'after: c from the sphere' if c_only is not None else 'c as set')
+            _report(what, summary, len(queries))
         learner = cell.learner_node.learner
         model = learner.model
         figures = out / 'figures'
@@ -280,6 +381,12 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
                 sphere_answer.displacements
             plots.plot_deformed_surface(surface, u, figures / 'deformed_surface.png',
                                         title=f'{object_name} under {queries[0][0]}')
+        if summary is not None:
+            plots.plot_wrench_pred_vs_true([q[0] for q in queries], summary['pred'],
+                                           summary['std'], summary['true'],
+                                           figures / 'wrench_pred_vs_true.png',
+                                           title=f'{object_name}: planner queries, service '
+                                           'against FEM truth')
         print(f'[demo] figures: {", ".join(sorted(p.name for p in figures.glob("*.png")))} in '
               f'{figures}')
         print(f'[demo] poke bags (rosbag2 MCAP): {cell.paths["store"]}; models: '

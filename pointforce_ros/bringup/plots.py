@@ -114,6 +114,48 @@ def plot_deformed_surface(surface: Surface, displacement: np.ndarray, path, *,
     return _save(fig, path)
 
 
+def plot_wrench_pred_vs_true(names: Sequence[str], pred: np.ndarray, std: np.ndarray,
+                             true: np.ndarray, path, *, level_sigma: float = 1.6448536269514722,
+                             title: str = 'Contact wrench: predicted against true') -> Path:
+    """Predicted against true normal force ``Fz`` and torque norm per query, with intervals.
+
+    ``pred``, ``std``, ``true`` are (Q, 6) ``[fx, fy, fz, tx, ty, tz]`` (N, N m); the bars are
+    ``+- level_sigma * std`` (1.645: nominal 90 %). Left: ``Fz`` against its truth with the
+    identity line; right: the error ``Fz - Fz_true`` per query with its bar (a bar that
+    misses zero is a miss of the interval).
+    """
+    plt = _plt()
+    pred, std, true = (np.asarray(a, dtype=float) for a in (pred, std, true))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5))
+    kinds = sorted({n.split(' #')[0] for n in names})
+    colours = dict(zip(kinds, plt.cm.tab10(np.arange(len(kinds)))))
+    for i, name in enumerate(names):
+        kind = name.split(' #')[0]
+        label = kind if name.endswith('#1') or ' #' not in name else None
+        left.errorbar(true[i, 2], pred[i, 2], yerr=level_sigma * std[i, 2], fmt='o',
+                      color=colours[kind], capsize=3, label=label)
+        right.errorbar(i, pred[i, 2] - true[i, 2], yerr=level_sigma * std[i, 2], fmt='o',
+                       color=colours[kind], capsize=3)
+    top = 1.1 * float(max(true[:, 2].max(), (pred[:, 2] + level_sigma * std[:, 2]).max()))
+    left.plot([0, top], [0, top], 'k--', lw=1, label='predicted = true')
+    left.set_xlim(0, top)
+    left.set_ylim(0, top)
+    left.set_xlabel('true Fz (N, FEM full solve)')
+    left.set_ylabel('predicted Fz (N, contact service)')
+    left.set_title(title)
+    left.legend(fontsize=8, loc='upper left')
+    left.grid(alpha=0.3)
+    right.axhline(0.0, color='k', lw=1)
+    right.set_xticks(range(len(names)))
+    right.set_xticklabels(names, rotation=40, ha='right', fontsize=8)
+    right.set_ylabel('Fz error, predicted - true (N)')
+    inside = np.abs(pred[:, 2] - true[:, 2]) <= level_sigma * std[:, 2]
+    right.set_title(f'error with nominal 90 % intervals: {int(inside.sum())}/{len(names)} '
+                    'cover the truth')
+    right.grid(alpha=0.3)
+    return _save(fig, path)
+
+
 def _save(fig, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,7 @@ BENCHMARKS: Dict[str, str] = {
     'cell': 'pointforce_ros.sim.fem.bench:bench_cell',
     'ros': 'pointforce_ros.bringup.bench_ros:bench_ros',
     'deformation': 'pointforce_ros.deformation.bench:bench_deformation',
+    'faults': 'pointforce_ros.bringup.bench_faults:bench_faults',
 }
 
 

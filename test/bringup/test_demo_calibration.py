@@ -47,3 +47,33 @@ def test_wrench_figure_is_written(tmp_path):
     path = plots.plot_wrench_pred_vs_true(names, pred, np.full((3, 6), 0.2), true,
                                           tmp_path / 'w.png')
     assert path.exists() and path.stat().st_size > 10_000
+
+
+def test_point_model_check_reads_the_ratio_at_each_site():
+    from pointforce_ros.lab.synthetic_contact import linear_response
+    from pointforce_ros.types import Surface
+
+    spec = load_object('lamb')
+    cx, cy = spec.centre
+    xs, ys = np.meshgrid(np.linspace(cx - 0.03, cx + 0.03, 31),
+                         np.linspace(cy - 0.025, cy + 0.025, 26))
+    x, y = xs.ravel(), ys.ravel()
+    z = np.array([spec.top_height(a, b) for a, b in zip(x, y)]) + 0.001   # camera 1 mm high
+    surface = Surface(points=np.column_stack([x, y, z]),
+                      normals=np.tile([0.0, 0.0, 1.0], (len(x), 1)))
+    # learned: k (d - 1 mm)_+ with k 1.2x the truth left of x = cx - 8 mm, 0.9x right of it
+    k = np.where(x < cx - 0.008, 1.2, 0.9) * 2000.0
+    depths = np.linspace(-0.002, 0.01, 49)
+    baked = linear_response(k, depths=depths)
+    shifted = type(baked)(depths=depths, forces=np.array([np.interp(depths - 0.001, depths, row)
+                                                         for row in baked.forces]),
+                          slopes=baked.slopes)
+
+    class Truth:
+        def normal_force(self, x, y, d):
+            return 2000.0 * max(d, 0.0)
+
+    ratios = demo.point_model_check(spec, Truth(), surface, shifted)
+    assert ratios['calibration'] == pytest.approx(1.2, rel=1e-6)      # x = cx - 20 mm
+    assert ratios['query site #1'] == pytest.approx(0.9, rel=1e-6)    # the centre
+    assert ratios['query site #3'] == pytest.approx(1.2, rel=1e-6)    # x = cx - 15 mm

@@ -2,7 +2,7 @@
 
 On the newest model a ``pointforce demo`` run saved and the demo's nine planner queries (warm:
 the perturbed simulators and projections built once), against one plain contact solve.
-Usage: ``python -m pointforce_ros.lab.bench_uncertainty out/demo``
+Usage: ``python -m pointforce_ros.bringup.bench_uncertainty out/demo``
 """
 
 import glob

@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from pointforce_interfaces.action import Poke
 from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
@@ -20,6 +21,7 @@ from msg_adapters.interfaces import poke_goal_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud
 from pointforce_ros.errors import DeviceFault
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
+from pointforce_ros.nodes.deformation_force import DeformationForceNode, STREAM
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import LATCHED
 from pointforce_ros.types import PokeGoal
@@ -189,3 +191,39 @@ def test_poke_limits_apply_to_the_next_goal_never_to_the_running_one(ros_graph, 
     for name, value in (('robot_ip', '10.0.0.1'), ('store_dir', '/tmp/elsewhere')):
         result = setter(name, value)
         assert not result.successful and 'read-only' in result.reason, name
+
+
+def test_deformation_force_contact_threshold_applies_to_the_next_sample(ros_graph, tmp_path):
+    """The deformation node's thresholds are live; its paths, topic and mesh are read-only."""
+    node = ros_graph.add(DeformationForceNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('model_dir', value=str(tmp_path / 'deformation'))]))
+    probe = ros_graph.add(Node('deformation_param_probe', context=ros_graph.context))
+    tcp = probe.create_publisher(PoseStamped, '/poke_server/tcp_pose', STREAM)
+    wrench = probe.create_publisher(WrenchStamped, '/poke_server/wrench', STREAM)
+    ros_graph.wait_for(lambda: wrench.get_subscription_count() > 0, 10, 'subscriptions')
+    pose = PoseStamped()
+    pose.pose.orientation.w = 1.0
+    tcp.publish(pose)
+    ros_graph.wait_for(lambda: node._tcp is not None, 10, 'the TCP pose')
+
+    def push(newtons):
+        msg = WrenchStamped()
+        msg.wrench.force.z = -float(newtons)    # reaction on the tool: +z on the object
+        wrench.publish(msg)
+        ros_graph.wait_for(lambda: node._ft is not None and np.isclose(node._ft[2], newtons),
+                           10, f'{newtons} N at the node')
+
+    set_param = Setter(ros_graph, probe, 'deformation_force')
+    push(1.0)
+    assert node._contact is not None            # 1 N > 0.2 N (default): a poke runs
+    push(0.0)
+    assert node._contact is None
+    assert set_param('contact_force', 2.0).successful
+    push(1.0)
+    assert node._contact is None                # 1 N < 2 N: no poke now
+    push(3.0)
+    assert node._contact is not None
+    assert not set_param('contact_force', 500.0).successful          # above its bound
+    for name, value in [('model_dir', str(tmp_path / 'other')), ('cloud_topic', '/x'),
+                        ('element_size', 0.01), ('layers', 3), ('frame_id', 'world')]:
+        assert not set_param(name, value).successful, name           # read-only

@@ -27,8 +27,8 @@ the real ``ur_rtde``, and the bench is a DDS client in this process.
 4. **Memory**: peak RSS (VmHWM) of every contact service process.
 
 "Seconds until it answers" counts from the restart (the process spawn, so it includes the Python
-and rclpy start-up and DDS discovery); ``seconds_discovered_to_answer`` counts from the moment
-the bench discovers the restarted service (model load and first answer).
+and rclpy start-up and DDS discovery) to the first successful round trip; ``seconds_until_serving``
+from the spawn until the node logs that it serves (model loaded, services created).
 
 ``--quick`` runs fewer requests and goals and leaves out the whole-cell SIGTERM.
 """
@@ -234,10 +234,22 @@ class NodeProcess:
             cmd += ['-p', f'{key}:={value}']
         self.started = time.monotonic()
         self.log = Path(log)
+        self._offset = self.log.stat().st_size if self.log.exists() else 0
         with open(self.log, 'a') as out:
             self.process = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT,
                                             stdin=subprocess.DEVNULL, cwd=str(REPO_ROOT),
                                             env=_env())
+
+    def seconds_until_log(self, text: str, timeout: float = 60.0) -> float:
+        """Seconds from the spawn until this process logs ``text`` (NaN on time-out)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with open(self.log, 'rb') as fh:
+                fh.seek(self._offset)
+                if text.encode() in fh.read():
+                    return time.monotonic() - self.started
+            time.sleep(0.01)
+        return float('nan')
 
     def alive(self) -> bool:
         """Whether the process still runs."""
@@ -327,20 +339,18 @@ class Bench:
     def wait_answer(self, client, request, started: float, timeout: float = 60.0):
         """Call until a successful answer.
 
-        Returns ``(seconds since started, seconds since the service was discovered, response)``;
-        NaN and ``None`` when no answer came within ``timeout``.
+        Each call waits 0.5 s at most (a request sent while the restarted server is not yet
+        matched is lost). Returns ``(seconds since started, response)``; NaN and ``None`` when
+        no answer came within ``timeout``.
         """
         deadline = time.monotonic() + timeout
-        discovered = None
         while time.monotonic() < deadline:
             if client.service_is_ready():
-                discovered = discovered or time.monotonic()
-                _, response = self.call(client, request, 2.0)
+                _, response = self.call(client, request, 0.5)
                 if response is not None and response.success:
-                    now = time.monotonic()
-                    return now - started, now - discovered, response
+                    return time.monotonic() - started, response
             time.sleep(0.005)
-        return float('nan'), float('nan'), None
+        return float('nan'), None
 
 
 def _malformed_contact(bench: Bench, service: NodeProcess, single, batch, sizes, rng) -> dict:
@@ -431,7 +441,7 @@ def contact_service_faults(bench: Bench, sizes, rng) -> dict:
     single, batch = bench.contact_clients()
     service = bench.start_node('contact_wrench', model_dir=models)
     request = good_request()
-    up_s, _, before = bench.wait_answer(single, request, service.started)
+    up_s, before = bench.wait_answer(single, request, service.started)
     if before is None:
         raise DeviceFault(f'the contact service did not answer within 60 s (log '
                           f'{service.log})')
@@ -453,10 +463,10 @@ def contact_service_faults(bench: Bench, sizes, rng) -> dict:
             prepare()
         proc = bench.start_node('contact_wrench', model_dir=models)
         service_box[0] = proc
-        seconds, after_discovery, answer = bench.wait_answer(single, request, proc.started)
+        seconds, answer = bench.wait_answer(single, request, proc.started)
         faults[name] = dict(
             exit_code=code, seconds_until_answer=round(seconds, 2),
-            seconds_discovered_to_answer=round(after_discovery, 3),
+            seconds_until_serving=round(proc.seconds_until_log('serving contact wrenches'), 2),
             answered_on_version=None if answer is None else int(answer.model_version),
             on_last_good_model=bool(answer is not None and answer.model_version == last_good),
             bit_identical=bool(answer is not None and np.array_equal(
@@ -581,60 +591,83 @@ def poke_faults(bench: Bench, rng, quick: bool) -> dict:
 
     good = dict(point=[0.5, 0.0, 0.04], normal=[0.0, 0.0, 1.0], force_limit=2.0,
                 depth_limit=0.008, speed=0.005, standoff=0.008)
-    first = _poke(bench, client, poke_goal_to_msg(PokeGoal(**good)))
-    # the controller dies in the middle of a push
+    results = []   # every poke result: a push with samples must be stored or kept
+
+    def poke(on_feedback=None, **overrides):
+        result = _poke(bench, client, poke_goal_to_msg(PokeGoal(**dict(good, **overrides))),
+                       on_feedback)
+        if result is not None:
+            results.append(result)
+        return result
+
+    def lost(result) -> bool:
+        """A push that recorded samples and is neither stored readably nor kept."""
+        if result is None or result.samples == 0:
+            return False
+        if result.poke_id:
+            try:
+                return len(read_poke_bag(store_dir / result.poke_id)) != result.samples
+            except Exception:  # noqa: BLE001 - an unreadable bag is a lost poke
+                return result.poke_id != corrupted[0]   # the bench damaged that one itself
+        return 'kept in' not in result.message
+
+    corrupted = ['']
+    first = poke()
+    # the controller dies in the middle of a push (a push the loaded machine aborts before the
+    # kill, e.g. a stalled stream, is tried again, at most 3 times)
     fired = threading.Event()
 
     def kill_mid_push(msg):
         if msg.feedback.phase == 'push' and msg.feedback.depth > 0.0005 and not fired.is_set():
             fired.set()
             bench.emulator.process.kill()
+    dead, attempts = None, 0
+    while not fired.is_set() and attempts < 3:
+        attempts += 1
+        dead = poke(kill_mid_push, speed=0.003)
     killed_at = time.monotonic()
-    dead = _poke(bench, client, poke_goal_to_msg(PokeGoal(**dict(good, speed=0.003))),
-                 kill_mid_push)
-    killed_at = time.monotonic() if not fired.is_set() else killed_at
     bench.emulator.stop()
-    recovery = store_dir / 'recovery'
-    kept = bool(dead is not None and (
-        (dead.poke_id and dead.poke_id in PokeStore(store_dir).ids())
-        or any(recovery.glob('*.npz'))))
     bench.emulator = start_emulator(bench.work / 'logs',
                                     hosts=itertools.chain([bench.emulator.host], hosts), **spring)
     server.robot_ip = bench.emulator.host   # the next goal reconnects there
     again, tries = None, 0
     while tries < 5 and (again is None or again.outcome != 'force_limit'):
         tries += 1
-        again = _poke(bench, client, poke_goal_to_msg(PokeGoal(**good)))
+        again = poke()
     dead_controller = dict(
-        killed_mid_push=fired.is_set(),
+        killed_mid_push=fired.is_set(), attempts=attempts,
         outcome=None if dead is None else dead.outcome,
         message=None if dead is None else dead.message[:160],
         samples=None if dead is None else int(dead.samples),
-        pokes_lost=int(fired.is_set() and not kept),
+        pokes_lost=int(lost(dead)),
         seconds_until_poke_again=round(time.monotonic() - killed_at, 2),
         pokes_to_recover=tries)
     # the newest bag is corrupted; the next poke must get a new id and be stored
     ids = PokeStore(store_dir).ids()
-    newest = store_dir / ids[-1]
-    for mcap in newest.glob('*.mcap'):
+    corrupted[0] = ids[-1]
+    for mcap in (store_dir / ids[-1]).glob('*.mcap'):
         mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 3])
-    nxt = _poke(bench, client, poke_goal_to_msg(PokeGoal(**good)))
-    stored = False
-    if nxt is not None and nxt.poke_id:
-        try:
-            stored = len(read_poke_bag(store_dir / nxt.poke_id)) == nxt.samples
-        except Exception:  # noqa: BLE001 - unreadable counts as lost
-            stored = False
+    nxt, tries_after = None, 0
+    while tries_after < 3 and (nxt is None or not nxt.poke_id):
+        tries_after += 1
+        nxt = poke()
     reloaded = PokeStore(store_dir)   # a restarted server or learner: the bad bag is set aside
     corrupt_bag = dict(corrupted=ids[-1], next_id=None if nxt is None else nxt.poke_id,
+                       pokes_to_store=tries_after,
                        id_reused=bool(nxt is not None and nxt.poke_id in ids),
-                       pokes_lost=int(not stored),
+                       pokes_lost=int(nxt is None or not nxt.poke_id or lost(nxt)),
                        quarantined_on_reload=bool(
                            ids[-1] not in reloaded.ids()
                            and any((store_dir / 'quarantine').glob(f'{ids[-1]}*'))))
+    all_ids = [r.poke_id for r in results if r.poke_id]
+    summary = dict(pokes_sent=len(results), pushes_with_samples=sum(r.samples > 0
+                                                                    for r in results),
+                   pokes_lost=sum(lost(r) for r in results),
+                   ids_reused=len(all_ids) - len(set(all_ids)),
+                   outcomes=sorted(r.outcome for r in results))
     return dict(malformed_goals=goals, first_poke=None if first is None else first.outcome,
-                faults=dict(dead_controller_mid_poke=dead_controller,
-                            corrupt_newest_bag=corrupt_bag))
+                pokes=summary, faults=dict(dead_controller_mid_poke=dead_controller,
+                                           corrupt_newest_bag=corrupt_bag))
 
 
 # --------------------------------------------------------------------------- the whole cell
@@ -724,23 +757,23 @@ def bench_faults(quick: bool = False, seed: int = 16, out: Optional[str] = None,
         finally:
             bench.close()
     faults = dict(contact['faults'], **learner, **pokes['faults'], **cell)
-    lost = sum(f.get('pokes_lost', 0) for f in faults.values())
-    back_after_discovery = [f['seconds_discovered_to_answer'] for f in contact['faults'].values()]
-    reused = sum(f.get('versions_reused', 0) for f in faults.values()) + sum(
-        int(f.get('id_reused', False)) for f in faults.values())
+    lost = pokes['pokes']['pokes_lost']   # every poke the bench sent, the faults' ones too
+    serving = [f['seconds_until_serving'] for f in contact['faults'].values()]
+    reused = sum(f.get('versions_reused', 0) for f in faults.values()) + (
+        pokes['pokes']['ids_reused'])
     back = [f['seconds_until_answer'] for f in contact['faults'].values()]
     malformed = contact['malformed_requests']
     goals = pokes['malformed_goals']
     return {
         'quick': bool(quick), 'seed': int(seed),
         'malformed_requests': malformed, 'malformed_goals': goals, 'load': contact['load'],
+        'pokes': pokes['pokes'],
         'faults': faults,
         'contact_service_startup_s': contact['startup_s'],
         'contact_service_peak_rss_mb': round(bench.peak_rss_mb, 1),
         'pokes_lost': int(lost), 'versions_or_ids_reused': int(reused),
         'service_back_max_s': round(float(np.nanmax(back)), 2) if back else None,
-        'service_back_after_discovery_max_s': (round(float(np.nanmax(back_after_discovery)), 3)
-                                               if back_after_discovery else None),
+        'service_serving_max_s': round(float(np.nanmax(serving)), 2) if serving else None,
         'crashes': int(malformed['crashes']), 'hangs': int(malformed['hangs'] + goals['hangs']),
         'success_on_malformed': int(malformed['success_on_malformed'] + goals['accepted']),
         'seconds': round(time.monotonic() - start, 1),

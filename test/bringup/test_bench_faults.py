@@ -46,9 +46,11 @@ def test_the_quick_fault_bench_counts_what_it_injected(tmp_path):
     assert learner['version_after'] == learner['version_before'] == 3
     dead = faults['dead_controller_mid_poke']
     assert dead['killed_mid_push'] and dead['outcome'] == 'aborted' and dead['samples'] > 0
-    assert dead['pokes_lost'] == 0 and dead['pokes_to_recover'] == 1
+    assert dead['pokes_lost'] == 0 and dead['pokes_to_recover'] <= 5
     bag = faults['corrupt_newest_bag']
     assert not bag['id_reused'] and bag['pokes_lost'] == 0 and bag['next_id'] > bag['corrupted']
+    pokes = report['pokes']
+    assert pokes['pokes_lost'] == pokes['ids_reused'] == 0 and pokes['pushes_with_samples'] >= 3
     assert report['pokes_lost'] == report['versions_or_ids_reused'] == 0
     assert report['crashes'] == report['hangs'] == report['success_on_malformed'] == 0
     assert 0 < report['contact_service_peak_rss_mb'] < 600

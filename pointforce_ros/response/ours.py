@@ -111,7 +111,7 @@ DECORRELATE_PRIOR_POKES = 2.0
 """Pseudo-pokes of zero correlation the parameter covariance is shrunk with."""
 SCALE_FLOOR = np.array([1e-5, 1e-3, 1e-3, 1e-2])
 """Smallest standard deviation of ``(d0 [m], log F, p, q)`` used to standardise them."""
-ONSET_NODES = 5
+ONSET_NODES = 3
 """Gauss-Hermite nodes over the onset in the mean force (module docstring, point 6)."""
 LOG_VAR_CAP = 0.5
 """Largest variance of ``log f`` given the onset used in the mean force."""
@@ -119,6 +119,8 @@ LAW_SELECT_MIN_POKES = 4
 """Fewest pokes with which ``law='auto'`` compares the laws by leave-one-out."""
 LAW_SELECT_MARGIN = 0.02
 """Relative held-out improvement the stiffening law needs to be chosen over the power law."""
+STIFFENING_SAMPLES = 300
+"""Most samples of one curve the stiffening law's least-squares fit uses (evenly thinned)."""
 CV_SAMPLES = 40
 """Contact samples per poke kept for the leave-one-out law choice."""
 
@@ -203,6 +205,7 @@ class ContactGpModel:
         self._gps: Optional[List[FeatureGp]] = None
         self._mix: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
         self._param_bounds = None
+        self._var_scale = np.ones(4)
         self._surface: Optional[Surface] = None
         self.fit_seconds = 0.0
 
@@ -250,6 +253,11 @@ class ContactGpModel:
 
         """
         law = law or self.law
+        return self._fit_curve_laws(curve, (law,))[law]
+
+    def _fit_curve_laws(self, curve: PokeCurve, laws: Sequence[str]
+                        ) -> Dict[str, Tuple[np.ndarray, float]]:
+        """``{law: (theta, rms)}`` for each of ``laws``, sharing one power-law fit."""
         if not np.any(curve.f > 0):
             raise InvalidInput(f'poke {curve.poke_id}: no positive force, cannot fit a contact '
                                'law')
@@ -258,17 +266,19 @@ class ContactGpModel:
                                   exponent_bounds=self.exponent_bounds, max_samples=600)
         force_ref = max(fit.a * self.ref_depth ** fit.p, 1e-9)
         power = np.array([fit.d0, np.log(force_ref), fit.p])
-        if law == 'power':
-            return power, float(fit.rms)
-        return self._fit_stiffening(curve, power, fit.noise)
+        out = {}
+        for law in laws:
+            out[law] = (power, float(fit.rms)) if law == 'power' \
+                else self._fit_stiffening(curve, power, fit.noise)
+        return out
 
     def _fit_stiffening(self, curve: PokeCurve, power: np.ndarray, noise: float
                         ) -> Tuple[np.ndarray, float]:
         """Least-squares fit of the stiffening law, started from the power fit and from a
         softer exponent with stiffening; returns the better."""
         d, f = curve.d, curve.f
-        if len(d) > 600:
-            keep = np.round(np.linspace(0, len(d) - 1, 600)).astype(int)
+        if len(d) > STIFFENING_SAMPLES:
+            keep = np.round(np.linspace(0, len(d) - 1, STIFFENING_SAMPLES)).astype(int)
             d, f = d[keep], f[keep]
         sref = self.ref_depth
         x = d / sref
@@ -277,13 +287,21 @@ class ContactGpModel:
         lower = np.array([x.min() - 0.5 * span - 1.0, -30.0, lo_p, STIFFENING_BOUNDS[0]])
         upper = np.array([x.max(), 30.0, hi_p, STIFFENING_BOUNDS[1]])
 
-        def residual(z):
+        def model(z):
             s = x - z[0]
             pos = s > 0
-            out = np.zeros_like(s)
-            sp = s[pos]
-            out[pos] = np.exp(z[1] + z[2] * np.log(sp) + z[3] * (sp - 1.0))
-            return out - f
+            sp = np.where(pos, s, 1.0)
+            lg = np.log(sp)
+            out = np.exp(z[1] + z[2] * lg + z[3] * (sp - 1.0)) * pos
+            return out, sp, lg, pos
+
+        def residual(z):
+            return model(z)[0] - f
+
+        def jac(z):
+            out, sp, lg, pos = model(z)
+            return np.stack([-out * (z[2] / sp + z[3]) * pos, out, out * lg,
+                             out * (sp - 1.0)], axis=1)
 
         f_scale = max(2.0 * noise, 1e-6 * max(1.0, float(np.abs(f).max())))
         best = None
@@ -292,9 +310,9 @@ class ContactGpModel:
         for z0 in starts:
             z0 = np.clip(z0, lower + 1e-9, upper - 1e-9)
             try:
-                sol = least_squares(residual, z0, bounds=(lower, upper), method='trf',
-                                    loss='soft_l1', f_scale=f_scale, x_scale='jac',
-                                    max_nfev=200)
+                sol = least_squares(residual, z0, jac=jac, bounds=(lower, upper),
+                                    method='trf', loss='soft_l1', f_scale=f_scale,
+                                    x_scale='jac', max_nfev=200)
             except ValueError:
                 continue
             if best is None or sol.cost < best.cost:
@@ -326,10 +344,10 @@ class ContactGpModel:
         feats = curve_features(curves, surface, self.max_surface_distance)
         self._thetas = {k: np.zeros((0, len(LAW_PARAMS[k]))) for k in LAWS}
         self._rms = {k: np.zeros(0) for k in LAWS}
+        fits = [self._fit_curve_laws(c, self._laws_to_fit()) for c in curves]
         for law in self._laws_to_fit():
-            fits = [self.fit_curve(c, law) for c in curves]
-            self._thetas[law] = np.stack([th for th, _ in fits])
-            self._rms[law] = np.array([rms for _, rms in fits])
+            self._thetas[law] = np.stack([fit[law][0] for fit in fits])
+            self._rms[law] = np.array([fit[law][1] for fit in fits])
         self._samples = [self._cv_samples(c) for c in curves]
         self._ids = [c.poke_id for c in curves]
         self._features = feats
@@ -356,10 +374,11 @@ class ContactGpModel:
         if curve.poke_id in self._ids:
             raise InvalidInput(f'partial_fit: poke {curve.poke_id} is already in the model')
         feat = curve_features([curve], surface, self.max_surface_distance)
-        for law in self._laws_to_fit():
-            if len(self._thetas[law]) != len(self._ids):
-                continue                    # loaded without this law's fits: stays out
-            theta, rms = self.fit_curve(curve, law)
+        laws = [k for k in self._laws_to_fit()
+                if len(self._thetas[k]) == len(self._ids)]   # loaded without a law: stays out
+        fits = self._fit_curve_laws(curve, laws)
+        for law in laws:
+            theta, rms = fits[law]
             self._thetas[law] = np.vstack([self._thetas[law], theta[None]])
             self._rms[law] = np.append(self._rms[law], rms)
         self._ids.append(curve.poke_id)
@@ -487,8 +506,11 @@ class ContactGpModel:
         if not with_cov:
             return mean, None
         var_y = np.stack([o[1] for o in out], axis=1) ** 2                 # (M, P)
+        var_y = var_y * self._var_scale[:var_y.shape[1]]
         a = scale[:, None] * chol                                          # (P, P)
-        cov = np.einsum('ij,mj,kj->mik', a, var_y, a)
+        k = len(a)
+        pairs = (a[:, None, :] * a[None, :, :]).reshape(k * k, k).T        # (P, P*P)
+        cov = (var_y @ pairs).reshape(len(var_y), k, k)
         return mean, cov
 
     def predict_param_dist(self, features: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
@@ -564,28 +586,43 @@ class ContactGpModel:
         c = [cr[..., i, j].astype(dtype) for i in range(k - 1) for j in range(k - 1)]
         d = np.asarray(d, dtype=dtype)
         inv_ref = dtype(1.0 / self.ref_depth)
-        total = None
-        total2 = None
+        total = total2 = None
         for z, w in zip(_GH_Z, _GH_W):
             d0 = (mean[..., 0] + z * sd0).astype(dtype)
             m = (mean[..., 1:] + z * gain).astype(dtype)
             s = d - d0
-            lr = np.log(np.maximum(s, dtype(1e-9)) * inv_ref)
-            logm = m[..., 0] + m[..., 1] * lr
-            var = c[0] + lr * (2 * c[1] + lr * c[3]) if not stiff else None
-            if stiff:
-                t = s * inv_ref - dtype(1.0)
-                logm = logm + m[..., 2] * t
-                # c indices for 3x3: 0 (11) 1 (12) 2 (13) 4 (22) 5 (23) 8 (33)
-                var = (c[0] + lr * (2 * c[1] + lr * c[4])
-                       + t * (2 * c[2] + 2 * lr * c[5] + t * c[8]))
-            var = np.clip(var, 0.0, LOG_VAR_CAP)
             on = s > 0
-            term = np.exp(logm + dtype(0.5) * var) * on
-            total = term * dtype(w) if total is None else total + term * dtype(w)
+            lr = np.maximum(s, dtype(1e-9))
+            lr *= inv_ref
+            np.log(lr, out=lr)
+            if not stiff:
+                var = lr * (2 * c[1] + lr * c[3])
+                var += c[0]
+                logm = lr * m[..., 1]
+            else:
+                t = s * inv_ref
+                t -= dtype(1.0)
+                # conditional covariance of (log F, p, q), row-major: 0 1 2 / 4 5 / 8
+                var = lr * (2 * c[1] + lr * c[4])
+                var += t * (2 * c[2] + 2 * lr * c[5] + t * c[8])
+                var += c[0]
+                logm = lr * m[..., 1]
+                logm += m[..., 2] * t
+            logm += m[..., 0]
+            np.clip(var, 0.0, LOG_VAR_CAP, out=var)
             if second:
-                term2 = np.exp(dtype(2.0) * (logm + var)) * on
-                total2 = term2 * dtype(w) if total2 is None else total2 + term2 * dtype(w)
+                term2 = logm + var
+                term2 *= dtype(2.0)
+                np.exp(term2, out=term2)
+                term2 *= on
+                term2 *= dtype(w)
+                total2 = term2 if total2 is None else np.add(total2, term2, out=total2)
+            var *= dtype(0.5)
+            logm += var
+            np.exp(logm, out=logm)
+            logm *= on
+            logm *= dtype(w)
+            total = logm if total is None else np.add(total, logm, out=total)
         return total, total2
 
     def _median_force(self, law: str, mean: np.ndarray, d, dtype=np.float64):
@@ -684,10 +721,13 @@ class ContactGpModel:
                                       dtype=np.float32)                 # (K+1, N)
             m1 = q1 if self.mean == 'mean' else \
                 self._median_force(self.law, mean, grid, dtype=np.float32)
+        var = q2[:-1]
+        var -= q1[:-1] ** 2
+        np.maximum(var, 0.0, out=var)
+        np.sqrt(var, out=var)
+        forces = np.ascontiguousarray(m1[:-1].T, dtype=np.float64)
+        std = np.ascontiguousarray(var.T, dtype=np.float64)
         m1 = m1.astype(np.float64)
-        q1 = q1.astype(np.float64)
-        forces = np.ascontiguousarray(m1[:-1].T)
-        std = np.ascontiguousarray(np.sqrt(np.maximum(q2[:-1] - q1[:-1] ** 2, 0.0)).T)
         slopes = np.maximum((m1[-1] - m1[-2]) / h, 0.0)
         return BakedResponse(depths=depths, forces=forces, slopes=slopes, std=std,
                              version=self.version,

@@ -488,13 +488,16 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
                     truth: Optional[Mapping] = None) -> List[Dict]:
     """Figure 1 rows for one object (same subsets for every model).
 
-    Models: ours, ours capped at its training pokes' largest force (a diagnostic, see
+    Models: ours, ours as it was before issue 17 (``ours_before``: power law, force at the
+    parameters' mean), ours capped at its training pokes' largest force (a diagnostic, see
     :class:`CappedAtTraining`), ours with independent parameter processes (before
     decorrelation), its shape-free candidate, ET and Auto-ET. ``truth``
     (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
     force cap.
     """
     factories = {'ours': ContactGpModel,
+                 # before issue 17: one power law, force at the parameters' predictive mean
+                 'ours_before': lambda: ContactGpModel(law='power', mean='median'),
                  'ours_capped': lambda: CappedAtTraining(ContactGpModel()),
                  'ours_independent': lambda: ContactGpModel(decorrelate=False),
                  'ours_shape_free': ShapeFreeGpModel, 'et': EtBaseline,
@@ -607,7 +610,7 @@ def spread_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 10,
     if not 1 <= size < len(curves) or repeats < 1:
         raise InvalidInput(f'spread_budget: need 1 <= size < {len(curves)} pokes and '
                            f'repeats >= 1, got size {size}, repeats {repeats}')
-    own = {c.poke_id: ContactGpModel().fit_curve(c)[0] for c in curves}
+    own = {}
     rng = np.random.default_rng(seed)
     scores = {'ours': [], 'own_shape': []}
     for _ in range(repeats):
@@ -618,7 +621,9 @@ def spread_budget(curves: Sequence[PokeCurve], surface: Surface, size: int = 10,
         err = {k: [] for k in scores}
         for c, theta in zip(test, predicted):
             keep = c.d >= c.onset_d - CONTACT_MARGIN
-            mixed = np.concatenate([theta[:1], own[c.poke_id][1:]])
+            if (model.law, c.poke_id) not in own:     # the poke's own fit of the chosen law
+                own[(model.law, c.poke_id)] = model.fit_curve(c, model.law)[0]
+            mixed = np.concatenate([theta[:1], own[(model.law, c.poke_id)][1:]])
             for key, params in (('ours', theta), ('own_shape', mixed)):
                 rows = np.repeat(params[None], int(keep.sum()), axis=0)
                 err[key].append(model.force_from_params(rows, c.d[keep]) - c.f[keep])
@@ -1200,7 +1205,8 @@ def _jsonable(obj):
 
 def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
                 repeats: Optional[int] = None, seed: int = 0, auto_budget: float = 1.0,
-                data_dir=DATA_DIR, say: Callable[[str], None] = print) -> Dict:
+                data_dir=DATA_DIR, say: Callable[[str], None] = print,
+                learning_only: bool = False) -> Dict:
     """Compute figures 1-3 from the cached fixtures; write PNGs, ``figures.md``, JSON.
 
     Args:
@@ -1211,6 +1217,7 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         seed: seed of the subset draws.
         auto_budget: Auto-ET search budget per fit, seconds.
         data_dir: folder of ``pokes_<object>.npz`` and ``probes_<object>.npz``.
+        learning_only: figure 1 and its error budget only (no next-poke or probe figures).
 
     Returns:
         dict with ``learning`` ({object: rows}), ``learning_goals``, ``probes`` ({object:
@@ -1278,6 +1285,8 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         line = ', '.join(f"{r['model']}@{r['size']} {r['median']:.3f}" for r in rows
                          if r['size'] in (3, 5, 10))
         say(f'[figures]   learning curves ({time.monotonic() - t0:.0f} s): {line} N')
+        if learning_only:
+            continue
         t0 = time.monotonic()
         active = figure_active(curves, surface, repeats=repeats, seed=seed)
         result['active'][name] = active
@@ -1330,10 +1339,13 @@ def main(argv=None) -> int:
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--auto-budget', type=float, default=1.0, help='Auto-ET budget, s')
     parser.add_argument('--data', default=DATA_DIR, help='folder of the cached fixtures')
+    parser.add_argument('--learning-only', action='store_true',
+                        help='figure 1 (learning curves) and its error budget only')
     args = parser.parse_args(argv)
     try:
         run_figures(args.out, args.objects, quick=args.quick, repeats=args.repeats,
-                    seed=args.seed, auto_budget=args.auto_budget, data_dir=args.data)
+                    seed=args.seed, auto_budget=args.auto_budget, data_dir=args.data,
+                    learning_only=args.learning_only)
     except InvalidInput as exc:
         print(f'[figures] error: {exc}')
         return 2

@@ -113,11 +113,12 @@ CALIBRATIONS = {'sphere': ('demo_calibration_{}.npz', calibration_push),
 """Calibration pushes of the demo: name -> (fixture file pattern, push builder)."""
 
 
-def _calibration_pokes(spec):
+def _calibration_pokes(spec, vectors: bool = False):
     """The calibration pushes with their measured forces: ``{name: poke}`` (may be empty).
 
     A poke is ``(mesh, poses, approach, measured push-back force (T,))`` as
-    :func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probes` takes it.
+    :func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probes` takes it;
+    with ``vectors`` the force is the measured (T, 3) vector (N, ``base``).
     """
     pokes = {}
     for name, (pattern, push) in CALIBRATIONS.items():
@@ -131,26 +132,28 @@ def _calibration_pokes(spec):
                 print(f'[demo] {path.name} is for other depths: not used')
                 continue
             measured = np.asarray(z['force'], dtype=float)
-        pokes[name] = (mesh, poses, [0.0, 0.0, -1.0], measured[:, 2])
+        pokes[name] = (mesh, poses, [0.0, 0.0, -1.0],
+                       measured if vectors else measured[:, 2])
     return pokes
 
 
 def _calibrate(cell, spec):
     """Identify ``c`` (sphere alone) and ``(c, L)`` (sphere and rod) from the calibration pushes.
 
-    Returns ``(c_only, c_and_l, shape_cov, relative_std)``: the two :class:`ShapeFit` (either
-    ``None`` when it cannot be done), the (2, 2) covariance of ``(log c, 1/L)`` at the joint
-    fit and the joint fit's relative residual (the share of the force the contact model does
-    not explain at the calibration pushes).
+    Returns ``(c_only, c_and_l, shape_cov, relative_std, lateral_std)``: the two
+    :class:`ShapeFit` (either ``None`` when it cannot be done), the (2, 2) covariance of
+    ``(log c, 1/L)`` at the joint fit, the joint fit's relative residual (the share of the
+    force the contact model does not explain at the calibration pushes) and the RMS of the
+    measured force across the push not predicted there, as a share of the RMS normal force.
     """
     pokes = _calibration_pokes(spec)
     if 'sphere' not in pokes:
-        return None, None, None, 0.0
+        return None, None, None, 0.0, 0.0
     server = WrenchServer()
     server.load(cell.models[-1].model_path)
     simulator = server.simulator()
     c_only = c_and_l = cov = None
-    rel = 0.0
+    rel = lat = 0.0
     try:
         c_only = identify_shape_constant_from_probe(simulator, *pokes['sphere'])
         print(f'[demo] calibration push 1 (20 mm sphere at {1e3 * CALIBRATION_DEPTHS[0]:.0f} '
@@ -166,6 +169,8 @@ def _calibrate(cell, spec):
             cov = shape_fit_covariance(simulator, joint, c_and_l)
             measured = np.concatenate([p[3] for p in joint])
             rel = float(c_and_l.rmse / np.sqrt(np.mean(measured ** 2)))
+            lat = _lateral_share(simulator.with_shape_constant(c_and_l.c, c_and_l.decay),
+                                 _calibration_pokes(spec, vectors=True))
             decay = (f'{1e3 * c_and_l.decay:.0f} mm' if np.isfinite(c_and_l.decay)
                      else "none (the paper's g)")
             print(f'[demo] calibration push 2 ({1e3 * ROD_LENGTH:.0f} mm rod, r 10 mm, at '
@@ -173,10 +178,24 @@ def _calibrate(cell, spec):
                   f'{", ".join(f"{f:.2f}" for f in pokes["rod"][3])} N measured): with the '
                   f'sphere c = {1e3 * c_and_l.c:.2f} mm and tail decay length L = {decay} '
                   f'(fit RMSE {c_and_l.rmse:.2f} N, {100 * rel:.0f} % of the pushes\' force; '
-                  f'std of log c {np.sqrt(cov[0, 0]):.2f}, of 1/L {np.sqrt(cov[1, 1]):.0f} /m)')
+                  f'std of log c {np.sqrt(cov[0, 0]):.2f}, of 1/L {np.sqrt(cov[1, 1]):.0f} /m; '
+                  f'lateral force not predicted: {100 * lat:.0f} % of the normal force)')
         except PointforceError as exc:
             print(f'[demo] calibration with sphere and rod failed ({exc})')
-    return c_only, c_and_l, cov, rel
+    return c_only, c_and_l, cov, rel, lat
+
+
+def _lateral_share(simulator, pokes) -> float:
+    """RMS measured-minus-predicted force across each push over the RMS normal force."""
+    across, normal = [], []
+    for mesh, poses, approach, measured in pokes.values():
+        a = np.asarray(approach, dtype=float)
+        err = measured - simulator.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3]
+        across.append(err - np.outer(err @ a, a))
+        normal.append(measured @ a)
+    across, normal = np.concatenate(across), np.concatenate(normal)
+    # two lateral components per push: the share is per component
+    return float(np.sqrt(np.sum(across ** 2) / (2 * len(normal))) / np.sqrt(np.mean(normal ** 2)))
 
 
 def _set_shape(cell, c: float, decay: float) -> None:
@@ -197,13 +216,14 @@ def _set_shape(cell, c: float, decay: float) -> None:
         cell.wait_model(target)
 
 
-def _ask(cell, queries, gt, verbose: bool, shape_cov=None, relative_std: float = 0.0):
+def _ask(cell, queries, gt, verbose: bool, shape_cov=None, relative_std: float = 0.0,
+         lateral_std: float = 0.0):
     """Ask the contact service every query; return ``(summary or None, first answer)``.
 
     With ground truth the summary (:func:`summarise`) compares the answers with it; the
     standard deviations come from :func:`~pointforce_ros.contact.uncertainty.
     wrench_uncertainty` on the served model (the response's spread, ``shape_cov`` of
-    ``(log c, 1/L)`` and ``relative_std``).
+    ``(log c, 1/L)``, ``relative_std`` and ``lateral_std``).
     """
     from geometry_msgs.msg import Vector3
     from pointforce_interfaces.srv import ContactWrench
@@ -224,7 +244,8 @@ def _ask(cell, queries, gt, verbose: bool, shape_cov=None, relative_std: float =
         f = np.array([answer.wrench.force.x, answer.wrench.force.y, answer.wrench.force.z])
         m = np.array([answer.wrench.torque.x, answer.wrench.torque.y, answer.wrench.torque.z])
         spread = wrench_uncertainty(model, mesh, [pose], approach, tc, shape_cov=shape_cov,
-                                    relative_std=relative_std).std[0]
+                                    relative_std=relative_std,
+                                    lateral_std=lateral_std).std[0]
         pred.append(np.concatenate([f, m]))
         std.append(spread)
         first = answer if i == 0 else first
@@ -248,7 +269,8 @@ def summarise(pred: np.ndarray, std: np.ndarray, true: np.ndarray) -> dict:
     Returns ``rmse`` (force-vector RMSE, N), ``peak`` (largest true force norm, N),
     ``below``/``above`` (queries whose normal force ``Fz`` is predicted below/above the
     truth), ``coverage_fz`` (share of queries whose true ``Fz`` lies in the nominal 90 %
-    interval), ``coverage_all`` (the same over all six components of every query),
+    interval), ``coverage_force`` / ``coverage_torque`` / ``coverage_all`` (the same over the
+    three force, the three torque and all six components of every query),
     ``width_fz`` (mean 90 % interval width of ``Fz``, N) and the arrays.
     """
     err = pred - true
@@ -257,6 +279,8 @@ def summarise(pred: np.ndarray, std: np.ndarray, true: np.ndarray) -> dict:
             'peak': float(np.max(np.linalg.norm(true[:, :3], axis=1))),
             'below': int(np.sum(err[:, 2] < 0)), 'above': int(np.sum(err[:, 2] > 0)),
             'coverage_fz': float(np.mean(inside[:, 2])), 'coverage_all': float(np.mean(inside)),
+            'coverage_force': float(np.mean(inside[:, :3])),
+            'coverage_torque': float(np.mean(inside[:, 3:])),
             'width_fz': float(np.mean(2 * Z90 * std[:, 2])),
             'pred': pred, 'std': std, 'true': true}
 
@@ -267,7 +291,8 @@ def _report(label: str, summary: dict, count: int) -> None:
           f'({100 * s["rmse"] / s["peak"]:.1f} % of the largest true force, {s["peak"]:.1f} N); '
           f'Fz below truth in {s["below"]}, above in {s["above"]}; nominal 90 % intervals '
           f'cover {100 * s["coverage_fz"]:.0f} % of true Fz (mean width {s["width_fz"]:.2f} N) '
-          f'and {100 * s["coverage_all"]:.0f} % of all wrench components')
+          f'and {100 * s["coverage_force"]:.0f} % / {100 * s["coverage_torque"]:.0f} % of all '
+          f'force / torque components')
 
 
 def point_model_check(spec, live, surface, response, depth: float = 0.003,
@@ -381,7 +406,7 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
         if eye is not None:
             _report(f'before: c = {1e3 * c_eye:.1f} mm picked by eye (seed 000), no tail decay',
                     eye, len(queries))
-        c_only, c_and_l, shape_cov, rel = _calibrate(cell, spec)
+        c_only, c_and_l, shape_cov, rel, lat = _calibrate(cell, spec)
         if c_only is not None and gt is not None:
             _set_shape(cell, c_only.c, np.inf)
             alone, _ = _ask(cell, queries, gt, verbose=False)
@@ -392,7 +417,7 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
             _set_shape(cell, final.c, final.decay)
         summary, sphere_answer = _ask(cell, queries, gt, verbose=True,
                                       shape_cov=shape_cov if c_and_l is not None else None,
-                                      relative_std=rel)
+                                      relative_std=rel, lateral_std=lat)
         if summary is not None:
             what = ('after: c and L from sphere and rod' if c_and_l is not None else
                     'after: c from the sphere' if c_only is not None else 'c as set')

@@ -15,7 +15,11 @@ query, all through the public :class:`~pointforce_ros.contact.simulator.ContactS
   Jacobian ``J`` and the shape part of the covariance is ``J S J^T`` with ``S`` the 2x2
   covariance of ``(log c, 1 / L [1/m])`` (:func:`~pointforce_ros.contact.identify.
   shape_fit_covariance` gives it from the calibration pushes);
-* **relative**: an optional share of the wrench (model discrepancy not in the two above).
+* **relative**: an optional share of the wrench (model discrepancy not in the two above);
+* **lateral**: an optional share of the normal force (along the approach) as the standard
+  deviation of the force across the approach (isotropic in that plane): the contact model
+  carries no friction or tangential stiffness, so a measured lateral force (a sloped surface,
+  friction) is a discrepancy of that size.
 
 The three parts are independent and add in variance. The perturbed simulators are built once
 per model and kept (the first query on a new model or approach direction pays for their spatial
@@ -53,7 +57,8 @@ class WrenchUncertainty:
         wrench: (B, 6) ``[fx, fy, fz, tx, ty, tz]`` of the model's own simulator, N and N m.
         std: (B, 6) standard deviation of each component, N and N m.
         parts: source -> (B, 6) standard deviation from that source alone (``'response'``,
-            ``'shape'``, ``'relative'``); ``std**2`` is the sum of their squares.
+            ``'shape'``, ``'relative'``, ``'lateral'``); ``std**2`` is the sum of their
+            squares.
 
     """
 
@@ -123,7 +128,8 @@ def _check_cov(shape_cov) -> np.ndarray:
 def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Sequence[Pose]],
                        approach, torque_centre, *, shape_cov=None,
                        relative_std: Optional[float] = None, response: bool = True,
-                       spacing: float = 0.003) -> WrenchUncertainty:
+                       spacing: float = 0.003, lateral_std: Optional[float] = None
+                       ) -> WrenchUncertainty:
     """Standard deviation of the contact wrench of ``mesh`` at ``poses`` (module docstring).
 
     Args:
@@ -138,6 +144,8 @@ def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Seque
         relative_std: share of the wrench added as an independent discrepancy (>= 0);
             ``None``: ``model.meta['relative_std']`` if present, else 0.
         response: include the response part.
+        lateral_std: share of the normal force given to each force component across the
+            approach (>= 0); ``None``: ``model.meta['lateral_std']`` if present, else 0.
         spacing: rigid-mesh sampling step of the simulator, metres (the service's).
 
     Returns:
@@ -156,6 +164,9 @@ def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Seque
     rel = float(model.meta.get('relative_std', 0.0) if relative_std is None else relative_std)
     if not (np.isfinite(rel) and rel >= 0):
         raise InvalidInput(f'relative_std: must be a finite share >= 0, got {rel}')
+    lat = float(model.meta.get('lateral_std', 0.0) if lateral_std is None else lateral_std)
+    if not (np.isfinite(lat) and lat >= 0):
+        raise InvalidInput(f'lateral_std: must be a finite share >= 0, got {lat}')
     poses = [poses] if isinstance(poses, Pose) else poses
     sims = _perturbed(model, float(spacing))
     base = sims.nominal.query_batch(mesh, poses, approach, torque_centre).wrenches
@@ -180,6 +191,13 @@ def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Seque
         parts['shape'] = np.sqrt(np.maximum(var, 0.0))
     if rel > 0:
         parts['relative'] = rel * np.abs(base)
+    if lat > 0:
+        a = np.asarray(approach, dtype=np.float64)
+        a = a / np.linalg.norm(a)
+        normal = np.abs(base[:, :3] @ a)                               # (B,)
+        lateral = np.zeros_like(base)
+        lateral[:, :3] = lat * normal[:, None] * np.sqrt(np.maximum(1.0 - a ** 2, 0.0))
+        parts['lateral'] = lateral
     total = np.zeros_like(base)
     for part in parts.values():
         total += part ** 2

@@ -21,6 +21,24 @@ def test_two_calibration_pushes_with_different_tools_at_one_site():
     # measured push-back grows with depth for both (the fixtures are FEM full solves)
     for _, poses, approach, force in (sphere, rod):
         assert len(poses) == 2 and np.all(np.diff(force) > 0) and np.all(force > 1.0)
+    vectors = demo._calibration_pokes(spec, vectors=True)
+    np.testing.assert_allclose(vectors['rod'][3][:, 2], rod[3])
+
+
+def test_lateral_share_is_the_unpredicted_force_across_the_push():
+    class Flat:
+        """Predicts the measured normal force and no lateral force."""
+
+        def query_batch(self, mesh, poses, a, centre):
+            class R:
+                wrenches = np.array([[0.0, 0.0, 4.0, 0, 0, 0], [0.0, 0.0, 8.0, 0, 0, 0]])
+            return R()
+
+    measured = np.array([[0.3, -0.4, 4.0], [0.6, -0.8, 8.0]])
+    pokes = {'p': (None, [None, None], [0.0, 0.0, -1.0], measured)}
+    # lateral RMS per component sqrt((0.25 + 1.0) / 4) over RMS normal sqrt((16 + 64) / 2)
+    expected = np.sqrt(1.25 / 4) / np.sqrt(40.0)
+    assert demo._lateral_share(Flat(), pokes) == pytest.approx(expected)
 
 
 def test_summary_counts_signs_coverage_and_error():
@@ -34,6 +52,8 @@ def test_summary_counts_signs_coverage_and_error():
     # |err| <= 1.645 * 0.2 = 0.329 for 0.2 and 0.1 only
     assert s['coverage_fz'] == pytest.approx(0.5)
     assert s['coverage_all'] == pytest.approx((4 * 5 + 2) / 24)
+    assert s['coverage_force'] == pytest.approx((4 * 2 + 2) / 12)
+    assert s['coverage_torque'] == pytest.approx(1.0)
     assert s['rmse'] == pytest.approx(np.sqrt(np.mean(np.array([0.5, 0.2, 0.1, 3.0]) ** 2)))
     assert s['peak'] == pytest.approx(10.0)
     assert s['width_fz'] == pytest.approx(2 * Z90 * 0.2)

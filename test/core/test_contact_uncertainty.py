@@ -79,6 +79,23 @@ def test_relative_part_and_bad_input():
         wrench_uncertainty(model, mesh, poses, DOWN, centre, relative_std=-0.1)
     with pytest.raises(InvalidInput, match='level'):
         out.interval(1.5)
+    with pytest.raises(InvalidInput, match='lateral_std'):
+        wrench_uncertainty(model, mesh, poses, DOWN, centre, lateral_std=np.nan)
+
+
+def test_lateral_part_spreads_across_the_approach_only():
+    model = patch_contact_model()
+    mesh, poses, centre = _queries()[0]
+    out = wrench_uncertainty(model, mesh, poses, DOWN, centre, lateral_std=0.1)
+    fz = np.abs(out.wrench[:, 2])
+    np.testing.assert_allclose(out.std[:, 0], 0.1 * fz)
+    np.testing.assert_allclose(out.std[:, 1], 0.1 * fz)
+    np.testing.assert_allclose(out.std[:, 2:], 0.0)
+    # an oblique approach: the component along x shrinks by sqrt(1 - a_x^2)
+    a = np.array([0.6, 0.0, -0.8])
+    oblique = wrench_uncertainty(model, mesh, poses[:1], a, centre, lateral_std=0.1)
+    f_n = abs(oblique.wrench[0, :3] @ a)
+    np.testing.assert_allclose(oblique.std[0, :3], 0.1 * f_n * np.sqrt(1 - a ** 2))
 
 
 def test_shape_covariance_shrinks_with_more_informative_pushes():

@@ -208,6 +208,52 @@ class WrenchServer:
             if self._current is None or model.version >= self._current[0].version:
                 self._current = (model, simulator, terms, bounds)
 
+    def configure(self, *, spacing: Optional[float] = None,
+                  series_compliance: Optional[bool] = None, hold_time: Optional[float] = None,
+                  limits: Optional[RequestLimits] = None) -> None:
+        """Change settings at run time; the next request uses them (``None``: unchanged).
+
+        The model answering now is rebuilt with the new settings before they are made
+        current (a request in flight finishes on what it started with). Everything is
+        checked first, so a refused change leaves the server as it was.
+
+        Raises:
+            InvalidInput: a spacing that is not a positive length, a negative hold time,
+                limits that are not a :class:`RequestLimits`.
+
+        """
+        spacing = self._spacing if spacing is None else float(spacing)
+        if not (np.isfinite(spacing) and spacing > 0):
+            raise InvalidInput(f'sample_spacing: must be a positive length in metres, got '
+                               f'{spacing!r}')
+        series = self._series if series_compliance is None else bool(series_compliance)
+        hold_time = self._hold_time if hold_time is None else float(hold_time)
+        ForwardTerms.of({}, hold_time=hold_time)  # validates hold_time
+        limits = self.limits if limits is None else limits
+        if not isinstance(limits, RequestLimits):
+            raise InvalidInput(f'WrenchServer: limits must be a RequestLimits, got '
+                               f'{type(limits).__name__}')
+        current = self._current
+        rebuilt = None
+        if current is not None:
+            model, simulator = current[0], current[1]
+            if spacing != self._spacing:
+                simulator = ContactSimulator(model_surface(model), model.response,
+                                             model.shape_constant, spacing=spacing,
+                                             decay=model.shape_decay)
+            rebuilt = (model, simulator, ForwardTerms.of(model.effects,
+                                                         series_compliance=series,
+                                                         hold_time=hold_time),
+                       _model_bounds(model, limits))
+        with self._swap_lock:
+            self._spacing, self._series, self._hold_time, self.limits = (
+                spacing, series, hold_time, limits)
+            if rebuilt is not None and self._current is current:
+                self._current = rebuilt
+            elif self._current is not None and self._current is not current:
+                model = self._current[0]   # swapped meanwhile: its bounds from the new limits
+                self._current = self._current[:3] + (_model_bounds(model, limits),)
+
     @property
     def forward_terms(self) -> Optional[ForwardTerms]:
         """Forward terms of the model answering now (None when none is loaded)."""

@@ -9,8 +9,15 @@ requests beyond the limits (``max_sample_poses``, ``max_request_memory``, ``max_
 budget (``max_request_seconds``) between chunks of poses. Accepted effects stored in
 the model add their forward terms (:mod:`pointforce_ros.effects.forward`): series compliance
 (``series_compliance``), a viscoelastic hold fraction (``hold_time``) and a surface offset.
+
+Run-time parameters (issue 21): every parameter but ``model_dir`` (read-only) takes effect
+when set: checked, logged (old -> new) and used from the next request (``sample_spacing``
+rebuilds the simulator of the model in use). ``~/last_query`` (latched MarkerArray) shows the
+last answered single query's contact points and wrench arrow; a timer at ``marker_rate``
+publishes it only when a new query was answered, off the service path.
 """
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -19,13 +26,20 @@ from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import MarkerArray
 
-from msg_adapters.interfaces import (contact_query_from_batch_request, contact_query_from_request,
+from msg_adapters.contact_markers import contact_markers
+from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_from_request,
                                      fail, fill_batch_response, fill_contact_response)
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
-from pointforce_ros.nodes.common import declare, run
+from pointforce_ros.nodes.common import declare, live, run
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
+
+LIMIT_PARAMETERS = {'max_sample_poses': 'max_sample_poses', 'max_request_memory': 'max_memory',
+                    'max_distance': 'max_distance', 'max_depth': 'max_depth',
+                    'max_torque_arm': 'max_torque_arm', 'max_request_seconds': 'max_seconds'}
+"""Parameter name -> :class:`RequestLimits` field (``max_request_memory`` in MiB)."""
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -39,7 +53,7 @@ class ContactWrenchNode(Node):
         super().__init__('contact_wrench', **kwargs)
         self.model_dir = declare(
             self, 'model_dir', '', 'Directory of model-v*.npz files to serve from (polled); '
-            'empty: only models announced on the model topic')
+            'empty: only models announced on the model topic (read-only)', read_only=True)
         self.max_batch = declare(self, 'max_batch', 20000,
                                  'Largest number of poses in one batch request',
                                  bounds=(1, 1000000))
@@ -82,10 +96,19 @@ class ContactWrenchNode(Node):
                 self, 'max_request_seconds', 30.0,
                 'Time budget of one batch request, s (checked between chunks of poses)',
                 bounds=(0.01, 3600.0)))
+        self.marker_scale = declare(self, 'marker_force_scale', 0.01,
+                                    'Length of the wrench arrow on ~/last_query per newton, m/N',
+                                    bounds=(1e-5, 1.0))
+        marker_rate = declare(self, 'marker_rate', 2.0,
+                              'Hz at which ~/last_query is refreshed (only after a new answer)',
+                              bounds=(0.1, 50.0))
         self.server = WrenchServer(spacing=spacing, series_compliance=series,
                                    hold_time=hold_time, limits=limits)
         self.requests_served = 0
         self.requests_failed = 0
+        self.markers_published = 0
+        self._last = None       # (result, version) of the last answered single query
+        self._shown = None
         self._try_load_dir()
         group = ReentrantCallbackGroup()
         self.create_service(ContactWrench, '~/contact_wrench', self._on_single,
@@ -95,9 +118,64 @@ class ContactWrenchNode(Node):
         loader = MutuallyExclusiveCallbackGroup()
         self.create_subscription(ModelStatus, 'stiffness_learner/model', self._on_model, LATCHED,
                                  callback_group=loader)
-        if self.model_dir:
-            self.create_timer(poll, self._try_load_dir, callback_group=loader)
+        self._loader = loader
+        self._poll = (self.create_timer(poll, self._try_load_dir, callback_group=loader)
+                      if self.model_dir else None)
+        self.marker_pub = self.create_publisher(MarkerArray, '~/last_query', LATCHED)
+        self._marker_timer = self.create_timer(1.0 / marker_rate, self._publish_markers,
+                                               callback_group=loader)
+        live(self, {'max_batch': lambda v: lambda: setattr(self, 'max_batch', v),
+                    'sample_spacing': lambda v: self._configure(spacing=v),
+                    'series_compliance': lambda v: self._configure(series_compliance=v),
+                    'hold_time': lambda v: self._configure(hold_time=v),
+                    **{name: self._limit(name) for name in LIMIT_PARAMETERS},
+                    'poll_period': self._new_poll_period,
+                    'marker_rate': lambda v: lambda: self._set_marker_rate(v),
+                    'marker_force_scale': lambda v: lambda: setattr(self, 'marker_scale', v)})
         self.get_logger().info(f'serving contact wrenches (model version {self.server.version})')
+
+    def _configure(self, **settings):
+        """Applier: the server takes ``settings`` from the next request (checked here)."""
+        return lambda: self.server.configure(**settings)
+
+    def _limit(self, name):
+        """Return the applier of the request limit parameter ``name`` (checked when set)."""
+        def applier(value):
+            value = int(2 ** 20 * value) if name == 'max_request_memory' else value
+            limits = dataclasses.replace(self.server.limits, **{LIMIT_PARAMETERS[name]: value})
+            return lambda: self.server.configure(limits=limits)
+        return applier
+
+    def _new_poll_period(self, value):
+        if self._poll is None:
+            raise ValueError('no model_dir is polled (model_dir is empty and read-only)')
+
+        def apply():   # a new timer: a changed period alone waits out the old one first
+            self.destroy_timer(self._poll)
+            self._poll = self.create_timer(value, self._try_load_dir,
+                                           callback_group=self._loader)
+        return apply
+
+    def _set_marker_rate(self, hz: float):
+        self.destroy_timer(self._marker_timer)
+        self._marker_timer = self.create_timer(1.0 / hz, self._publish_markers,
+                                               callback_group=self._loader)
+
+    def _publish_markers(self):
+        """Timer: publish ~/last_query when a new single query was answered (off the hot path)."""
+        last = self._last
+        if last is None or last is self._shown:
+            return
+        try:
+            result, version = last
+            self.marker_pub.publish(contact_markers(
+                result, version, self.get_clock().now().nanoseconds * 1e-9,
+                force_scale=self.marker_scale))
+            self.markers_published += 1
+        except Exception as exc:  # noqa: BLE001 - a timer callback must not end the executor
+            self.get_logger().error(f'~/last_query not published: {type(exc).__name__}: {exc}',
+                                    throttle_duration_sec=10.0)
+        self._shown = last
 
     def _try_load_dir(self):
         if not self.model_dir:
@@ -142,6 +220,7 @@ class ContactWrenchNode(Node):
             result, version = self.server.answer(query)
             fill_contact_response(response, result, version, query.return_displacements)
             self.requests_served += 1
+            self._last = (result, version)      # one reference store; the timer draws it
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             self._refuse(response, 'contact_wrench', exc)
         self.get_logger().debug(f'contact_wrench in {1e3 * (time.perf_counter() - start):.2f} ms')
@@ -153,8 +232,8 @@ class ContactWrenchNode(Node):
                 self.requests_failed += 1
                 return fail(response, f'poses: {len(request.poses)} exceeds max_batch '
                                       f'{self.max_batch}')
-            query = contact_query_from_batch_request(request)
-            batch, version = self.server.answer_batch(query)
+            query = batch_arrays_from_request(request)
+            batch, version = self.server.answer_rows(*query)
             fill_batch_response(response, batch, version)
             self.requests_served += 1
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy

@@ -114,10 +114,10 @@ def test_every_exception_is_contained_and_answered(served, monkeypatch, error):
     """No exception, MemoryError included, escapes a callback into the executor."""
     graph, node, _, single, batch, _, _ = served
 
-    def explode(query):
+    def explode(*query):
         raise error
     monkeypatch.setattr(node.server, 'answer', explode)
-    monkeypatch.setattr(node.server, 'answer_batch', explode)
+    monkeypatch.setattr(node.server, 'answer_rows', explode)   # the batch service's path
     one = graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'single')
     many = graph.wait_future(batch.call_async(_batch_request([0.0, 0.002])), 10, 'batch')
     for response in (one, many):

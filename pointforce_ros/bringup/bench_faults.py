@@ -36,6 +36,7 @@ from the spawn until the node logs that it serves (model loaded, services create
 import itertools
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -233,6 +234,7 @@ class NodeProcess:
         for key, value in params.items():
             cmd += ['-p', f'{key}:={value}']
         self.started = time.monotonic()
+        self.started_wall = time.time()
         self.log = Path(log)
         self._offset = self.log.stat().st_size if self.log.exists() else 0
         with open(self.log, 'a') as out:
@@ -241,13 +243,19 @@ class NodeProcess:
                                             env=_env())
 
     def seconds_until_log(self, text: str, timeout: float = 60.0) -> float:
-        """Seconds from the spawn until this process logs ``text`` (NaN on time-out)."""
+        """Seconds from the spawn until this process logged ``text`` (its ROS log stamp).
+
+        NaN when no such line appears within ``timeout`` or it carries no stamp.
+        """
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             with open(self.log, 'rb') as fh:
                 fh.seek(self._offset)
-                if text.encode() in fh.read():
-                    return time.monotonic() - self.started
+                for line in fh.read().decode(errors='replace').splitlines():
+                    if text in line:
+                        stamp = re.search(r'\[(\d{9,}\.\d+)\]', line)
+                        return (float(stamp.group(1)) - self.started_wall if stamp
+                                else float('nan'))
             time.sleep(0.01)
         return float('nan')
 

@@ -38,6 +38,9 @@ def test_the_quick_fault_bench_counts_what_it_injected(tmp_path):
     for name in service:
         assert faults[name]['on_last_good_model'] and faults[name]['bit_identical'], (
             name, faults[name])
+        # the node's own 'serving' log line comes before the first answer a client sees
+        assert 0 < faults[name]['seconds_until_serving'] <= (
+            faults[name]['seconds_until_answer'] + 0.05), (name, faults[name])
     assert faults['sigterm_service']['exit_code'] == 0           # a clean exit on SIGTERM
     for name in service[2:]:
         assert faults[name]['quarantined'], name

@@ -13,20 +13,30 @@ Figures, each against a baseline measured in the same run:
 
 Round trips are timed by an event-driven client: the future's done callback sets a
 ``threading.Event`` the benchmark waits on (with a deadline), so no poll period is in the figure.
-The servers and the client spin in separate contexts and executors, as separate processes would.
+The contact service runs as deployed, in its own process (``python -m
+pointforce_ros.nodes.contact_wrench``, the console script's ``main``), and so does the Trigger
+service; the benchmark is the planner's process. All of them use a ROS domain of their own.
+* load (issue 16): ``load_clients`` client processes (8) each send ``load_calls`` (500) single
+  queries back to back, started together; failures and p50/p99 over every call.
 * the F/T stream of a poke campaign through the real ur_rtde against the emulator: the rate inside
   the recorded pokes against the 250 Hz target (``ft_rate_over_target``), the rate over the whole
   campaign including the time between pokes, and dropped samples (controller-time gaps).
 """
 
+import json
 import os
+import subprocess
+import sys
 import tempfile
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
@@ -36,12 +46,15 @@ from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
 from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
+from pointforce_ros.nodes.common import run
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.sim.rtde.process import start_emulator
 from pointforce_ros.types import ContactQuery, PokeGoal, Pose
+
+CENTRE = np.array([0.5, 0.0, 0.06])
+SPHERE_RADIUS, SPHERE_LEVEL = 0.02, 2
 
 
 def _percentiles(values):
@@ -69,7 +82,7 @@ def round_trip(client, request, timeout: float, what: str):
     return elapsed, future.result()
 
 
-def _trigger_node(context):
+def _trigger_node(context=None):
     """Return a node with a trivial std_srvs/Trigger service, the round trip's baseline."""
     def answer(request, response):
         response.success = True
@@ -79,15 +92,173 @@ def _trigger_node(context):
     return node
 
 
-def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
+def _bench_poses(n: int, seed: int = 0):
+    """``n`` poses of the benchmark's sphere over the patch, 0-4 mm deep (seeded)."""
+    rng = np.random.default_rng(seed)
+    return [Pose(position=[0.5 + dx, dy, 0.06 - d]) for dx, dy, d in
+            zip(rng.uniform(-0.02, 0.02, n), rng.uniform(-0.015, 0.015, n),
+                rng.uniform(0.0, 0.004, n))]
+
+
+def _single_request(pose, mesh_fields):
+    from geometry_msgs.msg import Vector3  # noqa: I100 - message package, as the others here
+    from pointforce_interfaces.srv import ContactWrench
+    return ContactWrench.Request(pose=pose_to_msg(pose), approach=Vector3(x=0.0, y=0.0, z=-1.0),
+                                 torque_centre=to_point(CENTRE), **mesh_fields)
+
+
+@contextmanager
+def _own_domain():
+    """Use a ROS domain of this run's own (children inherit it); restore the old one after."""
+    old = os.environ.get('ROS_DOMAIN_ID')
+    os.environ['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop('ROS_DOMAIN_ID', None)
+        else:
+            os.environ['ROS_DOMAIN_ID'] = old
+
+
+def _start(*args) -> subprocess.Popen:
+    """Start ``python -m <args>`` in its own process (stdin/stdout piped, stderr inherited)."""
+    return subprocess.Popen([sys.executable, '-m', *args], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+
+
+def _stop(processes) -> None:
+    for proc in processes:
+        if proc.poll() is None:
+            proc.terminate()
+    for proc in processes:
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def load_client(calls: int, seed: int) -> None:
+    """One load-test client process: ``calls`` single queries back to back after ``go``.
+
+    Prints ``ready`` once the service is found, waits for a line on stdin, then prints one JSON
+    line: round-trip seconds of the answered calls and the number of failures.
+    """
+    rclpy.init()
+    node = Node(f'bench_load_{seed}')
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    threading.Thread(target=executor.spin, daemon=True).start()
+    from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
+    client = node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    if not client.wait_for_service(timeout_sec=60):
+        raise RuntimeError('service /contact_wrench/contact_wrench did not appear in 60 s')
+    vertices, triangles = mesh_to_flat(icosphere(SPHERE_RADIUS, SPHERE_LEVEL))
+    flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
+    requests = [_single_request(p, flat) for p in _bench_poses(calls, seed=1000 + seed)]
+    round_trip(client, requests[0], 30, 'contact_wrench')   # discovery of the reply path
+    print('ready', flush=True)
+    sys.stdin.readline()
+    times, failures = [], 0
+    for request in requests:
+        try:
+            elapsed, response = round_trip(client, request, 30, 'contact_wrench')
+        except RuntimeError:
+            failures += 1
+            continue
+        if response.success:
+            times.append(elapsed)
+        else:
+            failures += 1
+    print(json.dumps(dict(times=times, failures=failures)), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    os._exit(0)   # the spinning daemon thread would abort the interpreter's exit
+
+
+def _load_test(clients: int, calls: int) -> dict:
+    """``clients`` processes x ``calls`` single queries, started together."""
+    procs = [_start('pointforce_ros.bringup.bench_ros', 'client', str(calls), str(i))
+             for i in range(clients)]
+    try:
+        for proc in procs:
+            line = proc.stdout.readline()
+            if line.strip() != 'ready':
+                raise RuntimeError(f'load client did not start (said {line!r})')
+        start = time.perf_counter()
+        for proc in procs:
+            proc.stdin.write('go\n')
+            proc.stdin.flush()
+        results = [json.loads(proc.stdout.readline()) for proc in procs]
+        wall = time.perf_counter() - start
+    finally:
+        _stop(procs)
+    times = [t for r in results for t in r['times']]
+    p50, p99 = _percentiles(times) if times else (float('nan'), float('nan'))
+    return dict(load_clients=clients, load_calls_per_client=calls,
+                load_failures=int(sum(r['failures'] for r in results)),
+                load_rtt_p50_ms=p50, load_rtt_p99_ms=p99,
+                load_calls_per_s=len(times) / wall)
+
+
+def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3,
+                 ContactWrenchBatch):
+    """Single, Mesh-message, Trigger, small-batch and large-batch round trips (seconds)."""
+    from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
+    client_node = planner.add(Node('bench_client', context=planner.context))
+    single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
+    trigger = client_node.create_client(Trigger, '/bench_trigger/trigger')
+    for client in (single, batch, trigger):
+        if not client.wait_for_service(timeout_sec=60):
+            raise RuntimeError(f'service {client.srv_name} did not appear within 60 s')
+    vertices, triangles = mesh_to_flat(sphere)
+    flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
+    as_msg = dict(mesh=mesh_to_msg(sphere))
+    approach = Vector3(x=0.0, y=0.0, z=-1.0)
+
+    def batch_request(chosen):
+        return ContactWrenchBatch.Request(poses=[pose_to_msg(p) for p in chosen],
+                                          approach=approach, torque_centre=to_point(CENTRE),
+                                          **flat)
+    for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
+        round_trip(single, _single_request(pose, flat), 30, 'contact_wrench')
+        round_trip(trigger, Trigger.Request(), 30, 'trigger')
+    rtt, msg_rtt, trigger_rtt = [], [], []
+    for pose in poses[:n_single]:   # interleaved: all see the same machine load
+        for mesh, times in ((flat, rtt), (as_msg, msg_rtt)):
+            elapsed, resp = round_trip(single, _single_request(pose, mesh), 30,
+                                       'contact_wrench')
+            if not resp.success:
+                raise RuntimeError(f'contact_wrench refused: {resp.message}')
+            times.append(elapsed)
+        trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
+    small_rtt = []
+    n_batch = len(poses)
+    for i in range(n_small):
+        request = batch_request(poses[(i * small_batch) % n_batch:][:small_batch])
+        elapsed, resp = round_trip(batch, request, 60, 'contact_wrench_batch')
+        if not resp.success:
+            raise RuntimeError(f'batch refused: {resp.message}')
+        small_rtt.append(elapsed)
+    ros_batch, resp = round_trip(batch, batch_request(poses), 120, 'contact_wrench_batch')
+    if not resp.success:
+        raise RuntimeError(f'batch refused: {resp.message}')
+    return rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch
+
+
+def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
+              load_calls: int = 500) -> dict:
     """Run the benchmark; returns a JSON-able dict (times in ms unless the key says).
 
-    ``campaign=False`` leaves out the poke campaign (the F/T stream figures).
+    ``campaign=False`` leaves out the poke campaign (the F/T stream figures); ``quick`` uses
+    fewer calls (and ``load_calls`` of 50).
     """
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     from geometry_msgs.msg import Vector3
     from pointforce_interfaces.action import Poke
-    from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
+    from pointforce_interfaces.srv import ContactWrenchBatch
     from rclpy.action import ActionClient
     from rclpy.parameter import Parameter
 
@@ -95,23 +266,20 @@ def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
     n_small = 50 if quick else 200
     small_batch = 100
     n_batch = 1000 if quick else 10000
+    load_calls = min(load_calls, 50) if quick else load_calls
     campaign_s = 10.0 if quick else 60.0
     out = {}
     work = Path(tempfile.mkdtemp(prefix='pointforce-bench-ros-'))
     model = patch_contact_model(spacing=0.002)
     save_model(model, work / 'models')
-    sphere = icosphere(0.02, 2)
-    rng = np.random.default_rng(0)
-    poses = [Pose(position=[0.5 + dx, dy, 0.06 - d]) for dx, dy, d in
-             zip(rng.uniform(-0.02, 0.02, n_batch), rng.uniform(-0.015, 0.015, n_batch),
-                 rng.uniform(0.0, 0.004, n_batch))]
-    centre = np.array([0.5, 0.0, 0.06])
+    sphere = icosphere(SPHERE_RADIUS, SPHERE_LEVEL)
+    poses = _bench_poses(n_batch)
     server = WrenchServer()
     server.swap(model)
 
     def query(chosen):
         return ContactQuery(mesh=sphere, poses=tuple(chosen), approach=[0, 0, -1],
-                            torque_centre=centre)
+                            torque_centre=CENTRE)
     for pose in poses[:5]:  # warm-up: the first query builds the projection cache
         server.answer(query([pose]))
     core = []
@@ -128,55 +296,19 @@ def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
     start = time.perf_counter()
     server.answer_batch(query(poses))
     core_batch = time.perf_counter() - start
-    with InProcessLauncher() as launcher, InProcessLauncher(threads=2) as planner:
-        # the client in its own context, as a planner process would be; each server on its
-        # own executor, as in pointforce cell
-        launcher.add(ContactWrenchNode(context=launcher.context, parameter_overrides=[
-            Parameter('model_dir', value=str(work / 'models'))]), isolated=True)
-        launcher.add(_trigger_node(launcher.context), isolated=True)
-        client_node = planner.add(Node('bench_client', context=planner.context))
-        single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
-        batch = client_node.create_client(ContactWrenchBatch,
-                                          '/contact_wrench/contact_wrench_batch')
-        trigger = client_node.create_client(Trigger, '/bench_trigger/trigger')
-        for client in (single, batch, trigger):
-            if not client.wait_for_service(timeout_sec=20):
-                raise RuntimeError(f'service {client.srv_name} did not appear within 20 s')
-        vertices, triangles = mesh_to_flat(sphere)
-        flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
-        as_msg = dict(mesh=mesh_to_msg(sphere))
-        approach = Vector3(x=0.0, y=0.0, z=-1.0)
-
-        def single_request(pose, mesh=flat):
-            return ContactWrench.Request(pose=pose_to_msg(pose), approach=approach,
-                                         torque_centre=to_point(centre), **mesh)
-
-        def batch_request(chosen):
-            return ContactWrenchBatch.Request(poses=[pose_to_msg(p) for p in chosen],
-                                              approach=approach, torque_centre=to_point(centre),
-                                              **flat)
-        for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
-            round_trip(single, single_request(pose), 30, 'contact_wrench')
-            round_trip(trigger, Trigger.Request(), 30, 'trigger')
-        rtt, msg_rtt, trigger_rtt = [], [], []
-        for pose in poses[:n_single]:   # interleaved: all see the same machine load
-            for mesh, times in ((flat, rtt), (as_msg, msg_rtt)):
-                elapsed, resp = round_trip(single, single_request(pose, mesh), 30,
-                                           'contact_wrench')
-                if not resp.success:
-                    raise RuntimeError(f'contact_wrench refused: {resp.message}')
-                times.append(elapsed)
-            trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
-        small_rtt = []
-        for i in range(n_small):
-            request = batch_request(poses[(i * small_batch) % n_batch:][:small_batch])
-            elapsed, resp = round_trip(batch, request, 60, 'contact_wrench_batch')
-            if not resp.success:
-                raise RuntimeError(f'batch refused: {resp.message}')
-            small_rtt.append(elapsed)
-        ros_batch, resp = round_trip(batch, batch_request(poses), 120, 'contact_wrench_batch')
-        if not resp.success:
-            raise RuntimeError(f'batch refused: {resp.message}')
+    with _own_domain():
+        # the services as deployed, each in its own process; this process is the planner
+        services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args', '-p',
+                           f'model_dir:={work / "models"}'),
+                    _start('pointforce_ros.bringup.bench_ros', 'trigger')]
+        try:
+            with InProcessLauncher(threads=2) as planner:
+                rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch = _round_trips(
+                    planner, sphere, poses, n_single, n_small, small_batch, Vector3,
+                    ContactWrenchBatch)
+            out.update(_load_test(load_clients, load_calls))
+        finally:
+            _stop(services)
     p50, p99 = _percentiles(rtt)
     c50, c99 = _percentiles(core)
     t50, t99 = _percentiles(trigger_rtt)
@@ -192,10 +324,14 @@ def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
                small_batch_core_p50_ms=bc50, small_batch_core_p99_ms=bc99,
                batch_poses=n_batch, batch_ros_s=ros_batch, batch_core_s=core_batch,
                batch_ros_poses_per_s=n_batch / ros_batch,
-               batch_ros_over_core=ros_batch / core_batch)
+               batch_core_poses_per_s=n_batch / core_batch,
+               batch_ros_over_core=ros_batch / core_batch,
+               batch_ros_ms_per_pose=1e3 * ros_batch / n_batch,
+               services='contact_wrench and Trigger each in its own process')
 
     if not campaign:
         return out
+    rng = np.random.default_rng(1)
     emulator = start_emulator(work / 'logs',
                               force_model='pointforce_ros.sim.rtde.forces:HalfSpaceSpring',
                               force_model_kwargs={'z0': 0.04, 'k': 1000.0},
@@ -239,3 +375,11 @@ def bench_ros(quick: bool = False, campaign: bool = True) -> dict:
                ft_dropped_fraction=dropped / max(recorded + dropped, 1),
                ft_max_gap_ms=1e3 * float(max(gaps)) if gaps else float('nan'))
     return out
+
+
+if __name__ == '__main__':
+    # child processes of the benchmark: the Trigger baseline service, or one load client
+    if sys.argv[1] == 'trigger':
+        run(_trigger_node)   # the executor contact_wrench's main() spins
+    elif sys.argv[1] == 'client':
+        load_client(int(sys.argv[2]), int(sys.argv[3]))

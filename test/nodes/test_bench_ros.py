@@ -2,7 +2,8 @@
 
 It used to wait on each future with a 10 ms sleep loop, so no round trip could read below the
 poll period; it now reports single queries, small batches and a trivial Trigger service's round
-trip from the same run.
+trip from the same run, with the services in their own processes (as deployed), and a load test
+of client processes (issue 16).
 """
 
 import pytest
@@ -32,7 +33,10 @@ def test_round_trip_names_the_service_on_time_out(ros_graph):
 
 
 def test_bench_ros_reports_round_trips_beside_core_and_trigger():
-    out = bench_ros(quick=True, campaign=False)
+    out = bench_ros(quick=True, campaign=False, load_clients=2, load_calls=20)
+    assert out['services'].endswith('each in its own process')
+    assert out['load_failures'] == 0 and out['load_clients'] == 2
+    assert out['load_rtt_p99_ms'] >= out['load_rtt_p50_ms'] > 0
     for key in ('single_rtt_p50_ms', 'single_rtt_p99_ms', 'core_query_p50_ms',
                 'ros_overhead_p50_ms', 'trigger_rtt_p50_ms', 'trigger_rtt_p99_ms',
                 'small_batch_rtt_p50_ms', 'small_batch_rtt_p99_ms', 'small_batch_core_p50_ms',

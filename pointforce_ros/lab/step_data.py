@@ -20,7 +20,11 @@ Per poke (locations uniform over the object's top, inset by ``margin``):
 Same seed, same table. Usage::
 
     python -m pointforce_ros.lab.step_data --out steps.csv [--object lamb] [--pokes 64]
-        [--per-poke 10] [--seed 0]
+        [--per-poke 10] [--seed 0] [--score 48]
+
+``--score N`` then learns the first ``N`` pokes through the CSV import and the learner
+(:func:`score_step_table`) and prints the held-out error on the others against the noise-free
+force.
 """
 
 import argparse
@@ -31,7 +35,8 @@ from typing import Dict
 import numpy as np
 
 from pointforce_ros.errors import InvalidInput
-from pointforce_ros.pokes.table import TABLE_COLUMNS
+from pointforce_ros.model.learner import OnlineLearner
+from pointforce_ros.pokes.table import load_pokes, surface_from_records, TABLE_COLUMNS
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.objects import load_object
 
@@ -114,6 +119,35 @@ def make_step_table(out, object_name: str = 'lamb', pokes: int = 64, per_poke: i
             'offset': offset}
 
 
+def score_step_table(made: Dict, train: int) -> Dict:
+    """Learn the first ``train`` pokes of a made table (CSV import, learner); score the rest.
+
+    Returns ``learned``, ``skipped``, ``prequential`` (N), ``heldout_rmse`` (N, against the
+    noise-free force at every step of the held-out pokes), ``peak`` (N) and
+    ``deepest_bias`` (N, mean error on the held-out pokes' deepest step).
+
+    Raises:
+        InvalidInput: ``train`` leaves no poke to train on or none held out.
+
+    """
+    records = load_pokes(made['path'])
+    if not 0 < train < len(records):
+        raise InvalidInput(f'score_step_table: train must be 1..{len(records) - 1}')
+    surface = surface_from_records(records)
+    learner = OnlineLearner(None, None, surface, shape_constant=0.004)
+    status = learner.learn_records(records[:train])
+    index = {tuple(p): i for i, p in enumerate(surface.points)}
+    truth = made['force_true'][train:]
+    pred = np.array([learner.model.predict(
+        np.repeat(surface.features[index[tuple(r.point)]][None], len(r), axis=0),
+        r.displacement()) for r in records[train:]])
+    err = pred - truth
+    return {'learned': status.num_pokes, 'skipped': dict(status.skipped),
+            'prequential': status.validation_rmse,
+            'heldout_rmse': float(np.sqrt(np.mean(err ** 2))), 'peak': float(truth.max()),
+            'deepest_bias': float(np.mean(err[:, -1]))}
+
+
 def main(argv=None) -> int:
     """Command line: write the table and print its size."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -122,10 +156,18 @@ def main(argv=None) -> int:
     parser.add_argument('--pokes', type=int, default=64)
     parser.add_argument('--per-poke', type=int, default=10)
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--score', type=int, default=0,
+                        help='learn this many pokes, score the rest (0: do not)')
     args = parser.parse_args(argv)
     made = make_step_table(args.out, args.object, args.pokes, args.per_poke, args.seed)
     print(f'{made["path"]}: {len(made["ids"])} pokes x {made["depth"].shape[1]} steps '
           f'({args.object}, seed {args.seed})')
+    if args.score:
+        s = score_step_table(made, args.score)
+        print(f'learned {s["learned"]}/{args.score} (skipped {len(s["skipped"])}), prequential '
+              f'RMSE {s["prequential"]:.3f} N; held-out {len(made["ids"]) - args.score} pokes: '
+              f'RMSE {s["heldout_rmse"]:.3f} N ({100 * s["heldout_rmse"] / s["peak"]:.1f} % '
+              f'of {s["peak"]:.2f} N), deepest-step mean error {s["deepest_bias"]:+.3f} N')
     return 0
 
 

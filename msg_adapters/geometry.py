@@ -136,6 +136,26 @@ def mesh_from_flat(vertices, triangles) -> Mesh:
         np.asarray(vertices, dtype=np.float64)
     t = np.frombuffer(triangles, dtype=np.uint32) if isinstance(triangles, array.array) else \
         np.asarray(triangles, dtype=np.int64)
+    # planners resend one mesh with every query: a mesh seen before (same bytes) is the same
+    # read-only Mesh object, already validated, so the service's caches hit by identity
+    key = (v.tobytes(), t.dtype.str, t.tobytes())
+    hit = _FLAT_MESHES.get(key)
+    if hit is not None:
+        return hit
+    mesh = _mesh_from_arrays(v, t)
+    if len(v) <= _CACHED_FLAT_VALUES:
+        if len(_FLAT_MESHES) >= 16:
+            _FLAT_MESHES.clear()
+        _FLAT_MESHES[key] = mesh
+    return mesh
+
+
+_FLAT_MESHES: dict = {}
+_CACHED_FLAT_VALUES = 30000
+"""Largest flat mesh (values of ``mesh_vertices``) kept by :func:`mesh_from_flat`'s cache."""
+
+
+def _mesh_from_arrays(v: np.ndarray, t: np.ndarray) -> Mesh:
     if len(v) % 3 or len(t) % 3:
         raise InvalidInput(f'mesh_vertices / mesh_triangles: {len(v)} and {len(t)} values, '
                            'both must be multiples of 3 (x y z; three indices)')

@@ -63,3 +63,19 @@ def test_fill_batch_response_writes_every_row():
                      for w in resp.wrenches])
     np.testing.assert_array_equal(back, wrenches)
     assert list(resp.contact_counts) == [0, 2, 5] and resp.model_version == 7 and resp.success
+
+
+def test_a_resent_flat_mesh_is_the_same_validated_object_and_a_bad_one_is_refused_each_time():
+    vertices, triangles = g.mesh_to_flat(icosphere(0.02, 1))
+    first = g.mesh_from_flat(vertices, triangles)
+    again = g.mesh_from_flat(type(vertices)('d', vertices.tobytes()),
+                             type(triangles)('I', triangles.tobytes()))
+    assert again is first and not first.vertices.flags.writeable
+    moved = np.frombuffer(vertices, dtype=np.float64).copy()
+    moved[0] += 1e-3
+    other = g.mesh_from_flat(type(vertices)('d', moved.tobytes()), triangles)
+    assert other is not first and other.vertices[0, 0] == pytest.approx(moved[0])
+    moved[0] = float('nan')
+    for _ in range(2):
+        with pytest.raises(InvalidInput, match='non-finite'):
+            g.mesh_from_flat(type(vertices)('d', moved.tobytes()), triangles)

@@ -73,6 +73,7 @@ then small GP fits on a fixed hyperparameter grid and the leave-one-out scores; 
 points is a handful of (N, K) numpy expressions per quadrature node.
 """
 
+import dataclasses
 import time
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
@@ -119,6 +120,10 @@ LAW_SELECT_MIN_POKES = 4
 """Fewest pokes with which ``law='auto'`` compares the laws by leave-one-out."""
 LAW_SELECT_MARGIN = 0.02
 """Relative held-out improvement the stiffening law needs to be chosen over the power law."""
+FINE_COLOUR = (0.1, 0.05)
+"""Colour length scales (RGB units) ``relevance='auto'`` adds to the grid when held out says."""
+FINE_NORMAL = (0.2,)
+"""Normal length scales ``relevance='auto'`` adds to the grid when held out says."""
 STIFFENING_SAMPLES = 300
 """Most samples of one curve the stiffening law's least-squares fit uses (evenly thinned)."""
 CV_SAMPLES = 40
@@ -146,6 +151,9 @@ class ContactGpModel:
         law: ``auto`` (chosen by held-out error, point 7), ``power`` or ``stiffening``.
         mean: ``mean`` (predictive mean force, point 6) or ``median`` (force at the
             parameters' predictive mean).
+        relevance: ``auto`` also offers the chosen law's processes finer colour and normal
+            length scales (:data:`FINE_COLOUR`, :data:`FINE_NORMAL`) and keeps them where
+            leave-one-poke-out says they help; ``fixed`` uses ``grid`` alone.
 
     Raises:
         InvalidInput: non-positive ``ref_depth`` or prior scales, bad exponent bounds, unknown
@@ -159,7 +167,8 @@ class ContactGpModel:
                  prior_scales=(0.003, 1.0, 0.4, 1.0),
                  max_surface_distance: float = DEFAULT_MAX_SURFACE_DISTANCE,
                  bases=('rigid', 'colour', 'none', 'none'), grid: Optional[GpGrid] = None,
-                 decorrelate: bool = True, law: str = 'auto', mean: str = 'mean'):
+                 decorrelate: bool = True, law: str = 'auto', mean: str = 'mean',
+                 relevance: str = 'fixed'):
         if not (np.isfinite(ref_depth) and ref_depth > 0):
             raise InvalidInput(f'ContactGpModel: ref_depth must be > 0 m, got {ref_depth}')
         lo, hi = (float(v) for v in exponent_bounds)
@@ -180,6 +189,9 @@ class ContactGpModel:
                                f'{bases}')
         if law not in LAWS + ('auto',):
             raise InvalidInput(f'ContactGpModel: law must be auto or one of {LAWS}, got {law!r}')
+        if relevance not in ('fixed', 'auto'):
+            raise InvalidInput(f'ContactGpModel: relevance must be fixed or auto, got '
+                               f'{relevance!r}')
         if mean not in MEANS:
             raise InvalidInput(f'ContactGpModel: mean must be one of {MEANS}, got {mean!r}')
         self.ref_depth = float(ref_depth)
@@ -193,6 +205,8 @@ class ContactGpModel:
         self.mean = mean
         self.law = 'power' if law == 'auto' else law
         self.law_scores: Dict[str, float] = {}
+        self.relevance = relevance
+        self.fine_relevance = False
         self.version = 0
         self._ids: List[str] = []
         self._features = np.zeros((0, 9))
@@ -410,14 +424,34 @@ class ContactGpModel:
             usable = ['power'] if 'power' in usable else usable[:1]
         fields = {k: self._condition(k, None) for k in usable}
         self.law_scores = {}
+        self.fine_relevance = False
+        scored = len(usable) > 1 or (self.relevance == 'auto' and n >= LAW_SELECT_MIN_POKES
+                                     and not any(s is None for s in self._samples))
         if len(usable) > 1:
             self.law_scores = {k: self._loo_rmse(k, fields[k][0]) for k in usable}
             best = 'stiffening' if self.law_scores['stiffening'] < \
                 (1.0 - LAW_SELECT_MARGIN) * self.law_scores['power'] else 'power'
         else:
             best = usable[0]
+        field = fields[best]
+        if scored and self.relevance == 'auto':
+            # the same law with finer colour and normal length scales on offer (point 2)
+            base = self.law_scores.get(best) or self._loo_rmse(best, field[0])
+            fine = self._condition(best, None, grid=self._fine_grid())
+            score = self._loo_rmse(best, fine[0])
+            self.law_scores[best] = base
+            self.law_scores[f'{best}+fine'] = score
+            if score < (1.0 - LAW_SELECT_MARGIN) * base:
+                field, self.fine_relevance = fine, True
         self.law = best
-        self._install(best, fields[best])
+        self._install(best, field)
+
+    def _fine_grid(self) -> GpGrid:
+        """The configured grid with :data:`FINE_COLOUR` and :data:`FINE_NORMAL` added."""
+        g = self.grid
+        return dataclasses.replace(
+            g, colour=tuple(sorted(set(g.colour) | set(FINE_COLOUR), reverse=True)),
+            normal=tuple(sorted(set(g.normal) | set(FINE_NORMAL), reverse=True)))
 
     def _decorrelation(self, theta: np.ndarray
                        ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Tuple[float, ...]]:
@@ -451,7 +485,7 @@ class ContactGpModel:
         return np.array(lower), np.array(upper)
 
     def _condition(self, law: str, states: Optional[Sequence[GpState]],
-                   rows: Optional[np.ndarray] = None):
+                   rows: Optional[np.ndarray] = None, grid: Optional[GpGrid] = None):
         """``(gps, mix, bounds)`` of ``law``'s processes on the training pokes ``rows``.
 
         ``states``: hyperparameters to condition with (``None``: choose them on the grid).
@@ -462,7 +496,7 @@ class ContactGpModel:
         y = np.linalg.solve(chol, ((theta - mu) / scale).T).T
         gps = []
         for j in range(theta.shape[1]):
-            gp = FeatureGp(self._frame, priors[j], basis=self.bases[j], grid=self.grid)
+            gp = FeatureGp(self._frame, priors[j], basis=self.bases[j], grid=grid or self.grid)
             if states is None:
                 gp.fit(self._features[rows], y[:, j])
             else:
@@ -756,7 +790,8 @@ class ContactGpModel:
                        'max_surface_distance': self.max_surface_distance,
                        'bases': list(self.bases), 'grid': _grid_to_dict(self.grid),
                        'decorrelate': self.decorrelate, 'law': self.law_setting,
-                       'mean': self.mean},
+                       'mean': self.mean, 'relevance': self.relevance},
+            'fine_relevance': bool(self.fine_relevance),
             'law': self.law,
             'law_scores': {k: float(v) for k, v in self.law_scores.items()},
             'frame': None if self._frame is None else self._frame.to_dict(),
@@ -797,7 +832,9 @@ class ContactGpModel:
                         bases=cfg['bases'], grid=_grid_from_dict(cfg['grid']),
                         # saved before decorrelation existed: its processes are independent
                         decorrelate=cfg.get('decorrelate', False),
-                        law=cfg.get('law', 'power'), mean=cfg.get('mean', 'median'))
+                        law=cfg.get('law', 'power'), mean=cfg.get('mean', 'median'),
+                        relevance=cfg.get('relevance', 'fixed'))
+            model.fine_relevance = bool(data.get('fine_relevance', False))
             pokes = data['pokes']
             law = data.get('law', 'power')
             model.law = law

@@ -154,3 +154,39 @@ def test_power_law_material_loses_nothing_to_the_law_choice():
             [model.predict(np.repeat(surface.features[[_index(surface, c)]], len(c), 0), c.d)
              - c.f for c in test]) ** 2))
     assert err(auto) < 1.1 * err(power), (err(auto), err(power))
+
+
+def colour_world(seed, meaningful):
+    """Two foams in 8 mm cells, told apart by colour (yellow / orange, as thin_layer's); the
+    orange one 2.5x stiffer (``meaningful``) or stiffness drawn independently of colour."""
+    rng = np.random.default_rng(seed)
+    base = flat_surface()
+    cells = (np.floor(base.points[:, 0] / 0.008)
+             + 7 * np.floor(base.points[:, 1] / 0.008)).astype(int)
+    orange = (rng.random(cells.max() + 1) < 0.4)[cells]
+    col = np.where(orange[:, None], [0.80, 0.62, 0.25], [0.85, 0.80, 0.30])
+    surface = flat_surface(np.clip(col + 0.02 * rng.standard_normal(col.shape), 0.0, 1.0))
+    stiff = orange if meaningful else rng.random(len(cells)) < 0.4
+    idx = rng.choice(len(surface), 30, replace=False)
+    curves = [make_curve(k, surface, i, (0.0, np.log(2.5) * stiff[i], 1.5), 0.006, rng)
+              for k, i in enumerate(idx)]
+    return surface, curves[:14], curves[14:]
+
+
+def heldout_rmse(model, surface, test):
+    return float(np.sqrt(np.mean(np.concatenate(
+        [model.predict(np.repeat(surface.features[[_index(surface, c)]], len(c), 0), c.d)
+         - c.f for c in test]) ** 2)))
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_colour_relevance_is_learned_and_costs_nothing_where_colour_means_nothing(seed):
+    surface, train, test = colour_world(seed, meaningful=True)
+    fixed = ContactGpModel(law='power').fit(train, surface)
+    auto = ContactGpModel(law='power', relevance='auto').fit(train, surface)
+    assert auto.fine_relevance, auto.law_scores
+    assert heldout_rmse(auto, surface, test) < 0.9 * heldout_rmse(fixed, surface, test)
+    surface, train, test = colour_world(seed, meaningful=False)
+    fixed = ContactGpModel(law='power').fit(train, surface)
+    auto = ContactGpModel(law='power', relevance='auto').fit(train, surface)
+    assert heldout_rmse(auto, surface, test) < 1.05 * heldout_rmse(fixed, surface, test)

@@ -172,6 +172,8 @@ def test_save_load_round_trip_predicts_identically(world, tmp_path):
     d = np.linspace(-0.005, 0.012, len(x))
     for k, model in enumerate((ContactGpModel().fit(curves[:7], surface),
                                ContactGpModel(decorrelate=False).fit(curves[:7], surface),
+                               ContactGpModel(law='stiffening', relevance='auto').fit(
+                                   curves[:7], surface),
                                EtBaseline(params={'n_estimators': 20}).fit(curves[:7], surface))):
         path = save_response_model(model, tmp_path / f'{k}{model.kind}.json')
         loaded = load_response_model(path)

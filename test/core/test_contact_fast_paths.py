@@ -9,6 +9,7 @@
 
 import numpy as np
 
+import pointforce_ros.contact.simulator as simulator_module
 from pointforce_ros.contact import ContactSimulator, shape_matrix, solve_lcp, solve_lcp_batch
 from pointforce_ros.contact.lcp import _batched_solve, _solve_free
 from pointforce_ros.lab.synthetic_contact import dome_surface, linear_response
@@ -81,3 +82,33 @@ def test_height_prefilter_keeps_the_answers_of_the_per_cell_bound():
                        np.zeros(3))
     np.testing.assert_allclose(single.wrench.force, plain.wrenches[0, :3], rtol=1e-9,
                                atol=1e-12)
+
+
+def test_warm_start_gives_the_papers_answers_in_fewer_pivoting_rounds(monkeypatch):
+    surface = dome_surface(n=81, half=0.05, radius=0.3)
+    sim = ContactSimulator(surface, linear_response(np.full(len(surface), 800.0)), c=C,
+                           spacing=0.003)
+    sphere = icosphere(0.02, 2)
+    rng = np.random.default_rng(14)
+    n = 60
+    rows = np.column_stack([rng.uniform(-0.02, 0.02, (n, 2)), 0.02 - rng.uniform(0, 0.005, n),
+                            np.zeros((n, 3)), np.ones(n)])
+    down = np.array([0.0, 0.0, -1.0])
+    rounds = []
+    solve = simulator_module.solve_lcp_batch
+
+    def counted(*args, **kwargs):
+        out = solve(*args, **kwargs)
+        rounds[-1] += int(out[2].sum())
+        return out
+    monkeypatch.setattr(simulator_module, 'solve_lcp_batch', counted)
+    answers = []
+    for warm in (0.0, simulator_module.WARM_START):   # 0: every candidate, the paper's guess
+        monkeypatch.setattr(simulator_module, 'WARM_START', warm)
+        rounds.append(0)
+        answers.append(sim.query_batch(sphere, rows, down, np.zeros(3)))
+    paper, warm = answers
+    assert np.count_nonzero(paper.contact_count > 3) > n // 2
+    np.testing.assert_array_equal(warm.contact_count, paper.contact_count)
+    np.testing.assert_allclose(warm.wrenches, paper.wrenches, rtol=1e-12, atol=1e-12)
+    assert rounds[1] < 0.85 * rounds[0]

@@ -52,7 +52,11 @@ def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray
     ``g(0) = 1``.
     """
     r = np.asarray(r, dtype=np.float64)
-    g = c / (c + r)
+    g = c + r
+    if isinstance(g, np.ndarray):
+        np.divide(c, g, out=g)   # c / (c + r) with one temporary
+    else:
+        g = c / g                # a 0-d input
     if np.isfinite(decay):
         g *= np.exp(r * (-1.0 / decay))
     return g

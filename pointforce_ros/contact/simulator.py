@@ -580,10 +580,15 @@ class ContactSimulator:
             qp -= qp.sum(axis=1, keepdims=True) / np.maximum(valid.sum(axis=1), 1)[:, None, None]
             qp[~valid] = 0.0
             sq = np.einsum('bij,bij->bi', qp, qp)
-            r2 = sq[:, :, None] + sq[:, None, :] - 2.0 * (qp @ qp.transpose(0, 2, 1))
+            # the same operations as sq_i + sq_j - 2 q_i.q_j, in place (fewer stack-sized temps)
+            r2 = sq[:, :, None] + sq[:, None, :]
+            gram = qp @ qp.transpose(0, 2, 1)
+            gram *= 2.0
+            r2 -= gram
             diag = np.arange(m)
             r2[:, diag, diag] = 0.0  # exact: rounding there would put 1 - 3e-8 on the diagonal
-            G = shape_function(np.sqrt(np.maximum(r2, 0.0)), self.c, self.decay)
+            np.maximum(r2, 0.0, out=r2)
+            G = shape_function(np.sqrt(r2, out=r2), self.c, self.decay)
             top = np.where(valid, dp, -np.inf).max(axis=1, keepdims=True)
             xp, res, _ = solve_lcp_batch(G, dp, valid, free=valid & (dp >= WARM_START * top))
             up = (G @ xp[:, :, None])[:, :, 0]

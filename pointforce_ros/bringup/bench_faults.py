@@ -149,8 +149,7 @@ def mutations(rng) -> List[Callable]:
 
 
 def good_request():
-    """The valid sphere query (20 mm sphere pressed 3 mm into the test patch)."""
-
+    """Return the valid sphere query (20 mm sphere pressed 3 mm into the test patch)."""
     pose = Pose(position=[0.5, 0.0, 0.057])
     return ContactWrench.Request(mesh=mesh_to_msg(icosphere(0.02, 2)), pose=pose_to_msg(pose),
                                  approach=Vector3(x=0.0, y=0.0, z=-1.0),
@@ -159,7 +158,6 @@ def good_request():
 
 def malformed_batches(rng, count: int):
     """``count`` malformed ContactWrenchBatch requests: empty, a 1000-pose plate, a bad pose."""
-
     sphere = mesh_to_msg(icosphere(0.02, 2))
     for i in range(count):
         request = ContactWrenchBatch.Request(mesh=sphere, approach=Vector3(x=0.0, y=0.0, z=-1.0),
@@ -292,7 +290,6 @@ class Bench:
 
     def __init__(self, work: Path, seed: int, log=print):
         """Open the client context; nothing else starts yet."""
-
         self.work, self.seed, self.log = Path(work), int(seed), log
         self.ns = f'bench_faults_{os.getpid()}_{seed}'
         self.client_launcher = InProcessLauncher(threads=8)
@@ -505,7 +502,6 @@ def contact_service_faults(bench: Bench, sizes, rng) -> dict:
 # --------------------------------------------------------------------------- the learner
 def learner_faults(bench: Bench, sizes) -> dict:
     """SIGKILL the learner and restart it: seconds until it publishes, versions reused."""
-
     work = bench.work / 'learner'
     xs, ys = np.meshgrid(np.linspace(0.465, 0.535, 15), np.linspace(-0.035, 0.035, 15))
     pts = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.04)])
@@ -561,7 +557,6 @@ def _poke(bench: Bench, client, goal, on_feedback=None, timeout: float = 60.0):
 
 def poke_faults(bench: Bench, rng, quick: bool) -> dict:
     """Malformed goals, a dead controller mid-push and a corrupt newest bag, on the emulator."""
-
     hosts = loopback_hosts(bench.seed + 7)
     spring = dict(force_model='pointforce_ros.sim.rtde.forces:HalfSpaceSpring',
                   force_model_kwargs=SPRING, initial_pose=START)
@@ -609,7 +604,7 @@ def poke_faults(bench: Bench, rng, quick: bool) -> dict:
         return result
 
     def lost(result) -> bool:
-        """A push that recorded samples and is neither stored readably nor kept."""
+        """Tell whether a push recorded samples that are neither stored readably nor kept."""
         if result is None or result.samples == 0:
             return False
         if result.poke_id:

@@ -162,17 +162,17 @@ def load_client(calls: int, seed: int) -> None:
     round_trip(client, requests[0], 30, 'contact_wrench')   # discovery of the reply path
     print('ready', flush=True)
     sys.stdin.readline()
-    times, failures = [], 0
+    times, failures = [], []
     for request in requests:
         try:
             elapsed, response = round_trip(client, request, 30, 'contact_wrench')
-        except RuntimeError:
-            failures += 1
+        except RuntimeError as exc:
+            failures.append(str(exc))
             continue
         if response.success:
             times.append(elapsed)
         else:
-            failures += 1
+            failures.append(response.message)
     print(json.dumps(dict(times=times, failures=failures)), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
@@ -199,7 +199,8 @@ def _load_test(clients: int, calls: int) -> dict:
     times = [t for r in results for t in r['times']]
     p50, p99 = _percentiles(times) if times else (float('nan'), float('nan'))
     return dict(load_clients=clients, load_calls_per_client=calls,
-                load_failures=int(sum(r['failures'] for r in results)),
+                load_failures=int(sum(len(r['failures']) for r in results)),
+                load_failure_messages=sorted({m for r in results for m in r['failures']})[:5],
                 load_rtt_p50_ms=p50, load_rtt_p99_ms=p99,
                 load_calls_per_s=len(times) / wall)
 

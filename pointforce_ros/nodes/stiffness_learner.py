@@ -90,10 +90,12 @@ class StiffnessLearnerNode(Node):
         self.max_tilt = declare(self, 'suggest_max_tilt_deg', 35.0,
                                 'Suggestions only where the normal is within this angle of '
                                 'base +z, degrees', bounds=(0.0, 90.0))
-        self.min_peak_force = declare(self, 'min_peak_force', 0.3,
+        self.min_peak_force = declare(self, 'min_peak_force', 0.0,
                                       'A poke that never exceeded this force made no contact '
-                                      'and is not learned from, N', bounds=(0.0, 50.0),
-                                      read_only=True)
+                                      'and is not learned from, N; 0: relative to the data '
+                                      "(the larger of 5x the poke's own noise and 2 % of the "
+                                      'largest peak learned), so soft regions and step data '
+                                      'are learned', bounds=(0.0, 50.0), read_only=True)
         effects_file = declare(self, 'effects_file', '',
                                'Accepted effects (effects.json written by pointforce diagnose): '
                                'removed from every poke before learning and stored in each '
@@ -232,7 +234,7 @@ class StiffnessLearnerNode(Node):
             self.learner = OnlineLearner(self.store_dir, self.model_dir, surface,
                                          shape_constant=self.shape_constant,
                                          shape_decay=_decay_length(self.shape_decay),
-                                         min_peak_force=self.min_peak_force,
+                                         min_peak_force=self.min_peak_force or None,
                                          effects=self.effects)
         self.get_logger().info(f'surface of {len(surface)} points; learning from '
                                f'{self.store_dir}')

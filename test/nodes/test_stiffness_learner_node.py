@@ -251,3 +251,28 @@ def test_a_shape_constant_in_the_effects_file_sets_the_parameter_and_model(ros_g
     status, model, shape_constant = _learn(ros_graph, tmp_path, path)
     assert shape_constant == pytest.approx(0.0021)
     assert model.shape_constant == pytest.approx(0.0021)
+
+
+@pytest.mark.parametrize('threshold, learned', [(None, 4), (0.3, 0)])
+def test_soft_pokes_are_learned_by_default_and_skipped_under_a_fixed_threshold(
+        ros_graph, tmp_path, threshold, learned):
+    # pokes stopped at 0.25 N (a soft region): far above their own noise, below the old
+    # fixed 0.3 N threshold, which skipped every one of them (issue 17)
+    _setup(tmp_path)
+    soft = simulate_campaign(OBJECT, load_scenario('clean'), count=4, seed=5,
+                             force_limit=0.25, depth_limit=0.01, speed=0.004, gap=0.5)
+    store = PokeStore(tmp_path / 'soft')
+    for r in soft:
+        store.add(r)
+    overrides = [Parameter('store_dir', value=str(tmp_path / 'soft')),
+                 Parameter('model_dir', value=str(tmp_path / 'models')),
+                 Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
+                 Parameter('poll_period', value=600.0)]
+    if threshold is not None:
+        overrides.append(Parameter('min_peak_force', value=threshold))
+    node = ros_graph.add(StiffnessLearnerNode(context=ros_graph.context,
+                                              parameter_overrides=overrides))
+    ros_graph.wait_for(lambda: node.learner is not None
+                       and len(node.learner.curves) + len(node.learner.skipped) >= 4, 30,
+                       'every poke considered')
+    assert len(node.learner.curves) == learned, node.learner.skipped

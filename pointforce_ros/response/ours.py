@@ -305,8 +305,11 @@ class ContactGpModel:
 
     def _fit_stiffening(self, curve: PokeCurve, power: np.ndarray, noise: float
                         ) -> Tuple[np.ndarray, float]:
-        """Least-squares fit of the stiffening law, started from the power fit and from a
-        softer exponent with stiffening; returns the better."""
+        """Fit the stiffening law by least squares; return ``(theta, rms)``.
+
+        Started from the power fit (``q = 0``) and from a softer exponent with stiffening;
+        the better of the two is kept.
+        """
         d, f = curve.d, curve.f
         if len(d) > STIFFENING_SAMPLES:
             keep = np.round(np.linspace(0, len(d) - 1, STIFFENING_SAMPLES)).astype(int)
@@ -472,7 +475,7 @@ class ContactGpModel:
         self._install(best, field)
 
     def _fine_grid(self) -> GpGrid:
-        """The configured grid with :data:`FINE_COLOUR` and :data:`FINE_NORMAL` added."""
+        """Return the configured grid with :data:`FINE_COLOUR` and :data:`FINE_NORMAL` added."""
         g = self.grid
         return dataclasses.replace(
             g, colour=tuple(sorted(set(g.colour) | set(FINE_COLOUR), reverse=True)),
@@ -532,9 +535,11 @@ class ContactGpModel:
 
     @staticmethod
     def _calibration(gps: Sequence[FeatureGp]) -> np.ndarray:
-        """(P,) factors on each process's predictive variance from its leave-one-out
-        residuals: ``(sum z^2 + CALIBRATION_PRIOR) / (n + CALIBRATION_PRIOR)`` within
-        :data:`CALIBRATION_RANGE` (module docstring, point 6)."""
+        """Return (P,) factors on each process's predictive variance.
+
+        From its leave-one-out residuals: ``(sum z^2 + CALIBRATION_PRIOR) / (n +
+        CALIBRATION_PRIOR)`` within :data:`CALIBRATION_RANGE` (module docstring, point 6).
+        """
         out = []
         for gp in gps:
             z2 = gp.loo_z2()

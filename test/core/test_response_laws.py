@@ -190,3 +190,23 @@ def test_colour_relevance_is_learned_and_costs_nothing_where_colour_means_nothin
     fixed = ContactGpModel(law='power').fit(train, surface)
     auto = ContactGpModel(law='power', relevance='auto').fit(train, surface)
     assert heldout_rmse(auto, surface, test) < 1.05 * heldout_rmse(fixed, surface, test)
+
+
+@pytest.mark.parametrize('mean', ['mean', 'median'])
+def test_baked_table_follows_the_chosen_law_and_mean(mean):
+    """The table the contact solver interpolates is the model's own prediction."""
+    surface, train, _ = stiffening_world(0)
+    model = ContactGpModel(mean=mean).fit(train, surface)
+    assert model.law == 'stiffening'
+    depths = np.linspace(-0.002, 0.010, 25)
+    baked = model.bake(surface, depths)
+    assert baked.meta['law'] == 'stiffening' and baked.meta['mean'] == mean
+    rng = np.random.default_rng(0)
+    idx = rng.integers(0, len(surface), 200)
+    k = rng.integers(0, len(depths), 200)
+    np.testing.assert_allclose(baked.forces[idx, k],
+                               model.predict(surface.features[idx], depths[k]),
+                               rtol=1e-4, atol=1e-5)
+    ahead = model.predict(surface.features[idx], np.full(200, depths[-1] + 1e-4))
+    at = model.predict(surface.features[idx], np.full(200, depths[-1]))
+    np.testing.assert_allclose(baked.slopes[idx], (ahead - at) / 1e-4, rtol=0.05, atol=1.0)

@@ -165,6 +165,10 @@ def test_identify_then_camera_only_force_on_a_held_out_push(cell, tmp_path):
     assert not refused.success and "no observation ['poke-9']" in refused.message
     fit = cell.call(cell.identify, IdentifyDeformation.Request(), 'identify')
     assert fit.success, fit.message
+    # it started from the model factorised when the surface arrived (one factorisation
+    # fewer); that model now serves the estimates, so a second identification starts cold
+    assert 'from the scan-time model' in fit.message and node._scan_fem is None
+    assert node._fem is not None and node._fem.poisson == pytest.approx(fit.poisson)
     # measured (0.006 m, 4 layers): E 55.9 kPa, nu 0.217 (truth 50 kPa, 0.30; nu is weakly
     # observable from one top view, see test/deformation/test_estimation.py)
     assert fit.young == pytest.approx(50e3, rel=0.15)

@@ -469,10 +469,27 @@ class PokeStore:
         return len(self._index)
 
     def get(self, poke_id: str) -> PokeRecord:
-        """Load one poke. Raises DataError for an unknown id or a corrupt bag."""
+        """Load one poke.
+
+        An indexed bag that cannot be read (corrupted after it was indexed: bags are written
+        atomically) is moved to ``quarantine/`` with the reason and leaves the index; its id
+        is never reused.
+
+        Raises:
+            DataError: an unknown id, or a corrupt bag (the message says where it went).
+
+        """
         if poke_id not in self._index:
             raise DataError(f'no poke {poke_id!r} in {self.root}')
-        return read_poke_bag(self.root / poke_id)
+        try:
+            return read_poke_bag(self.root / poke_id)
+        except DataError as exc:
+            with self._lock:
+                target = self._quarantine(self.root / poke_id, str(exc))
+                if self._index.pop(poke_id, None) is not None:
+                    self._write_index(self._index)
+            where = f'; moved to {target}' if target is not None else ''
+            raise DataError(f'{exc}{where}') from exc
 
     def __iter__(self) -> Iterator[PokeRecord]:
         """Load every poke in order."""

@@ -137,6 +137,23 @@ def test_a_corrupt_newest_bag_is_quarantined_by_name_and_its_id_never_reused(tmp
     assert reopened.ids()[-1] == 'poke-000004'
 
 
+def test_a_bag_corrupted_after_indexing_is_quarantined_when_read(tmp_path):
+    """Issue 16: a corrupt bag still listed in the index was never read again on reload."""
+    store = _store_of(tmp_path, 3)
+    mcap = next((tmp_path / 'poke-000002').glob('*.mcap'))
+    mcap.write_bytes(mcap.read_bytes()[:200])
+    reopened = st.PokeStore(tmp_path)   # the index lists it: not read on open
+    assert reopened.ids() == ['poke-000001', 'poke-000002', 'poke-000003']
+    with pytest.raises(DataError, match='poke-000002.*moved to .*quarantine'):
+        reopened.get('poke-000002')
+    assert reopened.ids() == ['poke-000001', 'poke-000003']
+    assert (tmp_path / 'quarantine' / 'poke-000002' / 'metadata.yaml').is_file()
+    assert 'poke-000002' in (tmp_path / 'quarantine' / 'poke-000002.reason.txt').read_text()
+    assert st.PokeStore(tmp_path).ids() == ['poke-000001', 'poke-000003']   # index rewritten
+    assert [r.poke_id for r in reopened] == ['poke-000001', 'poke-000003']
+    assert store.next_id() == 'poke-000004'
+
+
 def test_ids_survive_a_lost_counter_a_removed_bag_and_unused_ids(tmp_path):
     store = _store_of(tmp_path, 2)
     unused = store.next_id()          # handed out, never stored (a poke with no sample)

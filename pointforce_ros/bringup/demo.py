@@ -114,7 +114,7 @@ CALIBRATIONS = {'sphere': ('demo_calibration_{}.npz', calibration_push),
 
 
 def _calibration_pokes(spec, vectors: bool = False):
-    """The calibration pushes with their measured forces: ``{name: poke}`` (may be empty).
+    """Return the calibration pushes with their measured forces: ``{name: poke}`` (may be empty).
 
     A poke is ``(mesh, poses, approach, measured push-back force (T,))`` as
     :func:`~pointforce_ros.contact.identify.identify_shape_constant_from_probes` takes it;

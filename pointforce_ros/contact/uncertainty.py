@@ -130,7 +130,7 @@ def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Seque
                        relative_std: Optional[float] = None, response: bool = True,
                        spacing: float = 0.003, lateral_std: Optional[float] = None
                        ) -> WrenchUncertainty:
-    """Standard deviation of the contact wrench of ``mesh`` at ``poses`` (module docstring).
+    """Return the standard deviation of the wrench of ``mesh`` at ``poses`` (module docstring).
 
     Args:
         model: the contact model the service answers from; its baked response's ``std``

@@ -329,7 +329,7 @@ def curve_from_series(poke_id: str, point, normal, t, d, f, *, speed: Optional[f
 
 
 def _step_loading(poke_id, t, d, min_samples):
-    """Loading samples of step data: each sample that reaches a new deepest depth."""
+    """Select the loading samples of step data: each sample that reaches a new deepest depth."""
     deepest = int(np.argmax(d))
     before = np.maximum.accumulate(np.concatenate([[-np.inf], d[:deepest]]))
     seg = np.flatnonzero(d[:deepest + 1] > before)
@@ -344,7 +344,7 @@ def _step_loading(poke_id, t, d, min_samples):
 
 
 def _stream_loading(poke_id, t, d, speed, min_samples, speed_band, smooth_time):
-    """Loading samples of a stream: the constant-speed push to the deepest point after it."""
+    """Select loading samples of a stream: the constant-speed push to the deepest point."""
     n = len(t)
     dt = float(np.median(np.diff(t)))
     window = max(5, int(round(smooth_time / dt)) | 1)

@@ -148,7 +148,7 @@ def read_poke_table(path) -> List[PokeRecord]:
 
 
 def surface_from_records(records: Sequence[PokeRecord]) -> Surface:
-    """The equilibrium surface a table without a cloud implies: its poked points and normals.
+    """Return the surface a table without a cloud implies: its poked points and normals.
 
     Data from another rig often comes without a depth-camera cloud; the learner then bakes
     its model on the poked points themselves (one surface point per distinct poke point, in

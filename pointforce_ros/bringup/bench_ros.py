@@ -179,6 +179,17 @@ def load_client(calls: int, seed: int) -> None:
     os._exit(0)   # the spinning daemon thread would abort the interpreter's exit
 
 
+def _peak_rss_mb(pid: int) -> float:
+    """Peak resident memory of process ``pid`` (``VmHWM``), MiB; NaN where /proc has none."""
+    try:
+        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+            if line.startswith('VmHWM:'):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float('nan')
+
+
 def _load_test(clients: int, calls: int) -> dict:
     """``clients`` processes x ``calls`` single queries, started together."""
     procs = [_start('pointforce_ros.bringup.bench_ros', 'client', str(calls), str(i))
@@ -309,6 +320,7 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
                     planner, sphere, poses, n_single, n_small, small_batch, Vector3,
                     ContactWrenchBatch)
             out.update(_load_test(load_clients, load_calls))
+            out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
         finally:
             _stop(services)
     p50, p99 = _percentiles(rtt)

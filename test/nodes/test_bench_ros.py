@@ -37,6 +37,7 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
     assert out['services'].endswith('each in its own process')
     assert out['load_failures'] == 0 and out['load_clients'] == 2
     assert out['load_rtt_p99_ms'] >= out['load_rtt_p50_ms'] > 0
+    assert 50 < out['service_peak_rss_mb'] < 600    # issue 16: the service stays under 600 MB
     for key in ('single_rtt_p50_ms', 'single_rtt_p99_ms', 'core_query_p50_ms',
                 'ros_overhead_p50_ms', 'trigger_rtt_p50_ms', 'trigger_rtt_p99_ms',
                 'small_batch_rtt_p50_ms', 'small_batch_rtt_p99_ms', 'small_batch_core_p50_ms',

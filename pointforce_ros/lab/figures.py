@@ -1206,7 +1206,7 @@ def _jsonable(obj):
 def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
                 repeats: Optional[int] = None, seed: int = 0, auto_budget: float = 1.0,
                 data_dir=DATA_DIR, say: Callable[[str], None] = print,
-                learning_only: bool = False) -> Dict:
+                learning_only: bool = False, sizes: Sequence[int] = SIZES) -> Dict:
     """Compute figures 1-3 from the cached fixtures; write PNGs, ``figures.md``, JSON.
 
     Args:
@@ -1218,6 +1218,8 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         auto_budget: Auto-ET search budget per fit, seconds.
         data_dir: folder of ``pokes_<object>.npz`` and ``probes_<object>.npz``.
         learning_only: figure 1 and its error budget only (no next-poke or probe figures).
+        sizes: figure 1's training-set sizes (the subsets are drawn size by size in this
+            order, so the same sizes and seed give the same subsets).
 
     Returns:
         dict with ``learning`` ({object: rows}), ``learning_goals``, ``probes`` ({object:
@@ -1266,7 +1268,7 @@ def run_figures(out_dir, objects: Sequence[str] = OBJECTS, quick: bool = False,
         except DataError as exc:
             truth = None
             say(f'[figures]   no full-depth truth: {exc}')
-        rows = figure_learning(curves, surface, repeats=repeats, seed=seed,
+        rows = figure_learning(curves, surface, sizes=sizes, repeats=repeats, seed=seed,
                                auto_budget=auto_budget, truth=truth)
         result['learning'][name] = [{k2: r[k2] for k2 in ('model', 'size', 'median', 'q25',
                                                           'q75', 'fit_s', 'truth_median')
@@ -1341,11 +1343,13 @@ def main(argv=None) -> int:
     parser.add_argument('--data', default=DATA_DIR, help='folder of the cached fixtures')
     parser.add_argument('--learning-only', action='store_true',
                         help='figure 1 (learning curves) and its error budget only')
+    parser.add_argument('--sizes', type=int, nargs='+', default=list(SIZES),
+                        help='figure 1 training-set sizes')
     args = parser.parse_args(argv)
     try:
         run_figures(args.out, args.objects, quick=args.quick, repeats=args.repeats,
                     seed=args.seed, auto_budget=args.auto_budget, data_dir=args.data,
-                    learning_only=args.learning_only)
+                    learning_only=args.learning_only, sizes=tuple(args.sizes))
     except InvalidInput as exc:
         print(f'[figures] error: {exc}')
         return 2

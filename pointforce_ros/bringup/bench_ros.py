@@ -47,7 +47,7 @@ from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
 from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.nodes.contact_wrench import spin_single_threaded
+from pointforce_ros.nodes.contact_wrench import REQUESTS, spin_single_threaded
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.shapes import icosphere
@@ -153,7 +153,10 @@ def load_client(calls: int, seed: int) -> None:
     executor.add_node(node)
     threading.Thread(target=executor.spin, daemon=True).start()
     from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
-    client = node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    # a reply reader sees the replies to every client: at the default depth of 10 a busy
+    # client's own reply can be pushed out of its history by the others'
+    client = node.create_client(ContactWrench, '/contact_wrench/contact_wrench',
+                                qos_profile=REQUESTS)
     if not client.wait_for_service(timeout_sec=60):
         raise RuntimeError('service /contact_wrench/contact_wrench did not appear in 60 s')
     vertices, triangles = mesh_to_flat(icosphere(SPHERE_RADIUS, SPHERE_LEVEL))

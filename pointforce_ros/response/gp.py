@@ -137,6 +137,8 @@ def _sqdist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _inv_len2(length) -> np.ndarray:
+    if isinstance(length, float):       # scalar fast path (conditioning, prediction)
+        return 1.0 / (length * length) if np.isfinite(length) else 0.0
     length = np.asarray(length, dtype=float)
     return np.where(np.isfinite(length), 1.0 / np.where(np.isfinite(length), length, 1.0) ** 2,
                     0.0)

@@ -133,7 +133,8 @@ class StreamingArm:
         pass
 
     def push_until(self, standoff, direction, *, force_limit, travel_limit, speed,
-                   approach_speed, retract_speed, cancel, max_force, max_travel):
+                   approach_speed, retract_speed, cancel, max_force, max_travel,
+                   phase=None):
         n = self.samples
         travel = np.linspace(0.0, travel_limit, n)
         direction = np.asarray(direction, float)

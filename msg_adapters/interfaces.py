@@ -167,6 +167,22 @@ def fill_batch_response(resp: ContactWrenchBatch.Response, batch,
     return resp
 
 
+def fill_wrench_std(resp, std) -> None:
+    """Write standard deviations (6,) or (B, 6) into a ContactWrench / batch response.
+
+    A single response gets ``wrench_std`` and ``has_wrench_std = True``; a batch response gets
+    one ``wrench_stds`` entry per pose.
+    """
+    rows = np.asarray(std, dtype=np.float64).reshape(-1, 6).tolist()
+    msgs = [WrenchMsg(force=Vector3(x=fx, y=fy, z=fz), torque=Vector3(x=tx, y=ty, z=tz))
+            for fx, fy, fz, tx, ty, tz in rows]
+    if hasattr(resp, 'wrench_stds'):
+        resp.wrench_stds = msgs
+    else:
+        resp.wrench_std = msgs[0]
+        resp.has_wrench_std = True
+
+
 def fail(resp, message: str):
     """Mark any of our service responses as failed with ``message``; returns ``resp``."""
     resp.success = False

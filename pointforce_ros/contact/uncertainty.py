@@ -125,6 +125,53 @@ def _check_cov(shape_cov) -> np.ndarray:
     return cov
 
 
+SOURCE_KEYS = ('shape_cov', 'relative_std', 'lateral_std')
+"""The uncertainty sources a model's ``meta`` may carry (:func:`uncertainty_sources`)."""
+
+
+def _share(value, name: str) -> float:
+    try:
+        share = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInput(f'{name}: must be a number, got {value!r}') from None
+    if not (np.isfinite(share) and share >= 0):
+        raise InvalidInput(f'{name}: must be a finite share >= 0, got {share}')
+    return share
+
+
+def uncertainty_sources(shape_cov=None, relative_std=0.0, lateral_std=0.0) -> dict:
+    """Check the wrench's uncertainty sources; return them in the model-``meta`` form (JSON).
+
+    Args:
+        shape_cov: (2, 2) covariance of ``(log c, 1 / L [1/m])`` from the calibration pushes
+            (:func:`~pointforce_ros.contact.identify.shape_fit_covariance`), or a flat list of
+            its four entries; ``None`` or all zeros: none.
+        relative_std: share of the wrench not explained by the model (>= 0).
+        lateral_std: share of the normal force across the approach (>= 0).
+
+    Returns:
+        ``{'shape_cov': [[..], [..]], 'relative_std': .., 'lateral_std': ..}`` without the
+        sources that are zero (what :func:`wrench_uncertainty` reads from ``model.meta``).
+
+    Raises:
+        InvalidInput: a malformed covariance or a share that is not finite and >= 0.
+
+    """
+    out = {}
+    if shape_cov is not None:
+        flat = np.asarray(shape_cov, dtype=np.float64).ravel()
+        if flat.size not in (0, 4):
+            raise InvalidInput(f'shape_cov: need the 4 entries of a 2x2 covariance of (log c, '
+                               f'1/L [1/m]), got {flat.size}')
+        if flat.size and np.any(flat != 0):
+            out['shape_cov'] = _check_cov(flat.reshape(2, 2)).tolist()
+    for name, value in (('relative_std', relative_std), ('lateral_std', lateral_std)):
+        share = _share(value, name)
+        if share > 0:
+            out[name] = share
+    return out
+
+
 def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Sequence[Pose]],
                        approach, torque_centre, *, shape_cov=None,
                        relative_std: Optional[float] = None, response: bool = True,

@@ -32,6 +32,7 @@ from typing import Callable, List, Mapping, Optional, Tuple
 import numpy as np
 
 from pointforce_ros.contact.lcp import check_decay
+from pointforce_ros.contact.uncertainty import SOURCE_KEYS, uncertainty_sources
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
@@ -358,16 +359,20 @@ def latest_model_path(directory) -> Optional[Path]:
     return found[1]
 
 
-def save_shape(directory, shape_constant: float, shape_decay: float = float('inf')) -> Path:
+def save_shape(directory, shape_constant: float, shape_decay: float = float('inf'),
+               uncertainty: Optional[Mapping] = None) -> Path:
     """Persist the shape function set at run time beside the models (``shape.json``, atomic).
 
     Args:
         directory: the model directory (created if needed).
         shape_constant: ``c``, metres (> 0).
         shape_decay: decay length ``L``, metres (``inf``: none, stored as ``null``).
+        uncertainty: the wrench's uncertainty sources from the same calibration
+            (:func:`~pointforce_ros.contact.uncertainty.uncertainty_sources`; ``None``: none).
 
     Raises:
-        InvalidInput: ``c`` not finite and positive, or ``L`` neither positive nor ``inf``.
+        InvalidInput: ``c`` not finite and positive, ``L`` neither positive nor ``inf``, or
+            malformed uncertainty sources.
         OSError: the file cannot be written.
 
     """
@@ -375,7 +380,8 @@ def save_shape(directory, shape_constant: float, shape_decay: float = float('inf
         raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
     decay = check_decay(shape_decay, 'shape_decay')
     body = {'shape_constant': float(shape_constant),
-            'shape_decay': float(decay) if np.isfinite(decay) else None}
+            'shape_decay': float(decay) if np.isfinite(decay) else None,
+            'uncertainty': uncertainty_sources(**dict(uncertainty or {}))}
     return atomic_write(Path(directory) / SHAPE, lambda fh: json.dump(body, fh), binary=False)
 
 
@@ -400,6 +406,28 @@ def load_shape(directory) -> Optional[Tuple[float, float]]:
     except (OSError, ValueError, KeyError, TypeError, AttributeError, InvalidInput) as exc:
         raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
     return c, decay
+
+
+def load_shape_uncertainty(directory) -> dict:
+    """Read the uncertainty sources of ``shape.json`` (:func:`save_shape`); ``{}`` if none.
+
+    Raises:
+        DataError: the file exists but its sources cannot be read or are invalid.
+
+    """
+    path = Path(directory) / SHAPE
+    if not path.is_file():
+        return {}
+    try:
+        body = json.loads(path.read_text())
+        sources = body.get('uncertainty') or {}
+        unknown = set(sources) - set(SOURCE_KEYS)
+        if unknown:
+            raise ValueError(f'unknown uncertainty sources {sorted(unknown)}')
+        return uncertainty_sources(**sources)
+    except (OSError, ValueError, TypeError, AttributeError, InvalidInput) as exc:
+        raise DataError(f'{path}: unreadable uncertainty sources: {type(exc).__name__}: '
+                        f'{exc}') from exc
 
 
 def save_surface(surface: Surface, path) -> Path:

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pointforce_ros.contact.lcp import check_decay
+from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.correct import correct_record, correct_surface, effects_from_dict
 from pointforce_ros.effects.library import count_earlier, PLASTIC_RADIUS
 from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
@@ -148,6 +149,7 @@ class OnlineLearner:
         self._failed_points: List[np.ndarray] = []
         self.model = None
         self.curves: List[PokeCurve] = []
+        self.uncertainty: dict = {}   # wrench uncertainty sources stored in each model's meta
         self.skipped: Dict[str, str] = {}
         self._c_updates = 0   # models saved for a new shape constant (versions stay increasing)
         self._prequential: List[np.ndarray] = []
@@ -330,6 +332,29 @@ class OnlineLearner:
             self._c_updates += 1
             return self._save(time.perf_counter())
 
+    def set_uncertainty(self, sources: Optional[dict]) -> Optional[LearnerStatus]:
+        """Store the wrench's uncertainty sources in every model from now on.
+
+        ``sources`` (``shape_cov``, ``relative_std``, ``lateral_std``, as
+        :func:`~pointforce_ros.contact.uncertainty.uncertainty_sources` takes them) come from
+        the calibration that identified ``(c, L)``; the contact service turns them and the
+        response's own spread into a standard deviation of each wrench. Saves a new model
+        version if there is a model and the sources changed.
+
+        Raises:
+            InvalidInput: malformed sources.
+
+        """
+        checked = uncertainty_sources(**dict(sources or {}))
+        with self._lock:
+            if checked == self.uncertainty:
+                return None
+            self.uncertainty = checked
+            if self.model is None:
+                return None
+            self._c_updates += 1
+            return self._save(time.perf_counter())
+
     def contact_model(self) -> ContactModel:
         """Return the current model baked on the model surface, as it would be saved.
 
@@ -348,7 +373,8 @@ class OnlineLearner:
                                 shape_decay=self.shape_decay, effects=self.effects,
                                 meta={'kind': getattr(self.model, 'kind', 'unknown'),
                                       'pokes': [c.poke_id for c in self.curves],
-                                      'surface_corrected': corrected})
+                                      'surface_corrected': corrected,
+                                      **self.uncertainty})
 
     def _save(self, start: float) -> LearnerStatus:
         contact = self.contact_model()

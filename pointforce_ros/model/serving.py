@@ -32,6 +32,7 @@ from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
 from pointforce_ros.contact.simulator import (BatchContactResult, normalise_approach,
                                               poses_as_arrays, single_threaded_blas)
+from pointforce_ros.contact.uncertainty import SOURCE_KEYS, wrench_uncertainty
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.model.files import ContactModel, load_latest_model, load_model
@@ -48,6 +49,9 @@ sample that passes the height bound, its neighbour query and candidate arrays (~
 BYTES_PER_CONTACT_PAIR = 64
 """Working memory of one entry of a pose's contact problem (pairwise distances, ``G``,
 products), bytes; a pose with ``K`` candidates needs about ``64 K^2``."""
+
+UNCERTAINTY_CHUNK = 256
+"""Poses per call of the uncertainty's four solves (bounds their working memory)."""
 
 _MIB = float(2 ** 20)
 _CACHED_SAMPLES = 200_000
@@ -395,6 +399,51 @@ class WrenchServer:
         self._check_answer(centre, known[0], bounds, batch.wrenches, batch.contact_count,
                            batch.max_displacement, positions)
         return batch, int(model.version)
+
+    def uncertainty(self, mesh: Mesh, rows, approach, torque_centre,
+                    version: Optional[int] = None) -> np.ndarray:
+        """Return the standard deviation (B, 6) of the wrench at each row of an answered request.
+
+        From the answering model's sources (:func:`~pointforce_ros.contact.uncertainty.
+        wrench_uncertainty`: the baked response's spread, ``meta`` ``shape_cov`` of ``(log c,
+        1/L)``, ``relative_std``, ``lateral_std``), times the forward terms' force scale. Four
+        solves per pose, in chunks of at most :data:`UNCERTAINTY_CHUNK` poses within the
+        request's time budget. Under a series compliance the spread is taken at the commanded
+        pose (the retreat moves the answer by less than the spread of the force that sets it).
+
+        Args:
+            mesh, rows, approach, torque_centre: the request as :meth:`answer_rows` takes it
+                (a request that passed :meth:`answer` or :meth:`answer_rows`).
+            version: the model version the answer came from; a model swapped in meanwhile
+                refuses (the spread would be another model's).
+
+        Raises:
+            ModelNotReady: no model loaded.
+            InvalidInput: the model carries no uncertainty, it changed since the answer, or
+                the time budget ran out.
+
+        """
+        deadline = time.monotonic() + self.limits.max_seconds
+        model, _, terms, _ = self._snapshot()
+        if version is not None and int(model.version) != int(version):
+            raise InvalidInput(f'the model changed (v{version} -> v{model.version}) after the '
+                               'answer; ask again for a wrench with its spread')
+        if model.response.std is None and not any(k in model.meta for k in SOURCE_KEYS):
+            raise InvalidInput(f'model v{model.version} carries no uncertainty (no response '
+                               'spread, no calibration sources)')
+        rows = _checked_rows(rows)
+        known = self._known_mesh(mesh)
+        mesh = mesh if known[2] is None else known[2]
+        centre = as_array(torque_centre, 'torque_centre', (3,))
+        parts = []
+        for start in range(0, len(rows), UNCERTAINTY_CHUNK):
+            self._in_time(deadline, start, len(rows))
+            parts.append(wrench_uncertainty(model, mesh, rows[start:start + UNCERTAINTY_CHUNK],
+                                            approach, centre, spacing=self._spacing).std)
+        std = np.concatenate(parts) * abs(terms.force_scale)
+        if not np.all(np.isfinite(std)):
+            raise InvalidInput('the spread of this answer is not finite')
+        return std
 
     # ------------------------------------------------------------------ request checks
     def _admit(self, mesh: Mesh, approach, torque_centre, simulator: ContactSimulator,

@@ -6,7 +6,10 @@ requests get ``success=False`` and a message; the node keeps serving: each callb
 every exception (``MemoryError`` and unforeseen errors included) and answers with a reason, and
 requests beyond the limits (``max_sample_poses``, ``max_request_memory``, ``max_distance``,
 ``max_depth``, ``max_torque_arm``) are refused before any work, and a batch past its time
-budget (``max_request_seconds``) between chunks of poses. Accepted effects stored in
+budget (``max_request_seconds``) between chunks of poses. With ``uncertainty`` on, every
+answer carries the standard deviation of each wrench component (``wrench_std``; a request sets
+``skip_uncertainty`` to save its four extra solves); a spread that cannot be computed leaves the
+wrench answered and says why in ``message``. Accepted effects stored in
 the model add their forward terms (:mod:`pointforce_ros.effects.forward`): series compliance
 (``series_compliance``), a viscoelastic hold fraction (``hold_time``) and a surface offset.
 
@@ -21,6 +24,8 @@ import dataclasses
 import time
 from pathlib import Path
 
+import numpy as np
+
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
 import rclpy
@@ -32,7 +37,8 @@ from visualization_msgs.msg import MarkerArray
 
 from msg_adapters.contact_markers import contact_markers
 from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_from_request,
-                                     fail, fill_batch_response, fill_contact_response)
+                                     fail, fill_batch_response, fill_contact_response,
+                                     fill_wrench_std)
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import declare, live
@@ -103,6 +109,9 @@ class ContactWrenchNode(Node):
                 self, 'max_request_seconds', 30.0,
                 'Time budget of one batch request, s (checked between chunks of poses)',
                 bounds=(0.01, 3600.0)))
+        self.uncertainty = declare(self, 'uncertainty', True,
+                                   'Answer each wrench with its standard deviation '
+                                   '(wrench_std: four more solves; a request can skip it)')
         self.marker_scale = declare(self, 'marker_force_scale', 0.01,
                                     'Length of the wrench arrow on ~/last_query per newton, m/N',
                                     bounds=(1e-5, 1.0))
@@ -132,6 +141,7 @@ class ContactWrenchNode(Node):
         self._marker_timer = self.create_timer(1.0 / marker_rate, self._publish_markers,
                                                callback_group=loader)
         live(self, {'max_batch': lambda v: lambda: setattr(self, 'max_batch', v),
+                    'uncertainty': lambda v: lambda: setattr(self, 'uncertainty', v),
                     'sample_spacing': lambda v: self._configure(spacing=v),
                     'series_compliance': lambda v: self._configure(series_compliance=v),
                     'hold_time': lambda v: self._configure(hold_time=v),
@@ -226,6 +236,11 @@ class ContactWrenchNode(Node):
             query = contact_query_from_request(request)
             result, version = self.server.answer(query)
             fill_contact_response(response, result, version, query.return_displacements)
+            if self.uncertainty and not request.skip_uncertainty:
+                pose = query.poses[0]
+                self._add_uncertainty(response, query.mesh,
+                                      np.concatenate([pose.position, pose.orientation])[None],
+                                      query.approach, query.torque_centre, version)
             self.requests_served += 1
             self._last = (result, version)      # one reference store; the timer draws it
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
@@ -242,10 +257,23 @@ class ContactWrenchNode(Node):
             query = batch_arrays_from_request(request)
             batch, version = self.server.answer_rows(*query)
             fill_batch_response(response, batch, version)
+            if self.uncertainty and not request.skip_uncertainty:
+                self._add_uncertainty(response, *query, version)
             self.requests_served += 1
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             self._refuse(response, 'contact_wrench_batch', exc)
         return response
+
+    def _add_uncertainty(self, response, mesh, rows, approach, torque_centre, version):
+        """Fill the answer's standard deviations; a failure keeps the answer, says why."""
+        try:
+            fill_wrench_std(response, self.server.uncertainty(mesh, rows, approach,
+                                                              torque_centre, version))
+        except Exception as exc:  # noqa: BLE001 - the wrench stands without its spread
+            reason = str(exc) if isinstance(exc, PointforceError) else (
+                'not enough memory' if isinstance(exc, MemoryError)
+                else f'{type(exc).__name__}: {exc}')
+            response.message = f'no wrench standard deviation: {reason}'
 
     def _refuse(self, response, service: str, exc: Exception):
         """Answer ``success=False`` with a reason about the request, whatever ``exc`` was."""

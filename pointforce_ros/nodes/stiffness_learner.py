@@ -9,7 +9,10 @@ learned force at ``marker_depth``, and the suggested next pokes), and serves ``~
 Cross-node names are relative (``__ns:=/cell1`` keeps a cell together). On restart it reloads the
 stored pokes and produces the same model. A shape function set at run time (``shape_constant``,
 ``shape_decay``) is persisted beside the models (``<model_dir>/shape.json``) and wins over the
-start-up parameters after a restart (an effects file's ``spatial_coupling`` still wins over both).
+start-up parameters after a restart (an effects file's ``spatial_coupling`` still wins over both),
+and so are the wrench's uncertainty sources from the same calibration (``shape_cov`` of
+``(log c, 1/L)``, ``relative_std``, ``lateral_std``), which every model stores in its ``meta`` for
+the contact service's standard deviations.
 The published ``version`` is the one the model file was saved under (``save_model`` moves a
 model to the next free version rather than reuse one).
 ``effects_file`` (diagnose's ``effects.json``) makes the learner remove the accepted effects from
@@ -38,11 +41,12 @@ from msg_adapters.geometry import sec_to_stamp, stamp_to_sec
 from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.markers import model_markers
 from msg_adapters.pointcloud2 import surface_from_msg
+from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.correct import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import OnlineLearner
-from pointforce_ros.model.files import (load_model, load_shape, load_surface, save_shape,
-                                        version_of_path)
+from pointforce_ros.model.files import (load_model, load_shape, load_shape_uncertainty,
+                                        load_surface, save_shape, version_of_path)
 from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
@@ -81,6 +85,26 @@ class StiffnessLearnerNode(Node):
                                    'Decay length of the shape function\'s tail, '
                                    'g(r) = c/(c+r) exp(-r/L), m; 0: none (the paper\'s g)',
                                    bounds=(0.0, 1.0))
+        shape_cov = declare(self, 'shape_cov', [0.0, 0.0, 0.0, 0.0],
+                            'Covariance of (log c, 1/L [1/m]) from the calibration that '
+                            'identified c and L, row-major 2x2; zeros: none. With '
+                            'relative_std and lateral_std stored in every model: the contact '
+                            "service's wrench standard deviation")
+        relative_std = declare(self, 'relative_std', 0.0,
+                               'Share of the wrench the contact model does not explain (the '
+                               "calibration fit's relative residual), added to its standard "
+                               'deviation', bounds=(0.0, 1.0))
+        lateral_std = declare(self, 'lateral_std', 0.0,
+                              'Share of the normal force taken as the standard deviation of '
+                              'the force across the approach (no friction in the model)',
+                              bounds=(0.0, 1.0))
+        try:
+            self.uncertainty = self._checked_uncertainty(
+                {'shape_cov': shape_cov, 'relative_std': relative_std,
+                 'lateral_std': lateral_std})
+        except PointforceError as exc:
+            self.get_logger().error(f'uncertainty sources refused, models carry none: {exc}')
+            self.uncertainty = {}
         self._restore_shape()
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
                        bounds=(0.1, 600.0), read_only=True)
@@ -163,6 +187,8 @@ class StiffnessLearnerNode(Node):
         live(self, {
             'shape_constant': lambda v: lambda: self._set_shape('shape_constant', v),
             'shape_decay': lambda v: lambda: self._set_shape('shape_decay', v),
+            **{name: self._uncertainty_applier(name)
+               for name in ('shape_cov', 'relative_std', 'lateral_std')},
             'suggest_exclude_radius': lambda v: lambda: setattr(self, 'exclude_radius', v),
             'suggest_max_tilt_deg': lambda v: lambda: setattr(self, 'max_tilt', v),
             'marker_depth': lambda v: lambda: self._set_marker('marker_depth', v),
@@ -178,15 +204,26 @@ class StiffnessLearnerNode(Node):
         if shape is None:
             return
         c, decay = shape
+        try:
+            sources = load_shape_uncertainty(self.model_dir)
+        except PointforceError as exc:
+            self.get_logger().error(f'ignoring the persisted uncertainty sources: {exc}')
+            sources = self.uncertainty
         decay_param = float(decay) if np.isfinite(decay) else 0.0
+        cov = np.asarray(sources.get('shape_cov', np.zeros((2, 2))), dtype=float).ravel()
         results = self.set_parameters([
             Parameter('shape_constant', Parameter.Type.DOUBLE, c),
-            Parameter('shape_decay', Parameter.Type.DOUBLE, decay_param)])
+            Parameter('shape_decay', Parameter.Type.DOUBLE, decay_param),
+            Parameter('shape_cov', Parameter.Type.DOUBLE_ARRAY, cov.tolist()),
+            Parameter('relative_std', Parameter.Type.DOUBLE,
+                      float(sources.get('relative_std', 0.0))),
+            Parameter('lateral_std', Parameter.Type.DOUBLE,
+                      float(sources.get('lateral_std', 0.0)))])
         refused = [r.reason for r in results if not r.successful]
         if refused:
             self.get_logger().error(f'persisted shape function refused: {refused}')
             return
-        self.shape_constant, self.shape_decay = c, decay_param
+        self.shape_constant, self.shape_decay, self.uncertainty = c, decay_param, sources
         self.get_logger().info(f'shape function restored from {self.model_dir}/shape.json: '
                                f'c = {1e3 * c:.3f} mm, decay '
                                + (f'{1e3 * decay:.3f} mm' if np.isfinite(decay) else 'none'))
@@ -199,17 +236,49 @@ class StiffnessLearnerNode(Node):
         model exists, saved as a new model version the contact service hot-swaps to.
         """
         setattr(self, name, float(value))
-        try:
-            save_shape(self.model_dir, self.shape_constant, _decay_length(self.shape_decay))
-        except (OSError, PointforceError) as exc:
-            self.get_logger().error(f'{name} = {value} is in use but NOT persisted (a restart '
-                                    f'loses it): {exc}')
+        self._persist_shape(name, value)
         learner = self.learner
         if learner is not None:
             status = learner.set_shape_constant(self.shape_constant,
                                                 _decay_length(self.shape_decay))
             if status is not None:
                 self._publish(status, learner)
+
+    def _persist_shape(self, name: str, value) -> None:
+        try:
+            save_shape(self.model_dir, self.shape_constant, _decay_length(self.shape_decay),
+                       self.uncertainty)
+        except (OSError, PointforceError) as exc:
+            self.get_logger().error(f'{name} = {value} is in use but NOT persisted (a restart '
+                                    f'loses it): {exc}')
+
+    @staticmethod
+    def _checked_uncertainty(sources: dict) -> dict:
+        """Return ``sources`` checked (:func:`uncertainty_sources`); raises InvalidInput."""
+        return uncertainty_sources(**sources)
+
+    def _uncertainty_applier(self, name: str):
+        """Return the applier of ``shape_cov`` / ``relative_std`` / ``lateral_std``.
+
+        The value is checked with the other two (a covariance that is not symmetric, or has a
+        negative variance, is refused with the reason); in effect it is persisted in
+        ``shape.json`` and, once a model exists, saved as a new model version.
+        """
+        def applier(value):
+            current = {key: self.get_parameter(key).value
+                       for key in ('shape_cov', 'relative_std', 'lateral_std')}
+            checked = self._checked_uncertainty({**current, name: value})
+
+            def apply():
+                self.uncertainty = checked
+                self._persist_shape(name, value)
+                learner = self.learner
+                if learner is not None:
+                    status = learner.set_uncertainty(checked)
+                    if status is not None:
+                        self._publish(status, learner)
+            return apply
+        return applier
 
     def _set_marker(self, name: str, value):
         """Take a new marker setting into use: the latched markers are drawn again."""
@@ -236,6 +305,7 @@ class StiffnessLearnerNode(Node):
                                          shape_decay=_decay_length(self.shape_decay),
                                          min_peak_force=self.min_peak_force or None,
                                          effects=self.effects)
+            self.learner.set_uncertainty(self.uncertainty)
         self.get_logger().info(f'surface of {len(surface)} points; learning from '
                                f'{self.store_dir}')
         self.refit()

@@ -10,7 +10,8 @@ import pytest
 
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
-from pointforce_ros.model.files import (ContactModel, load_shape, save_model, save_shape,
+from pointforce_ros.model.files import (ContactModel, load_shape, load_shape_uncertainty,
+                                        save_model, save_shape,
                                         SHAPE, version_of_path)
 
 MODEL = patch_contact_model(spacing=0.006)
@@ -54,3 +55,21 @@ def test_a_model_reproduced_under_a_lower_version_gets_the_newest_identical_file
     assert version_of_path(save_model(other, tmp_path)) == 6       # new content: next version
     assert sorted(p.name for p in tmp_path.glob('model-v*.npz')) == [
         'model-v000004.npz', 'model-v000005.npz', 'model-v000006.npz']
+
+
+def test_uncertainty_sources_round_trip_and_bad_ones_are_refused(tmp_path):
+    assert load_shape_uncertainty(tmp_path) == {}
+    save_shape(tmp_path, 0.003, 0.01, {'shape_cov': [0.04, 0.5, 0.5, 400.0],
+                                       'relative_std': 0.05, 'lateral_std': 0.0})
+    assert load_shape_uncertainty(tmp_path) == {'shape_cov': [[0.04, 0.5], [0.5, 400.0]],
+                                                'relative_std': 0.05}
+    assert load_shape(tmp_path) == pytest.approx((0.003, 0.01))
+    for bad, match in [({'shape_cov': [0.04, 0.5, -0.5, 400.0]}, 'symmetric'),
+                       ({'shape_cov': [-0.04, 0.0, 0.0, 1.0]}, 'non-negative'),
+                       ({'shape_cov': [1.0, 2.0, 3.0]}, '4 entries'),
+                       ({'relative_std': float('nan')}, 'relative_std')]:
+        with pytest.raises(InvalidInput, match=match):
+            save_shape(tmp_path, 0.003, 0.01, bad)
+    (tmp_path / SHAPE).write_text('{"shape_constant": 0.003, "uncertainty": {"bias": 1}}')
+    with pytest.raises(DataError, match='unknown uncertainty sources'):
+        load_shape_uncertainty(tmp_path)

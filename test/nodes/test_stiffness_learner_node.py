@@ -147,6 +147,43 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
     assert restarted.get_parameter('shape_decay').value == pytest.approx(0.008)
 
 
+def test_uncertainty_sources_go_into_every_model_and_survive_a_restart(ros_graph, tmp_path):
+    """Issue 17: the calibration's (c, L) covariance and shares reach the contact service."""
+    from rcl_interfaces.srv import SetParameters
+
+    store, records = _setup(tmp_path)
+    learner = _learner(ros_graph, tmp_path)
+    probe = ros_graph.add(Node('uncertainty_probe', context=ros_graph.context))
+    statuses = []
+    probe.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
+    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 30, 'model v4')
+    assert 'shape_cov' not in load_model(statuses[-1].model_path).meta
+    client = probe.create_client(SetParameters, '/stiffness_learner/set_parameters')
+    assert client.wait_for_service(timeout_sec=10)
+
+    def set_param(name, value):
+        request = SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()])
+        return ros_graph.wait_future(client.call_async(request), 20, name).results[0]
+
+    refused = set_param('shape_cov', [0.04, 0.5, -0.5, 400.0])      # not symmetric
+    assert not refused.successful and 'symmetric' in refused.reason
+    assert set_param('shape_cov', [0.04, 0.5, 0.5, 400.0]).successful
+    ros_graph.wait_for(lambda: statuses[-1].version == 5, 30, 'model v5')
+    assert set_param('relative_std', 0.07).successful
+    ros_graph.wait_for(lambda: statuses[-1].version == 6, 30, 'model v6')
+    meta = load_model(statuses[-1].model_path).meta
+    assert meta['shape_cov'] == [[0.04, 0.5], [0.5, 400.0]] and meta['relative_std'] == 0.07
+    ros_graph.remove(learner)  # the node is killed
+    store.add(records[4])
+    statuses.clear()
+    restarted = _learner(ros_graph, tmp_path)
+    ros_graph.wait_for(lambda: statuses and statuses[-1].num_pokes == 5, 30, 'model after restart')
+    meta = load_model(statuses[-1].model_path).meta
+    assert meta['shape_cov'] == [[0.04, 0.5], [0.5, 400.0]] and meta['relative_std'] == 0.07
+    assert list(restarted.get_parameter('shape_cov').value) == [0.04, 0.5, 0.5, 400.0]
+
+
 # --------------------------------------------------------------------------- accepted effects
 
 SPOTS = np.array([[0.491, -0.01, 0.04], [0.511, 0.01, 0.04], [0.491, 0.015, 0.04]])

@@ -24,6 +24,7 @@ a ROS domain of their own.
   campaign including the time between pokes, and dropped samples (controller-time gaps).
 """
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -101,11 +102,13 @@ def _bench_poses(n: int, seed: int = 0):
                 rng.uniform(0.0, 0.004, n))]
 
 
-def _single_request(pose, mesh_fields):
+def _single_request(pose, mesh_fields, skip_uncertainty: bool = True):
+    """Build a single query; the latency series skip the wrench's spread (four more solves)."""
     from geometry_msgs.msg import Vector3  # noqa: I100 - message package, as the others here
     from pointforce_interfaces.srv import ContactWrench
     return ContactWrench.Request(pose=pose_to_msg(pose), approach=Vector3(x=0.0, y=0.0, z=-1.0),
-                                 torque_centre=to_point(CENTRE), **mesh_fields)
+                                 torque_centre=to_point(CENTRE), skip_uncertainty=skip_uncertainty,
+                                 **mesh_fields)
 
 
 @contextmanager
@@ -238,7 +241,7 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     def batch_request(chosen):
         return ContactWrenchBatch.Request(poses=[pose_to_msg(p) for p in chosen],
                                           approach=approach, torque_centre=to_point(CENTRE),
-                                          **flat)
+                                          skip_uncertainty=True, **flat)
     for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
         round_trip(single, _single_request(pose, flat), 30, 'contact_wrench')
         round_trip(trigger, Trigger.Request(), 30, 'trigger')
@@ -251,6 +254,13 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
                 raise RuntimeError(f'contact_wrench refused: {resp.message}')
             times.append(elapsed)
         trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
+    std_rtt = []
+    for pose in poses[:max(n_single // 5, 20)]:   # with the wrench's standard deviation
+        elapsed, resp = round_trip(single, _single_request(pose, flat, False), 30,
+                                   'contact_wrench')
+        if not (resp.success and resp.has_wrench_std):
+            raise RuntimeError(f'contact_wrench gave no wrench_std: {resp.message}')
+        std_rtt.append(elapsed)
     small_rtt = []
     n_batch = len(poses)
     for i in range(n_small):
@@ -262,7 +272,7 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     ros_batch, resp = round_trip(batch, batch_request(poses), 120, 'contact_wrench_batch')
     if not resp.success:
         raise RuntimeError(f'batch refused: {resp.message}')
-    return rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch
+    return rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch, std_rtt
 
 
 def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
@@ -286,7 +296,10 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
     campaign_s = 10.0 if quick else 60.0
     out = {}
     work = Path(tempfile.mkdtemp(prefix='pointforce-bench-ros-'))
-    model = patch_contact_model(spacing=0.002)
+    base = patch_contact_model(spacing=0.002)
+    # uncertainty sources as a calibration stores them: the spread costs what it costs a user
+    model = dataclasses.replace(base, meta={**base.meta, 'relative_std': 0.05,
+                                            'shape_cov': [[0.04, 0.0], [0.0, 100.0]]})
     save_model(model, work / 'models')
     sphere = icosphere(SPHERE_RADIUS, SPHERE_LEVEL)
     poses = _bench_poses(n_batch)
@@ -319,7 +332,7 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
                     _start('pointforce_ros.bringup.bench_ros', 'trigger')]
         try:
             with InProcessLauncher(threads=2) as planner:
-                rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch = _round_trips(
+                rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch, std_rtt = _round_trips(
                     planner, sphere, poses, n_single, n_small, small_batch, Vector3,
                     ContactWrenchBatch)
             out.update(_load_test(load_clients, load_calls))
@@ -330,12 +343,14 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
     c50, c99 = _percentiles(core)
     t50, t99 = _percentiles(trigger_rtt)
     m50, m99 = _percentiles(msg_rtt)
+    s50, s99 = _percentiles(std_rtt)
     b50, b99 = _percentiles(small_rtt)
     bc50, bc99 = _percentiles(core_small)
     out.update(single_rtt_p50_ms=p50, single_rtt_p99_ms=p99, core_query_p50_ms=c50,
                core_query_p99_ms=c99, ros_rtt_over_core=p50 / c50,
                ros_overhead_p50_ms=p50 - c50, trigger_rtt_p50_ms=t50, trigger_rtt_p99_ms=t99,
                single_rtt_mesh_msg_p50_ms=m50, single_rtt_mesh_msg_p99_ms=m99,
+               single_rtt_with_std_p50_ms=s50, single_rtt_with_std_p99_ms=s99,
                single_queries=n_single, small_batch_poses=small_batch,
                small_batch_rtt_p50_ms=b50, small_batch_rtt_p99_ms=b99,
                small_batch_core_p50_ms=bc50, small_batch_core_p99_ms=bc99,

@@ -18,6 +18,7 @@ per query; the demo itself runs in a few minutes).
 
 import time
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
@@ -27,7 +28,7 @@ from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.contact.identify import (DECAY_GRID, identify_shape_constant_from_probe,
                                              identify_shape_constant_from_probes,
                                              shape_fit_covariance)
-from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
+from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.serving import WrenchServer
@@ -198,37 +199,56 @@ def _lateral_share(simulator, pokes) -> float:
     return float(np.sqrt(np.sum(across ** 2) / (2 * len(normal))) / np.sqrt(np.mean(normal ** 2)))
 
 
-def _set_shape(cell, c: float, decay: float) -> None:
-    """Set the learner's ``(c, L)`` and wait for the model version saved with them."""
+def _set_shape(cell, c: float, decay: float, sources: Optional[dict] = None) -> None:
+    """Set the learner's ``(c, L)`` (and uncertainty sources); wait for the model saved with them.
+
+    ``sources`` (``shape_cov``, ``relative_std``, ``lateral_std``) go to the learner's
+    parameters of those names, which store them in every model for the contact service's
+    standard deviations; ``None`` leaves them as they are.
+    """
     current = cell.learner_node
-    changes = []
+    changes, saves = [], 0
     decay_param = float(decay) if np.isfinite(decay) else 0.0
     if abs(float(current.shape_decay) - decay_param) > 1e-12:
         changes.append(('shape_decay', decay_param))
     if abs(float(current.shape_constant) - float(c)) > 1e-12:
         changes.append(('shape_constant', float(c)))
-    # the learner saves a version per accepted parameter, and the service may swap to it
-    # before set_parameter returns: take the target version first
-    target = max(m.version for m in cell.models) + len(changes)
+    saves = len(changes)
+    if sources is not None:
+        wanted = uncertainty_sources(**sources)
+        cov = np.asarray(wanted.get('shape_cov', np.zeros((2, 2))), dtype=float)
+        have = {'shape_cov': list(current.get_parameter('shape_cov').value),
+                'relative_std': current.get_parameter('relative_std').value,
+                'lateral_std': current.get_parameter('lateral_std').value}
+        before = uncertainty_sources(**have)
+        for name, value in [('shape_cov', cov.ravel().tolist()),
+                            ('relative_std', float(wanted.get('relative_std', 0.0))),
+                            ('lateral_std', float(wanted.get('lateral_std', 0.0)))]:
+            have[name] = value
+            after = uncertainty_sources(**have)
+            if after != before:      # the learner saves a version for each source changed
+                changes.append((name, value))
+                saves += 1
+            before = after
+    # the service may swap to a saved version before set_parameter returns: target first
+    target = max(m.version for m in cell.models) + saves
     for name, value in changes:
         cell.set_parameter('stiffness_learner', name, value)
-    if changes:
+    if saves:
         cell.wait_model(target)
 
 
-def _ask(cell, queries, gt, verbose: bool, shape_cov=None, relative_std: float = 0.0,
-         lateral_std: float = 0.0):
+def _ask(cell, queries, gt, verbose: bool):
     """Ask the contact service every query; return ``(summary or None, first answer)``.
 
     With ground truth the summary (:func:`summarise`) compares the answers with it; the
-    standard deviations come from :func:`~pointforce_ros.contact.uncertainty.
-    wrench_uncertainty` on the served model (the response's spread, ``shape_cov`` of
-    ``(log c, 1/L)``, ``relative_std`` and ``lateral_std``).
+    standard deviations are the service's own (``wrench_std``: the response's spread and the
+    learner's uncertainty sources, :mod:`pointforce_ros.contact.uncertainty`), zero where the
+    service gave none.
     """
     from geometry_msgs.msg import Vector3
     from pointforce_interfaces.srv import ContactWrench
 
-    model = WrenchServer().load(cell.models[-1].model_path)
     if verbose:
         print(f'[demo] {"query":16s} {"pred Fz (N)":>11s} {"90 % interval":>15s} '
               f'{"true Fz":>8s} {"|dF| (N)":>9s} {"|dT| (mN m)":>11s} {"contacts":>8s}')
@@ -243,9 +263,11 @@ def _ask(cell, queries, gt, verbose: bool, shape_cov=None, relative_std: float =
             raise RuntimeError(f'contact_wrench refused {name}: {answer.message}')
         f = np.array([answer.wrench.force.x, answer.wrench.force.y, answer.wrench.force.z])
         m = np.array([answer.wrench.torque.x, answer.wrench.torque.y, answer.wrench.torque.z])
-        spread = wrench_uncertainty(model, mesh, [pose], approach, tc, shape_cov=shape_cov,
-                                    relative_std=relative_std,
-                                    lateral_std=lateral_std).std[0]
+        s = answer.wrench_std
+        spread = (np.array([s.force.x, s.force.y, s.force.z, s.torque.x, s.torque.y,
+                            s.torque.z]) if answer.has_wrench_std else np.zeros(6))
+        if not answer.has_wrench_std and verbose:
+            print(f'[demo] {name}: {answer.message}')
         pred.append(np.concatenate([f, m]))
         std.append(spread)
         first = answer if i == 0 else first
@@ -414,10 +436,10 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
                     len(queries))
         final = c_and_l or c_only
         if final is not None:
-            _set_shape(cell, final.c, final.decay)
-        summary, sphere_answer = _ask(cell, queries, gt, verbose=True,
-                                      shape_cov=shape_cov if c_and_l is not None else None,
-                                      relative_std=rel, lateral_std=lat)
+            _set_shape(cell, final.c, final.decay, {
+                'shape_cov': shape_cov if c_and_l is not None else None,
+                'relative_std': rel, 'lateral_std': lat})
+        summary, sphere_answer = _ask(cell, queries, gt, verbose=True)
         if summary is not None:
             what = ('after: c and L from sphere and rod' if c_and_l is not None else
                     'after: c from the sphere' if c_only is not None else 'c as set')

@@ -28,7 +28,7 @@ from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.contact.identify import (DECAY_GRID, identify_shape_constant_from_probe,
                                              identify_shape_constant_from_probes,
                                              shape_fit_covariance)
-from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
+from pointforce_ros.contact.uncertainty import lateral_share, uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.serving import WrenchServer
@@ -170,8 +170,8 @@ def _calibrate(cell, spec):
             cov = shape_fit_covariance(simulator, joint, c_and_l)
             measured = np.concatenate([p[3] for p in joint])
             rel = float(c_and_l.rmse / np.sqrt(np.mean(measured ** 2)))
-            lat = _lateral_share(simulator.with_shape_constant(c_and_l.c, c_and_l.decay),
-                                 _calibration_pokes(spec, vectors=True))
+            lat = lateral_share(simulator.with_shape_constant(c_and_l.c, c_and_l.decay),
+                                _calibration_pokes(spec, vectors=True))
             decay = (f'{1e3 * c_and_l.decay:.0f} mm' if np.isfinite(c_and_l.decay)
                      else "none (the paper's g)")
             print(f'[demo] calibration push 2 ({1e3 * ROD_LENGTH:.0f} mm rod, r 10 mm, at '
@@ -184,19 +184,6 @@ def _calibrate(cell, spec):
         except PointforceError as exc:
             print(f'[demo] calibration with sphere and rod failed ({exc})')
     return c_only, c_and_l, cov, rel, lat
-
-
-def _lateral_share(simulator, pokes) -> float:
-    """RMS measured-minus-predicted force across each push over the RMS normal force."""
-    across, normal = [], []
-    for mesh, poses, approach, measured in pokes.values():
-        a = np.asarray(approach, dtype=float)
-        err = measured - simulator.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3]
-        across.append(err - np.outer(err @ a, a))
-        normal.append(measured @ a)
-    across, normal = np.concatenate(across), np.concatenate(normal)
-    # two lateral components per push: the share is per component
-    return float(np.sqrt(np.sum(across ** 2) / (2 * len(normal))) / np.sqrt(np.mean(normal ** 2)))
 
 
 def _set_shape(cell, c: float, decay: float, sources: Optional[dict] = None) -> None:

@@ -177,6 +177,32 @@ def uncertainty_sources(shape_cov=None, relative_std=0.0, lateral_std=0.0) -> di
     return out
 
 
+def lateral_share(simulator: ContactSimulator, pokes) -> float:
+    """Return the RMS measured force across each push not predicted, over the RMS normal force.
+
+    The ``lateral_std`` of a calibration: the contact model has no friction or tangential
+    stiffness, so the force across the approach it misses at the calibration pushes is the
+    share it will miss elsewhere (per component: two per push).
+
+    Args:
+        simulator: the calibrated simulator.
+        pokes: ``(mesh, poses, approach, measured_force (n, 3))`` per push, or a mapping of
+            them.
+
+    """
+    pokes = list(pokes.values()) if isinstance(pokes, Mapping) else list(pokes)
+    across, normal = [], []
+    for mesh, poses, approach, measured in pokes:
+        a = np.asarray(approach, dtype=float)
+        measured = np.asarray(measured, dtype=float)
+        err = measured - simulator.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3]
+        across.append(err - np.outer(err @ a, a))
+        normal.append(measured @ a)
+    across, normal = np.concatenate(across), np.concatenate(normal)
+    return float(np.sqrt(np.sum(across ** 2) / (2 * len(normal)))
+                 / np.sqrt(np.mean(normal ** 2)))
+
+
 def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Sequence[Pose]],
                        approach, torque_centre, *, shape_cov=None,
                        relative_std: Optional[float] = None, response: bool = True,

@@ -696,9 +696,13 @@ def pure_learning(trials: Sequence[Mapping], surface: Surface, seed: int = 0
     return out
 
 
-def _bake_depths(curves: Sequence[PokeCurve]) -> np.ndarray:
+def bake_depths(curves: Sequence[PokeCurve]) -> np.ndarray:
+    """Return the bake grid of the figures: from 2 mm before the earliest onset to 30 mm."""
     lo = min(0.0, min(c.onset_d for c in curves)) - 0.002
     return np.linspace(lo, 0.03, 121)
+
+
+_bake_depths = bake_depths
 
 
 def _simulate_ours(sim, trials) -> List[Tuple[np.ndarray, np.ndarray]]:
@@ -796,7 +800,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     evaluate = list(range(len(trials)))
     kinds = {k: [i for i in evaluate if trials[i]['kind'] == k] for k in ('line', 'cylinder')}
     rng = np.random.default_rng([int(seed), 2])
-    depths = _bake_depths(curves)
+    depths = bake_depths(curves)
     c_dent = identify_c_dent(dent) if dent is not None else 'no dent data'
     reference = pure_learning(trials, surface, seed)
     ref_pick = [i for i in evaluate if reference[i] is not None]

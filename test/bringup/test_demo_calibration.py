@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pointforce_ros.bringup import demo, plots
-from pointforce_ros.contact.uncertainty import Z90
+from pointforce_ros.contact.uncertainty import lateral_share, Z90
 from pointforce_ros.sim.objects import load_object
 
 
@@ -38,7 +38,7 @@ def test_lateral_share_is_the_unpredicted_force_across_the_push():
     pokes = {'p': (None, [None, None], [0.0, 0.0, -1.0], measured)}
     # lateral RMS per component sqrt((0.25 + 1.0) / 4) over RMS normal sqrt((16 + 64) / 2)
     expected = np.sqrt(1.25 / 4) / np.sqrt(40.0)
-    assert demo._lateral_share(Flat(), pokes) == pytest.approx(expected)
+    assert lateral_share(Flat(), pokes) == pytest.approx(expected)
 
 
 def test_summary_counts_signs_coverage_and_error():

@@ -56,6 +56,27 @@ class SimCounter:
     seconds: float = 0.0
 
 
+_SIM_CACHE: Dict = {}
+"""Simulations already run in this process, by everything that sets their outcome (the
+engine is deterministic): a repeated request is not re-simulated and not counted again."""
+
+
+def _cached_poke(mesh, material, config, xy, depth, speed, hold, counter):
+    key = (id(mesh), len(mesh.nodes), float(mesh.resolution), material, config,
+           tuple(np.round(np.asarray(xy, float), 9)), round(depth, 9), round(speed, 9),
+           round(hold, 6))
+    if key not in _SIM_CACHE:
+        if len(_SIM_CACHE) > 256:
+            _SIM_CACHE.clear()
+        started = time.monotonic()
+        with ReplicaScene(mesh, material, config) as scene:
+            _SIM_CACHE[key] = scene.poke(xy, depth, speed, hold=hold, retract=False)
+        if counter is not None:
+            counter.simulations += 1
+            counter.seconds += time.monotonic() - started
+    return _SIM_CACHE[key]
+
+
 def simulate_loading(mesh: TetMesh, material: Material, poke: MeasuredPoke,
                      config: SceneConfig, speed: float = STATIC_SPEED,
                      counter: Optional[SimCounter] = None) -> Tuple[np.ndarray, np.ndarray]:
@@ -69,15 +90,39 @@ def simulate_loading(mesh: TetMesh, material: Material, poke: MeasuredPoke,
         NotConverged: the engine went unstable.
 
     """
-    started = time.monotonic()
-    with ReplicaScene(mesh, material, config) as scene:
-        trace = scene.poke(poke.xy, float(poke.depth.max()) + 0.0015, speed, hold=0.0,
-                           retract=False)
-    if counter is not None:
-        counter.simulations += 1
-        counter.seconds += time.monotonic() - started
+    trace = _cached_poke(mesh, material, config, poke.xy, float(poke.depth.max()) + 0.0015,
+                         speed, 0.0, counter)
     moving = trace.target > 0
-    return onset_depth(trace.depth[moving], trace.force[moving]), trace.force[moving]
+    depth, force = _sim_depth(trace.depth[moving], trace.force[moving], config), \
+        trace.force[moving]
+    if config.static_degree > 0:
+        loaded = depth >= 0
+        if np.count_nonzero(loaded) > 2 * config.static_degree:
+            coef = np.polyfit(depth[loaded], force[loaded], int(config.static_degree))
+            force = np.where(loaded, np.polyval(coef, depth), force)
+    return depth, force
+
+
+def simulate_series(mesh: TetMesh, material: Material, poke: MeasuredPoke,
+                    config: SceneConfig, counter: Optional[SimCounter] = None
+                    ) -> Tuple[np.ndarray, np.ndarray]:
+    """Simulate the ramp-and-hold record of ``poke`` (``poke.series``); return ``(t, force)``.
+
+    The pusher moves at the record's speed to its deepest point (plus the collision margin:
+    the engine's contact starts about a margin early) and holds as long as the record does.
+    Time in seconds from the simulated contact onset (``config.onset``), force in newtons.
+    """
+    t_m, d_m, _ = poke.series
+    depth = float(d_m.max())
+    speed = depth / max(float(t_m[int(np.argmax(d_m >= depth - 1e-9))] - t_m[0]), 1e-9)
+    hold = float(t_m[-1] - t_m[int(np.argmax(d_m >= depth - 1e-9))])
+    margin = -config.collision_margin if config.onset == 'geometry' else \
+        config.collision_margin
+    trace = _cached_poke(mesh, material, config, poke.xy, depth + margin, speed, hold, counter)
+    moving = trace.target > 0
+    d = _sim_depth(trace.depth[moving], trace.force[moving], config)
+    t = trace.t[moving]
+    return t - t[int(np.argmax(d >= 0))], trace.force[moving]
 
 
 ONSET_FRACTION = 0.01
@@ -98,6 +143,13 @@ def onset_depth(depth: np.ndarray, force: np.ndarray) -> np.ndarray:
         return depth
     first = int(np.argmax(force > ONSET_FRACTION * peak))
     return depth - float(depth[first])
+
+
+def _sim_depth(depth: np.ndarray, force: np.ndarray, config: SceneConfig) -> np.ndarray:
+    """Return the simulated ``depth`` counted as ``config.onset`` says, metres."""
+    if config.onset == 'geometry':
+        return depth + config.collision_margin
+    return onset_depth(depth, force)
 
 
 def force_at(sim_depth: np.ndarray, sim_force: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -306,9 +358,18 @@ def calibrate_paper(mesh: TetMesh, train: Sequence[MeasuredPoke], config: SceneC
 
 
 def force_time_errors(mesh, material, pokes, config, counter=None) -> List[float]:
-    """Return the RMS force-time error (N) per poke, simulated at each poke's own speed."""
+    """Return the RMS force-time error (N) per poke, simulated at each poke's own speed.
+
+    A poke with a ramp-and-hold ``series`` is compared over the whole record (push and hold),
+    both clocks from the contact onset; otherwise over its loading curve.
+    """
     out = []
     for p in pokes:
+        if p.series is not None:
+            t_sim, f_sim = simulate_series(mesh, material, p, config, counter)
+            t_m, _, f_m = p.series
+            out.append(float(np.sqrt(np.mean((np.interp(t_m, t_sim, f_sim) - f_m) ** 2))))
+            continue
         d, f = simulate_loading(mesh, material, p, config, p.speed, counter)
         # both clocks from the contact onset (depth 0), so only the force's timing differs
         t_sim = np.arange(len(d)) * config.time_step
@@ -363,6 +424,14 @@ def evaluate(mesh, material, pokes, config, counter=None) -> List[PokeErrors]:
     """Steady-state errors of ``material`` on ``pokes``."""
     return [poke_errors(p, f) for p, f in
             zip(pokes, _predict(mesh, material, pokes, config, counter))]
+
+
+def force_time_summary(mesh, material, pokes, config, counter=None) -> Dict[str, float]:
+    """Median force-time RMS error over ``pokes``: newtons, and percent of each peak force."""
+    rms = force_time_errors(mesh, material, pokes, config, counter)
+    peaks = [float(np.max(p.series[2] if p.series is not None else p.force)) for p in pokes]
+    return {'force_time_rms_N': float(np.median(rms)),
+            'force_time_pct': 100 * float(np.median(np.array(rms) / np.maximum(peaks, 1e-9)))}
 
 
 def summary(errors: Sequence[PokeErrors]) -> Dict[str, float]:

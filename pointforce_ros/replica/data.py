@@ -31,6 +31,10 @@ class MeasuredPoke:
         depth: (M,) displacement past the contact onset, metres (``d - onset_d``).
         force: (M,) normal force, newtons.
         t: (M,) seconds since the first sample of the record.
+        series: optional ramp-and-hold record ``(t, depth, force)``, each (S,), seconds from
+            contact, metres past contact, newtons: the force against time while the pusher
+            moves at :attr:`speed` and then holds (the relaxation the damping step needs).
+            ``depth, force`` above are then the static (relaxed) curve.
 
     """
 
@@ -39,6 +43,7 @@ class MeasuredPoke:
     depth: np.ndarray
     force: np.ndarray
     t: np.ndarray
+    series: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
 
     def __post_init__(self):
         xy = as_array(self.xy, 'MeasuredPoke.xy', (2,))
@@ -47,6 +52,11 @@ class MeasuredPoke:
         t = as_array(self.t, 'MeasuredPoke.t', (len(depth),))
         for name, value in (('xy', xy), ('depth', depth), ('force', force), ('t', t)):
             object.__setattr__(self, name, value)
+        if self.series is not None:
+            st = as_array(self.series[0], 'MeasuredPoke.series t', (None,))
+            object.__setattr__(self, 'series', (
+                st, as_array(self.series[1], 'MeasuredPoke.series depth', (len(st),)),
+                as_array(self.series[2], 'MeasuredPoke.series force', (len(st),))))
 
     @property
     def speed(self) -> float:
@@ -58,7 +68,7 @@ class MeasuredPoke:
         """Return the samples past the onset (depth > 0)."""
         keep = self.depth > 0
         return MeasuredPoke(self.poke_id, self.xy, self.depth[keep], self.force[keep],
-                            self.t[keep])
+                            self.t[keep], self.series)
 
 
 @dataclass(frozen=True)
@@ -71,6 +81,8 @@ class PokeSet:
         source: where it was read from.
         held_out_ids: poke ids the source marks as held out (then :meth:`split` uses them).
         surface_normals: (P, 3) unit normals of the surface points, or None.
+        ball_radius: the object is a ball of this radius (m) on the table, compressed by a
+            flat plate (seed 002's setup), or None (a scanned object poked by the probe).
 
     """
 
@@ -79,6 +91,7 @@ class PokeSet:
     source: str
     held_out_ids: Tuple[str, ...] = ()
     surface_normals: Optional[np.ndarray] = None
+    ball_radius: Optional[float] = None
 
     def split(self, held_out: float = 0.5, seed: int = 0
               ) -> Tuple[List[MeasuredPoke], List[MeasuredPoke]]:
@@ -111,6 +124,8 @@ def _fixture(path: Path) -> PokeSet:
             data = {k: z[k] for k in z.files}
     except (OSError, ValueError) as exc:
         raise DataError(f'{path}: unreadable poke file: {exc}') from exc
+    if 'static_offsets' in data:
+        return _ball_plate(path, data)
     if 'surface_points' not in data or len(data['surface_points']) == 0:
         raise DataError(f'{path}: the pokes come without a surface (no surface_points): the '
                         'replica needs the scanned object')
@@ -187,6 +202,39 @@ def _static_pushes(pattern: str) -> PokeSet:
     return PokeSet(tuple(pokes), points, pattern, tuple(held), surface_normals=normals)
 
 
+def _ball_plate(path: Path, data: dict) -> PokeSet:
+    """Read plate-on-ball trials (``test/data/replica/make_ball_plate.py``).
+
+    Each trial becomes a poke at the ball's centre x-y whose curve is the static (relaxed)
+    force against compression and whose ``series`` is the ramp-and-hold record.
+    """
+    try:
+        off, soff = data['offsets'], data['static_offsets']
+        radius = float(data['radius'])
+        pokes, held = [], []
+        for k, (speed, role) in enumerate(zip(data['speeds'], data['role'])):
+            s, q = slice(int(off[k]), int(off[k + 1])), slice(int(soff[k]), int(soff[k + 1]))
+            depth = np.asarray(data['static_depth'][q], float)
+            poke_id = f'trial-{k}-{1e3 * float(speed):g}mm_s'
+            pokes.append(MeasuredPoke(
+                poke_id, np.zeros(2), depth, np.asarray(data['static_force'][q], float),
+                depth / float(speed),
+                (data['t'][s], data['depth'][s], data['force'][s])))
+            if str(role) == 'heldout':
+                held.append(poke_id)
+    except (KeyError, ValueError, IndexError) as exc:
+        raise DataError(f'{path}: unreadable plate-on-ball trials: {exc}') from exc
+    if not pokes:
+        raise InvalidInput(f'{path}: no pokes in the file')
+    theta = np.linspace(0, np.pi, 12)[:, None]
+    phi = np.linspace(0, 2 * np.pi, 24, endpoint=False)[None, :]
+    normals = np.stack(np.broadcast_arrays(np.sin(theta) * np.cos(phi),
+                                           np.sin(theta) * np.sin(phi), np.cos(theta)),
+                       -1).reshape(-1, 3)
+    return PokeSet(tuple(pokes), normals * radius + [0.0, 0.0, radius], str(path), tuple(held),
+                   surface_normals=normals, ball_radius=radius)
+
+
 def load_pokes(path) -> PokeSet:
     """Read measured pokes from a generated data set, a poke store or a poke fixture ``.npz``.
 
@@ -210,5 +258,6 @@ def load_pokes(path) -> PokeSet:
 def subset(pokes: Sequence[MeasuredPoke], every: int) -> List[MeasuredPoke]:
     """Return every ``every``-th sample of each poke (pokes of <= 20 samples are kept whole)."""
     return [p if len(p.depth) <= 20 else
-            MeasuredPoke(p.poke_id, p.xy, p.depth[::every], p.force[::every], p.t[::every])
+            MeasuredPoke(p.poke_id, p.xy, p.depth[::every], p.force[::every], p.t[::every],
+                         p.series)
             for p in pokes]

@@ -26,12 +26,30 @@ import time
 
 import numpy as np
 
-from pointforce_ros.replica.calibrate import evaluate, force_at, simulate_loading, summary
+from pointforce_ros.replica.calibrate import (evaluate, force_at, force_time_summary,
+                                              simulate_loading, summary)
 from pointforce_ros.replica.contour import contour_error
 from pointforce_ros.replica.data import load_pokes, subset
 from pointforce_ros.replica.mesh import heightfield_tet_mesh, read_vtk
 from pointforce_ros.replica.replica import read_description
 from pointforce_ros.replica.scene import Material, SceneConfig
+
+
+def held_out_figures(mesh, material, config, data) -> dict:
+    """Figures of a replica on the held-out trials of ``data`` (a :class:`PokeSet`).
+
+    The static force errors at the largest compression and over the curve on every held-out
+    poke, and, where the pokes carry a ramp-and-hold ``series``, the force-time error of the
+    fastest held-out one (the shortest simulation). Percent, newtons.
+    """
+    _, held = data.split()
+    out = summary(evaluate(mesh, material, held, config))
+    timed = [p for p in held if p.series is not None]
+    if timed:
+        fastest = max(timed, key=lambda p: p.speed)
+        out.update(force_time_summary(mesh, material, [fastest], config))
+        out['force_time_poke'] = fastest.poke_id
+    return out
 
 
 def main(argv=None) -> int:

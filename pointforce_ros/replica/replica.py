@@ -48,8 +48,10 @@ def write_replica(out, mesh: TetMesh, material: Material, config: SceneConfig,
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_vtk(mesh, out / 'body.vtk')
+        plate = config.plate_half_width * config.scale if config.pusher == 'plate' else 0.0
         (out / 'pusher.urdf').write_text(pusher_urdf(config.probe_radius * config.scale,
-                                                     config.tip_mass, 0.1 * config.scale))
+                                                     config.tip_mass, 0.1 * config.scale,
+                                                     plate_half_width=plate))
         desc = {'format': FORMAT, 'material': asdict(material),
                 'young_Pa': material.young, 'poisson': material.poisson,
                 'config': asdict(config), 'mesh': {'resolution_m': mesh.resolution,

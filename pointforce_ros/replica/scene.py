@@ -99,6 +99,10 @@ class Material:
         return Material(self.mu * k, self.lam * k, self.damping)
 
 
+PUSHERS = ('probe', 'plate')
+"""Pushers a scene can carry: the cell's point probe, or seed 002's flat plate."""
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """Fixed engine settings of a replica (recorded with it).
@@ -117,6 +121,20 @@ class SceneConfig:
         position_gain, velocity_gain: PyBullet position-control gains of the pusher.
         max_force: motor force limit, engine newtons.
         face_contact: PyBullet ``useFaceContact``.
+        pusher: ``'probe'`` (the cell's point probe, :func:`probe_obj`) or ``'plate'`` (a
+            flat square plate: seed 002's compression of a ball, distributed contact).
+        plate_half_width: half the plate's side, metres (``'plate'`` only).
+        track_gain: integral correction of the joint target, per step, as a fraction of the
+            tracking error (the measured position then follows the path; with 0 the motor
+            alone stops ~2 mm short under a plate's load).
+        force_window: centred moving average of the motor force, seconds (0: raw), as an F/T
+            sensor's low-pass: under a plate the raw motor force jitters by ~4 % step to step.
+        static_degree: degree of the polynomial in depth the static loading curve is read
+            through (least squares over the loaded samples; 0: the samples themselves). Under
+            a plate the body rings on the contact (~15 Hz, +-5 % even after ``force_window``).
+        onset: where a simulated depth counts from: ``'force'`` (where the force first
+            exceeds 1 % of its peak, as a fitted onset of measured pokes) or ``'geometry'``
+            (the undeformed top, less the collision margin: truth counted from contact).
 
     """
 
@@ -133,6 +151,12 @@ class SceneConfig:
     velocity_gain: float = 1.0
     max_force: float = 1.0e4
     face_contact: bool = True
+    pusher: str = 'probe'
+    plate_half_width: float = 0.075
+    track_gain: float = 0.0
+    force_window: float = 0.0
+    static_degree: int = 0
+    onset: str = 'force'
 
     def __post_init__(self):
         for name in ('scale', 'time_step', 'probe_radius', 'density', 'tip_mass', 'max_force'):
@@ -141,6 +165,12 @@ class SceneConfig:
                 raise InvalidInput(f'SceneConfig.{name}: must be > 0, got {value}')
         if int(self.solver_iterations) < 1:
             raise InvalidInput('SceneConfig.solver_iterations: must be >= 1')
+        if self.pusher not in PUSHERS:
+            raise InvalidInput(f'SceneConfig.pusher: {self.pusher!r} is not one of {PUSHERS}')
+        if self.onset not in ('force', 'geometry'):
+            raise InvalidInput(f"SceneConfig.onset: {self.onset!r} is not 'force' or 'geometry'")
+        if not (np.isfinite(self.plate_half_width) and self.plate_half_width > 0):
+            raise InvalidInput('SceneConfig.plate_half_width: must be > 0')
 
 
 def probe_obj(radius: float, half_angle_deg: float, length: float, segments: int = 24) -> str:
@@ -176,14 +206,20 @@ def probe_obj(radius: float, half_angle_deg: float, length: float, segments: int
 
 
 def pusher_urdf(probe_radius: float, tip_mass: float, travel: float,
-                mesh_file: Optional[str] = None) -> str:
+                mesh_file: Optional[str] = None, plate_half_width: float = 0.0) -> str:
     """URDF text of the pusher: fixed ``base``, prismatic ``push`` joint along +z, probe tip.
 
     Lengths in engine units. The joint's +z is the push direction once the base is oriented.
-    The tip's collision is ``mesh_file`` (a :func:`probe_obj`, leading point at the link
-    origin) or, without one, a sphere whose leading point is at the link origin.
+    The tip's collision is a square plate of half side ``plate_half_width`` (when > 0; its
+    pressing face at the link origin, ``probe_radius`` thick behind it), else ``mesh_file``
+    (a :func:`probe_obj`, leading point at the link origin) or, without one, a sphere whose
+    leading point is at the link origin.
     """
-    if mesh_file:
+    if plate_half_width > 0:
+        w, t = plate_half_width, probe_radius
+        geometry = (f'<origin xyz="0 0 {-t:.9g}"/>'
+                    f'<geometry><box size="{2 * w:.9g} {2 * w:.9g} {2 * t:.9g}"/></geometry>')
+    elif mesh_file:
         geometry = f'<origin xyz="0 0 0"/><geometry><mesh filename="{mesh_file}"/></geometry>'
     else:
         geometry = (f'<origin xyz="0 0 {-probe_radius:.9g}"/>'
@@ -322,12 +358,13 @@ class ReplicaScene:
             self._tmp = tempfile.TemporaryDirectory(prefix='replica-')
         path = Path(self._tmp.name) / 'pusher.urdf'
         mesh_file = None
-        if cfg.probe_half_angle > 0:
+        plate = cfg.plate_half_width * s if cfg.pusher == 'plate' else 0.0
+        if cfg.probe_half_angle > 0 and not plate:
             mesh_file = str(Path(self._tmp.name) / 'probe.obj')
             Path(mesh_file).write_text(probe_obj(cfg.probe_radius * s, cfg.probe_half_angle,
                                                  0.03 * s))
         path.write_text(pusher_urdf(cfg.probe_radius * s, cfg.tip_mass, travel * s,
-                                    mesh_file))
+                                    mesh_file, plate))
         base = start * s
         self.pusher_id = pb.loadURDF(str(path), basePosition=base.tolist(),
                                      baseOrientation=_quat_z_to(direction), useFixedBase=True,
@@ -359,13 +396,16 @@ class ReplicaScene:
         cfg, s, c = self.config, self.config.scale, self.client
         pos = np.empty(len(target_path))
         force = np.empty(len(target_path))
+        offset = 0.0
         for k, target in enumerate(target_path):
             pb.setJointMotorControl2(self.pusher_id, 0, pb.POSITION_CONTROL,
-                                     targetPosition=float(target) * s, force=cfg.max_force,
+                                     targetPosition=(float(target) + offset) * s,
+                                     force=cfg.max_force,
                                      positionGain=cfg.position_gain,
                                      velocityGain=cfg.velocity_gain, physicsClientId=c)
             pb.stepSimulation(physicsClientId=c)
             pos[k], force[k] = self.joint_force()
+            offset += cfg.track_gain * (float(target) - pos[k])
             if not (np.isfinite(pos[k]) and np.isfinite(force[k])):
                 raise NotConverged(f'PyBullet state became non-finite at step {k} '
                                    f'(material mu={self.material.mu:.4g} Pa, '
@@ -423,6 +463,11 @@ class ReplicaScene:
         target = np.concatenate([np.zeros(n_tare), push, np.full(n_hold, travel), back])
         pos, force = self.drive(target)
         force = force - np.median(force[:n_tare])
+        width = int(round(self.config.force_window / dt))
+        if width > 1:
+            kernel = np.ones(width)
+            force = (np.convolve(force, kernel, mode='same')
+                     / np.convolve(np.ones_like(force), kernel, mode='same'))
         t = np.arange(len(target)) * dt
         return PokeTrace(t=t, depth=pos - standoff, force=force, target=target - standoff)
 

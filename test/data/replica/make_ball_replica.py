@@ -1,0 +1,43 @@
+"""Write the coarse plate-on-ball replica the tests reload (``ball_replica/``).
+
+The material is the one ``pointforce replica`` calibrated on ``ball_plate.npz`` (read from
+``ball.replica.json`` beside this script, the full run's record); the body is re-meshed at
+15 mm so that a test simulates it in seconds. The figures written with it are its held-out
+errors on ``ball_plate.npz``: the static force error at the largest compression and over the
+curve (one static simulation serves every held-out trial: they share the ball and the depth),
+and the force-time error of the fastest held-out trial. Regenerate (about a minute)::
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 .venv/bin/python test/data/replica/make_ball_replica.py
+"""
+
+import json
+from pathlib import Path
+import sys
+
+from pointforce_ros.replica.build import PLATE_CONFIG
+from pointforce_ros.replica.data import load_pokes
+from pointforce_ros.replica.evaluate import held_out_figures
+from pointforce_ros.replica.mesh import ball_tet_mesh
+from pointforce_ros.replica.replica import write_replica
+from pointforce_ros.replica.scene import Material
+
+HERE = Path(__file__).resolve().parent
+H_COARSE = 0.015
+"""Mesh edge length of the test replica, m."""
+
+
+def main() -> int:
+    """Write ``ball_replica/`` from ``ball.replica.json``."""
+    desc = json.loads((HERE / 'ball.replica.json').read_text())
+    material = Material(**desc['material'])
+    data = load_pokes(HERE / 'ball_plate.npz')
+    mesh = ball_tet_mesh(data.ball_radius, H_COARSE)
+    figs = held_out_figures(mesh, material, PLATE_CONFIG, data)
+    figs['data'] = 'test/data/replica/ball_plate.npz'
+    write_replica(HERE / 'ball_replica', mesh, material, PLATE_CONFIG, figures=figs)
+    print(json.dumps(figs, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

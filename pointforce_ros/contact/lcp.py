@@ -23,7 +23,9 @@ Solvers:
   NNLS variant of Kim & Park 2011) with Murty's single-pivot backup rule, which makes it finite
   for any P-matrix. It starts from the paper's guess (every candidate touching), exchanges all
   infeasible indices at once, and typically ends in 2-4 dense solves. Many problems of
-  different sizes are solved together as one padded stack.
+  different sizes are solved together as one padded stack. Given the candidate points
+  (:class:`PointShapeStack`) instead of the matrices, it builds only the columns of ``G`` that
+  each round's free sets need.
 * :func:`solve_lcp_paper`: the paper's scheme as written. It only ever removes points, so it
   cannot cycle; it always stops within ``m`` solves, but a point removed early is never put
   back, so the answer can violate ``w >= 0`` (the rigid body penetrates the displaced surface):
@@ -62,6 +64,15 @@ def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray
     return g
 
 
+def _shape_in_place(r2: np.ndarray, c: float, decay: float) -> np.ndarray:
+    """Return :func:`shape_function` of ``sqrt(r2)``, overwriting ``r2`` (squared distances)."""
+    r = np.sqrt(r2, out=r2)
+    if np.isfinite(decay):
+        return shape_function(r, c, decay)
+    r += c
+    return np.divide(c, r, out=r)   # c / (c + r), as shape_function rounds it
+
+
 def check_decay(value, name: str = 'decay') -> float:
     """Return ``value`` as a decay length of :func:`shape_function`: metres > 0, or ``inf``.
 
@@ -83,6 +94,68 @@ def shape_matrix(points: np.ndarray, c: float, decay: float = np.inf) -> np.ndar
     points = np.asarray(points, dtype=np.float64)
     diff = points[:, None, :] - points[None, :, :]
     return shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), c, decay)
+
+
+class PointShapeStack:
+    """The stack ``G_bij = g(|q_bi - q_bj|)`` (B, m, m) of candidate points, built by columns.
+
+    :func:`solve_lcp_batch` given one builds, in each pivoting round, only the columns of the
+    free sets: after the warm start about half the candidates, then the touching ones (a fifth
+    on sphere queries), instead of every problem's whole matrix once and sub-matrices gathered
+    from it every round. The free points are put first, so ``G[F, F]`` is a slice of the
+    columns. Squared distances ``|q_i|^2 + |q_j|^2 - 2 q_i . q_j`` come from one small matrix
+    product per problem, ``[q_i, |q_i|^2, 1] . [-2 q_j, 1, |q_j|^2]``, exactly zero on the
+    diagonal.
+
+    Args:
+        points: (B, m, 3) candidate points, metres; centre each problem's points (the Gram
+            identity cancels digits far from the origin). Padding rows may hold anything
+            finite.
+        c: shape-function constant, metres (> 0).
+        decay: decay length of the shape function, metres (> 0 or ``inf``).
+
+    """
+
+    def __init__(self, points: np.ndarray, c: float, decay: float = np.inf):
+        points = np.asarray(points, dtype=np.float64)
+        B, m = points.shape[:2]
+        self.points = points
+        self.c = float(c)
+        self.decay = float(decay)
+        sq = np.einsum('bij,bij->bi', points, points)
+        self._left = np.empty((B, m, 5))     # [q, |q|^2, 1]
+        self._left[..., :3] = points
+        self._left[..., 3] = sq
+        self._left[..., 4] = 1.0
+        self._right = np.empty((B, m, 5))    # [-2 q, 1, |q|^2]
+        np.multiply(points, -2.0, out=self._right[..., :3])
+        self._right[..., 3] = 1.0
+        self._right[..., 4] = sq
+
+    @property
+    def shape(self) -> Tuple[int, int, int]:
+        """``(B, m, m)``."""
+        B, m = self.points.shape[:2]
+        return B, m, m
+
+    def columns(self, problems: np.ndarray, order: np.ndarray, k: int) -> np.ndarray:
+        """(n, m, k) ``G[problems]`` with rows in ``order`` (n, m) and columns ``order[:, :k]``.
+
+        Entry ``[b, i, j]`` is ``g(|q_pi - q_pj|)``, ``p = problems[b]``, ``pi = order[b, i]``,
+        ``pj = order[b, j]``.
+        """
+        left = self._left[problems[:, None], order]
+        right = self._right[problems[:, None], order[:, :k]]
+        r2 = np.matmul(left, right.transpose(0, 2, 1))
+        diag = np.arange(k)
+        r2[:, diag, diag] = 0.0   # exact: rounding there would put 1 - 3e-8 on the diagonal
+        np.maximum(r2, 0.0, out=r2)
+        return _shape_in_place(r2, self.c, self.decay)
+
+    def dense(self) -> np.ndarray:
+        """Return the whole stack (B, m, m)."""
+        B, m = self.points.shape[:2]
+        return self.columns(np.arange(B), np.broadcast_to(np.arange(m), (B, m)), m)
 
 
 @dataclass(frozen=True)
@@ -167,19 +240,24 @@ def _solve_free(G: np.ndarray, d: np.ndarray, F: np.ndarray, eye: np.ndarray) ->
     return x
 
 
-def solve_lcp_batch(G: np.ndarray, d: np.ndarray, valid: Optional[np.ndarray] = None,
+def solve_lcp_batch(G, d: np.ndarray, valid: Optional[np.ndarray] = None,
                     free: Optional[np.ndarray] = None, max_iter: int = 200,
-                    tol: float = 1e-12) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    tol: float = 1e-12, product: Optional[np.ndarray] = None
+                    ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve a stack of LCPs ``0 <= G_b x_b - d_b _|_ x_b >= 0`` by block principal pivoting.
 
     Args:
-        G: (B, m, m) symmetric positive definite matrices (entries of padding ignored).
+        G: (B, m, m) symmetric positive definite matrices (entries of padding ignored), or a
+            :class:`PointShapeStack` of the candidate points (only the columns each round
+            needs are built; the same pivoting, the same solutions to round-off).
         d: (B, m) nominal displacements (any length unit).
         valid: (B, m) bool, ``False`` marks padding (its ``x`` is 0); default all valid.
         free: (B, m) bool initial guess of the touching set (warm start); default ``valid``
             (the paper's guess: every candidate touches).
         max_iter: most pivoting rounds.
         tol: relative feasibility tolerance (times ``max |d_b|``).
+        product: optional (B, m) float array that receives ``G_b x_b`` (the surface
+            displacement at every candidate; padding entries undefined).
 
     Returns:
         ``(x, residual, iterations)``: (B, m) actual displacements (0 on padding), (B,)
@@ -190,7 +268,6 @@ def solve_lcp_batch(G: np.ndarray, d: np.ndarray, valid: Optional[np.ndarray] = 
             a positive definite ``G`` short of round-off; the message gives the residual).
 
     """
-    G = np.asarray(G, dtype=np.float64)
     d = np.asarray(d, dtype=np.float64)
     B, m = d.shape
     valid = np.ones((B, m), dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
@@ -199,6 +276,9 @@ def solve_lcp_batch(G: np.ndarray, d: np.ndarray, valid: Optional[np.ndarray] = 
     iterations = np.zeros(B, dtype=np.int64)
     if B == 0 or m == 0:
         return x, np.zeros(B), iterations
+    if isinstance(G, PointShapeStack):
+        return _solve_points(G, d, valid, F, max_iter, tol, product)
+    G = np.asarray(G, dtype=np.float64)
     eye = np.eye(m, dtype=bool)
     pair = valid[:, :, None] & valid[:, None, :]
     Gv = np.where(pair, G, 0.0)
@@ -220,39 +300,124 @@ def solve_lcp_batch(G: np.ndarray, d: np.ndarray, valid: Optional[np.ndarray] = 
         wt = (Gt @ xt[:, :, None])[:, :, 0] - dt
         e = eps[todo, None]
         bad = vt & ((Ft & (xt < -e)) | (~Ft & (wt < -e)))
-        n_bad = bad.sum(axis=1)
         x[todo] = np.where(Ft, xt, 0.0)
-        done = n_bad == 0
+        done = ~bad.any(axis=1)
         if np.all(done):
             todo = todo[:0]
             break
         keep = ~done
-        idx, bad, n_bad = todo[keep], bad[keep], n_bad[keep]
-        better = n_bad < best[idx]
-        best[idx] = np.where(better, n_bad, best[idx])
-        chances[idx] = np.where(better, 3, chances[idx] - (~better))
-        full = better | (chances[idx] >= 0)
-        flip = bad.copy()
-        # Murty's backup: out of chances, exchange only the largest infeasible index.
-        single = np.flatnonzero(~full)
-        if len(single):
-            last = m - 1 - np.argmax(bad[single][:, ::-1], axis=1)
-            flip[single] = False
-            flip[single, last] = True
-        F[idx] ^= flip
+        idx = todo[keep]
+        _pivot(F, idx, bad[keep], best, chances)
         todo = idx
     if len(todo):
-        worst = max(_residuals(Gv[todo], d[todo], x[todo], valid[todo]))
+        w = (Gv[todo] @ x[todo][:, :, None])[:, :, 0] - d[todo]
+        worst = max(_residuals(w, x[todo], valid[todo]))
         raise NotConverged(f'LCP: {len(todo)} problem(s) still infeasible after {max_iter} '
                            f'pivoting rounds (residual {worst:.3g})')
     x = np.maximum(x, 0.0)
-    return x, _residuals(Gv, d, x, valid), iterations
+    u = (Gv @ x[:, :, None])[:, :, 0]
+    if product is not None:
+        product[...] = u
+    return x, _residuals(u - d, x, valid), iterations
 
 
-def _residuals(Gv, d, x, valid) -> np.ndarray:
-    w = (Gv @ x[:, :, None])[:, :, 0] - d
+def _residuals(w, x, valid) -> np.ndarray:
+    """(B,) ``max |min(x, w)|`` over the valid entries of each row."""
     r = np.where(valid, np.abs(np.minimum(x, w)), 0.0)
     return r.max(axis=1) if r.shape[1] else np.zeros(len(r))
+
+
+def _pivot(F, idx, bad, best, chances) -> None:
+    """Exchange the infeasible indices ``bad`` (n, m) of problems ``idx`` in ``F``, in place.
+
+    Block exchange while the count of infeasible indices falls (or within three chances);
+    then Murty's backup: exchange only the largest infeasible index.
+    """
+    n_bad = bad.sum(axis=1)
+    better = n_bad < best[idx]
+    best[idx] = np.where(better, n_bad, best[idx])
+    chances[idx] = np.where(better, 3, chances[idx] - (~better))
+    full = better | (chances[idx] >= 0)
+    flip = bad.copy()
+    single = np.flatnonzero(~full)
+    if len(single):
+        last = bad.shape[1] - 1 - np.argmax(bad[single][:, ::-1], axis=1)
+        flip[single] = False
+        flip[single, last] = True
+    F[idx] ^= flip
+
+
+def _solve_points(G: PointShapeStack, d: np.ndarray, valid: np.ndarray, F: np.ndarray,
+                  max_iter: int, tol: float, product: Optional[np.ndarray]
+                  ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`solve_lcp_batch` on a :class:`PointShapeStack` (``F`` is the warm start).
+
+    Each round sorts every problem's candidates free first (index order kept within both
+    parts), builds the columns of its ``k`` (largest free count) first points, solves the
+    leading ``k x k`` block (identity rows for the padding of problems with fewer free
+    indices) and takes ``w = G x - d`` from the same columns.
+    """
+    B, m = d.shape
+    x = np.zeros((B, m))
+    u = np.zeros((B, m))
+    iterations = np.zeros(B, dtype=np.int64)
+    eps = tol * np.maximum(np.abs(np.where(valid, d, 0.0)).max(axis=1), 1e-300)
+    best = np.full(B, m + 1)
+    chances = np.full(B, 3)
+    eye = np.eye(m, dtype=bool)
+    todo = np.flatnonzero(valid.any(axis=1))
+    for _ in range(max_iter):
+        if len(todo) == 0:
+            break
+        n = len(todo)
+        Ft = F[todo]
+        k = max(int(Ft.sum(axis=1).max()), 1)
+        perm = np.argsort(~Ft, axis=1, kind='stable')        # free indices first
+        rows = np.arange(n)[:, None]
+        dp = d[todo[:, None], perm]
+        Fk = Ft[rows, perm[:, :k]]
+        cols = G.columns(todo, perm, k)                      # (n, m, k)
+        A = cols[:, :k]
+        if not Fk.all():
+            A = np.where(Fk[:, :, None] & Fk[:, None, :], A, eye[:k, :k])
+        y = _batched_solve(A, np.where(Fk, dp[:, :k], 0.0))[0]
+        y[~Fk] = 0.0
+        up = (cols @ y[:, :, None])[:, :, 0]
+        iterations[todo] += 1
+        xp = np.zeros((n, m))
+        xp[:, :k] = y
+        e = eps[todo, None]
+        bad_p = np.zeros((n, m), dtype=bool)
+        bad_p[:, :k] = Fk & (y < -e)
+        bad_p[:, k:] = (up[:, k:] - dp[:, k:]) < -e   # not free (free ones all lie in :k)
+        bad_p[:, :k] |= ~Fk & (up[:, :k] - dp[:, :k] < -e)
+        bad = np.empty_like(bad_p)
+        bad[rows, perm] = bad_p
+        bad &= valid[todo]
+        x[todo[:, None], perm] = xp
+        done = ~bad.any(axis=1)
+        if np.any(done):
+            fin = np.flatnonzero(done)
+            yc = np.maximum(y[fin], 0.0)
+            uf = up[fin] if np.all(yc == y[fin]) else (cols[fin] @ yc[:, :, None])[:, :, 0]
+            u[todo[fin][:, None], perm[fin]] = uf
+        if np.all(done):
+            todo = todo[:0]
+            break
+        keep = ~done
+        idx = todo[keep]
+        _pivot(F, idx, bad[keep], best, chances)
+        todo = idx
+    if len(todo):
+        dense = PointShapeStack(G.points[todo], G.c, G.decay).dense()
+        w = (dense @ x[todo][:, :, None])[:, :, 0] - d[todo]
+        worst = max(_residuals(w, x[todo], valid[todo]))
+        raise NotConverged(f'LCP: {len(todo)} problem(s) still infeasible after {max_iter} '
+                           f'pivoting rounds (residual {worst:.3g})')
+    x = np.maximum(x, 0.0)
+    if product is not None:
+        product[...] = u
+    return x, _residuals(u - d, x, valid), iterations
 
 
 def bpp_dense(G: np.ndarray, d: np.ndarray, free: Optional[np.ndarray] = None,

@@ -27,8 +27,10 @@ the real ``ur_rtde``, and the bench is a DDS client in this process.
 4. **Memory**: peak RSS (VmHWM) of every contact service process.
 
 "Seconds until it answers" counts from the restart (the process spawn, so it includes the Python
-and rclpy start-up and DDS discovery) to the first successful round trip; ``seconds_until_serving``
-from the spawn until the node logs that it serves (model loaded, services created).
+and rclpy start-up and DDS discovery) to the first successful round trip (the waiting client
+sends a request every 50 ms and keeps the earlier ones pending: :meth:`Bench.wait_answer`);
+``seconds_until_serving`` from the spawn until the node logs that it serves (model loaded,
+services created).
 
 ``--quick`` runs fewer requests and goals and leaves out the whole-cell SIGTERM.
 """
@@ -36,6 +38,7 @@ from the spawn until the node logs that it serves (model loaded, services create
 import itertools
 import json
 import os
+import queue
 import re
 import signal
 import subprocess
@@ -73,6 +76,8 @@ from pointforce_ros.types import Mesh, PokeGoal, Pose, Surface
 
 HANG_S = 5.0
 """An answer slower than this is a hang."""
+RETRY_S = 0.05
+"""Seconds between the requests of a client waiting for a (re)started service."""
 ABSURD = 1e3
 """N and N m: the sphere on the 60 mm test patch gives a few newtons."""
 HUGE = [float('nan'), float('inf'), -float('inf'), 1e9, -1e9, 1e20, 1e300, -1e308]
@@ -341,20 +346,39 @@ class Bench:
         return (self.node.create_client(ContactWrench, f'{base}/contact_wrench'),
                 self.node.create_client(ContactWrenchBatch, f'{base}/contact_wrench_batch'))
 
-    def wait_answer(self, client, request, started: float, timeout: float = 60.0):
-        """Call until a successful answer.
+    def wait_answer(self, client, request, started: float, timeout: float = 60.0,
+                    retry: float = RETRY_S):
+        """Call until a successful answer; return ``(seconds since started, response)``.
 
-        Each call waits 0.5 s at most (a request sent while the restarted server is not yet
-        matched is lost). Returns ``(seconds since started, response)``; NaN and ``None`` when
-        no answer came within ``timeout``.
+        A request sent before the restarted server is matched, or to the killed one (discovery
+        lists it for a while), is never answered; so a new request goes out every ``retry``
+        seconds while the earlier ones stay pending, and the first successful answer to any of
+        them counts, stamped when it arrives. The time is the service's to within ``retry``,
+        not a multiple of a per-call time-out (0.5 s per lost request before). NaN and
+        ``None`` when no answer came within ``timeout``.
         """
+        answers = queue.SimpleQueue()
+        pending = []
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if client.service_is_ready():
-                _, response = self.call(client, request, 0.5)
-                if response is not None and response.success:
-                    return time.monotonic() - started, response
-            time.sleep(0.005)
+        try:
+            while time.monotonic() < deadline:
+                if client.service_is_ready():
+                    future = client.call_async(request)
+                    future.add_done_callback(lambda f: answers.put((time.monotonic(), f)))
+                    pending.append(future)
+                until = min(time.monotonic() + retry, deadline)
+                while (left := until - time.monotonic()) > 0:
+                    try:
+                        stamp, future = answers.get(timeout=left)
+                    except queue.Empty:
+                        break
+                    response = future.result()
+                    if response is not None and response.success:
+                        return stamp - started, response
+        finally:
+            for future in pending:
+                if not future.done():
+                    client.remove_pending_request(future)
         return float('nan'), None
 
 

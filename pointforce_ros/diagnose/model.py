@@ -38,11 +38,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pointforce_ros.diagnose.batch import PokeBatch, velocity
-from pointforce_ros.effects.library import (BASE_PARAMS, derived_values, hereditary,
-                                            hysteresis_branch, hysteresis_factor,
-                                            friction_direction, LIBRARY, ParamSpec,
-                                            PLASTIC_RADIUS, plastic_depth, prony_terms,
-                                            STICK_VELOCITY)
+from pointforce_ros.effects.library import (BASE_PARAMS, derived_values, hysteresis_branch,
+                                            hysteresis_factor, friction_direction, LIBRARY,
+                                            ParamSpec, PLASTIC_RADIUS, plastic_depth,
+                                            prony_terms, STICK_VELOCITY)
+from pointforce_ros.effects.relaxation import hereditary
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.response.common import single_threaded_blas
 

@@ -44,7 +44,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 from scipy.stats import wilcoxon
 
-from pointforce_ros.effects.correct import effects_from_dict
+from pointforce_ros.effects.accepted import effects_from_dict
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.model.fit import fit_contact_model
 from pointforce_ros.model.serving import WrenchServer

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.effects.correct import effects_to_dict
+from pointforce_ros.effects.accepted import effects_to_dict
 from pointforce_ros.effects.library import spec
 
 PHASE_COLOURS = {'d<0': '#999999', 'loading': '#1f77b4', 'hold': '#2ca02c',

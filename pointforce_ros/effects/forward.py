@@ -32,7 +32,7 @@ from typing import Callable, Mapping, Tuple
 
 import numpy as np
 
-from pointforce_ros.effects.correct import correct_surface, effects_from_dict
+from pointforce_ros.effects.accepted import correct_surface, effects_from_dict
 from pointforce_ros.effects.library import prony_terms
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import Surface

@@ -28,7 +28,8 @@ from scipy.spatial import cKDTree
 
 from pointforce_ros.contact.lcp import check_decay
 from pointforce_ros.contact.uncertainty import uncertainty_sources
-from pointforce_ros.effects.correct import correct_record, correct_surface, effects_from_dict
+from pointforce_ros.effects.accepted import correct_surface, effects_from_dict
+from pointforce_ros.effects.correct import correct_record
 from pointforce_ros.effects.library import count_earlier, PLASTIC_RADIUS
 from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
 from pointforce_ros.model.files import ContactModel, model_path, save_model

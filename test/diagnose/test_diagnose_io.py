@@ -12,9 +12,9 @@ from pointforce_ros.sim import disturbances as ce
 from pointforce_ros.sim.scenario import HalfSpaceContact, Scenario
 from pointforce_ros.sim.session import simulate_campaign, simulate_poke
 from pointforce_ros.diagnose import diagnose, run_diagnose
-from pointforce_ros.effects import (apply_series_compliance, correct_curve, correct_records,
-                                    correct_surface, effects_from_dict, effects_to_dict,
-                                    predict_measured, relaxed_fraction)
+from pointforce_ros.effects.accepted import correct_surface, effects_from_dict, effects_to_dict
+from pointforce_ros.effects.correct import (apply_series_compliance, correct_curve,
+                                            correct_records, predict_measured, relaxed_fraction)
 from pointforce_ros.pokes.table import load_pokes, read_poke_table, write_poke_table
 from pointforce_ros.diagnose.batch import make_batch
 from pointforce_ros.diagnose.model import fit_global

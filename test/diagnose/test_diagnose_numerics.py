@@ -15,8 +15,8 @@ import pytest
 
 from pointforce_ros.diagnose.batch import make_batch, time_order
 from pointforce_ros.diagnose.model import carried_links, fit_global, forward, Layout
-from pointforce_ros.effects.library import (hereditary, LIBRARY, prony_filter, prony_inverse,
-                                            PRONY_TAUS)
+from pointforce_ros.effects.library import LIBRARY, PRONY_TAUS
+from pointforce_ros.effects.relaxation import hereditary, prony_filter, prony_inverse
 from pointforce_ros.lab import effect_generator as eg
 
 TEN_X = {

@@ -149,7 +149,7 @@ def test_compliance_correction_of_a_baked_table_is_the_series_spring():
 
 def test_effects_accepted_on_probe_trials_are_written_for_the_learner():
     # spatial_coupling's c goes into effects.json; the service says who applies it
-    from pointforce_ros.effects.correct import effects_from_dict, effects_to_dict
+    from pointforce_ros.effects.accepted import effects_from_dict, effects_to_dict
     from pointforce_ros.diagnose.run import _probe_accepted
     from pointforce_ros.effects.forward import ForwardTerms
     from pointforce_ros.diagnose.probes import CouplingResult, ProbeScore

@@ -246,7 +246,7 @@ def _heldout_rmse(model, records):
 
 def test_effects_file_corrects_the_pokes_and_lowers_the_heldout_error(ros_graph, tmp_path):
     import json
-    from pointforce_ros.effects import effects_to_dict
+    from pointforce_ros.effects.accepted import effects_to_dict
     results = {}
     for name, effects in (('plain', None), ('effects', PLASTIC), ('broken', 'broken')):
         folder = tmp_path / name

@@ -476,40 +476,49 @@ class ContactSimulator:
         frame = np.column_stack([a, proj.basis])
         to_frame = rot.transpose(0, 2, 1) @ frame           # (B, 3, 3) mesh -> (a, e1, e2)
         offset = pos @ frame                                  # (B, 3)
-        height = np.matmul(to_frame[:, :, 0], local.T) + offset[:, :1]   # (B, R)
-        b_idx, r_idx = np.nonzero(height > proj.floor)
+        # heights less the pose's offset (B, R), against the floor less it: one pass fewer
+        # over B x R than adding the offset (a test that rounds differently only for samples
+        # within round-off of the floor, which lies 1e-9 m below any penetration)
+        rise = np.matmul(to_frame[:, :, 0], local.T)
+        b_idx, r_idx = np.nonzero(rise > (proj.floor - offset[:, 0])[:, None])
         if len(b_idx) == 0:
             return empty
-        uv = np.einsum('kj,kji->ki', local[r_idx], to_frame[b_idx, :, 1:]) + offset[b_idx, 1:]
+        # in-plane (0:2) and base (2:5) coordinates of the samples, one product per sample
+        maps = np.concatenate([to_frame[:, :, 1:], rot.transpose(0, 2, 1)], axis=2)
+        posed = np.einsum('kj,kji->ki', local[r_idx], maps[b_idx])
+        uv = posed[:, :2] + offset[b_idx, 1:]
         cij = np.floor((uv - proj.origin) / proj.cell).astype(np.int64)
         np.clip(cij, 0, proj.last, out=cij)  # outside the grid: its border of +inf
-        near = height[b_idx, r_idx] > proj.bound[cij[:, 0], cij[:, 1]]
-        b_idx, r_idx, uv = b_idx[near], r_idx[near], uv[near]
+        near = rise[b_idx, r_idx] + offset[b_idx, 0] > proj.bound[cij[:, 0], cij[:, 1]]
+        b_idx, uv, posed = b_idx[near], uv[near], posed[near]
         if len(b_idx) == 0:
             return empty
         # 2. Three nearest surface points in the projection plane (eq. 1).
         dist, nn = proj.tree.query(uv, k=3, workers=self.workers)
         over = dist[:, 2] <= proj.max_gap
         nbr = proj.index[nn[over]]
-        b_idx, r_idx = b_idx[over], r_idx[over]
-        p = np.einsum('kj,kij->ki', local[r_idx], rot[b_idx]) + pos[b_idx]
-        # sums over the 3 neighbours: normal (0:3), n . x (3), onset (4), position (5:8)
-        sums = self._table[nbr].sum(axis=1)
-        nsum = sums[:, :3]
-        d = (sums[:, 3] - np.einsum('ki,ki->k', p, nsum)) / 3.0
+        b_idx = b_idx[over]
+        p = posed[over, 2:] + pos[b_idx]
+        # sums over the 3 neighbours: normal (0:3), n . x (3), onset (4), position (5:8), in
+        # the order sum(axis=1) takes (row gathers: 10x faster than one (K, 3, 8) gather)
+        cols = np.ascontiguousarray(nbr.T)
+        sums = np.take(self._table, cols[0], axis=0)
+        sums += np.take(self._table, cols[1], axis=0)
+        sums += np.take(self._table, cols[2], axis=0)
+        d = (sums[:, 3] - np.einsum('ki,ki->k', p, sums[:, :3])) / 3.0
         e = d - sums[:, 4] / 3.0       # penetration past the response's onset (their mean)
-        keep = e > 0.0
-        b_idx, p, nbr, sums, d, e = b_idx[keep], p[keep], nbr[keep], sums[keep], d[keep], e[keep]
-        if len(d) == 0:
+        # 3. Front-most (deepest) sample per surface location, then per neighbour triple;
+        # the selections are composed on indices and applied to the arrays once.
+        idx = np.flatnonzero(e > 0.0)
+        if len(idx) == 0:
             return empty
-        # 3. Front-most (deepest) sample per surface location, then per neighbour triple.
-        sel = _deepest_per_key(b_idx * len(self._points) + nbr[:, 0], e)
+        sel = _deepest_per_key(b_idx[idx] * len(self._points) + nbr[idx, 0], e[idx])
         if sel is not None:
-            b_idx, p, nbr, sums, d, e = b_idx[sel], p[sel], nbr[sel], sums[sel], d[sel], e[sel]
-        tri = np.sort(nbr, axis=1)
-        sel = _deepest_per_triple(b_idx, tri, e)
+            idx = idx[sel]
+        sel = _deepest_per_triple(b_idx[idx], _sorted_triples(nbr[idx]), e[idx])
         if sel is not None:
-            b_idx, p, nbr, sums, d, e = b_idx[sel], p[sel], nbr[sel], sums[sel], d[sel], e[sel]
+            idx = idx[sel]
+        b_idx, p, nbr, sums, d, e = b_idx[idx], p[idx], nbr[idx], sums[idx], d[idx], e[idx]
         q = sums[:, 5:] / 3.0
         nsum = sums[:, :3]
         nq = nsum / np.linalg.norm(nsum, axis=1, keepdims=True)
@@ -660,6 +669,14 @@ def _deepest_per_key(key: np.ndarray, d: np.ndarray) -> Optional[np.ndarray]:
     first = np.ones(len(hit), dtype=bool)
     first[1:] = run[hit[1:]] != run[hit[:-1]]
     return order[hit[first]]
+
+
+def _sorted_triples(nbr: np.ndarray) -> np.ndarray:
+    """(K, 3) rows of ``nbr`` (K, 3) sorted ascending (a min/max network: 5x a row sort)."""
+    a, b, c = nbr[:, 0], nbr[:, 1], nbr[:, 2]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    low, high = np.minimum(lo, c), np.maximum(hi, c)
+    return np.column_stack([low, np.maximum(lo, np.minimum(hi, c)), high])
 
 
 def _deepest_per_triple(b_idx: np.ndarray, tri: np.ndarray, d: np.ndarray) -> Optional[np.ndarray]:

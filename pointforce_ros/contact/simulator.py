@@ -479,7 +479,10 @@ class ContactSimulator:
         # heights less the pose's offset (B, R), against the floor less it: one pass fewer
         # over B x R than adding the offset (a test that rounds differently only for samples
         # within round-off of the floor, which lies 1e-9 m below any penetration)
-        rise = np.matmul(to_frame[:, :, 0], local.T)
+        if B > 1 and np.all(to_frame[1:, :, 0] == to_frame[0, :, 0]):
+            rise = np.broadcast_to(local @ to_frame[0, :, 0], (B, len(local)))  # one rotation
+        else:
+            rise = np.matmul(to_frame[:, :, 0], local.T)
         b_idx, r_idx = np.nonzero(rise > (proj.floor - offset[:, 0])[:, None])
         if len(b_idx) == 0:
             return empty
@@ -574,27 +577,29 @@ class ContactSimulator:
         """Solve every pose's LCP; candidates are sorted by pose. Returns x, u = G x, residual."""
         counts = np.bincount(b_idx, minlength=B)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        slot = np.arange(len(b_idx)) - start[b_idx]
         x = np.zeros(len(d))
         u = np.zeros(len(d))
         residual = np.zeros(B)
         busy = np.flatnonzero(counts)
         busy = busy[np.argsort(counts[busy], kind='stable')]
-        group_of = np.full(B, -1)
+        sizes = counts[busy]                    # ascending
         budget = 2_000_000  # padded matrix entries per stack
         s = 0
         while s < len(busy):
-            # Stack problems whose sizes lie within 25 % of each other, so padding stays cheap.
-            top = int(np.ceil(1.25 * counts[busy[s]])) + 1
-            e = s + 1
-            while (e < len(busy) and counts[busy[e]] <= top
-                   and (e - s + 1) * int(counts[busy[e]]) ** 2 <= budget):
-                e += 1
+            # Stack problems whose sizes lie within 25 % of each other, so padding stays cheap,
+            # and at most `budget` padded entries: the first size past either ends the stack.
+            top = int(np.ceil(1.25 * sizes[s])) + 1
+            e = int(np.searchsorted(sizes, top, side='right'))
+            ahead = sizes[s + 1:e].astype(np.int64)
+            past = np.flatnonzero((np.arange(2, len(ahead) + 2) * ahead ** 2) > budget)
+            e = s + 1 + int(past[0]) if len(past) else e
             members = busy[s:e]
-            m = int(counts[members].max())
-            group_of[members] = np.arange(len(members))
-            rows = group_of[b_idx] >= 0
-            gi, si = group_of[b_idx[rows]], slot[rows]
+            m = int(sizes[e - 1])
+            # the members' candidates: contiguous runs (candidates are sorted by pose)
+            own = counts[members]
+            gi = np.repeat(np.arange(len(members)), own)
+            si = np.arange(len(gi)) - np.repeat(np.cumsum(own) - own, own)
+            rows = start[members][gi] + si
             qp = np.zeros((len(members), m, 3))
             dp = np.zeros((len(members), m))
             valid = np.zeros((len(members), m), dtype=bool)
@@ -610,7 +615,6 @@ class ContactSimulator:
                                          product=up)
             x[rows], u[rows] = xp[gi, si], up[gi, si]
             residual[members] = res
-            group_of[members] = -1
             s = e
         return x, u, residual
 

@@ -5,15 +5,20 @@
 * the LCP stack solved from the points (only the free sets' columns built) gives the solutions,
   pivoting rounds, residuals and ``G x`` of the dense stack;
 * the deepest entry per key, found per run of a stable sort, is the one a lexicographic sort
-  (key, then depth descending) picks, ties included.
+  (key, then depth descending) picks, ties included;
+* a batch whose poses share one rotation (heights from one product for all of them) answers
+  as the single queries do, tilted or not.
 """
 
 import numpy as np
 import pytest
 
-from pointforce_ros.contact import shape_matrix, solve_lcp_batch
+from pointforce_ros.contact import ContactSimulator, shape_matrix, solve_lcp_batch
 from pointforce_ros.contact.lcp import PointShapeStack
 from pointforce_ros.contact.simulator import _deepest_per_key
+from pointforce_ros.lab.synthetic_contact import dome_surface, linear_response
+from pointforce_ros.shapes import box
+from pointforce_ros.types import Pose
 
 C = 0.004
 
@@ -95,3 +100,22 @@ def test_deepest_per_key_picks_as_the_lexicographic_sort():
         else:
             np.testing.assert_array_equal(sel, order[first])
     assert _deepest_per_key(np.array([3, 1, 2]), np.ones(3)) is None
+
+
+@pytest.mark.parametrize('orientation', [[0.0, 0.0, 0.0, 1.0], [0.1, -0.2, 0.3, 0.9]])
+def test_batch_of_one_shared_rotation_equals_single_queries(orientation):
+    surface = dome_surface(n=81, half=0.03, radius=0.1)
+    sim = ContactSimulator(surface, linear_response(np.full(len(surface), 500.0)), c=C)
+    q = np.asarray(orientation) / np.linalg.norm(orientation)
+    rng = np.random.default_rng(35)
+    rows = np.column_stack([rng.uniform(-0.01, 0.01, (30, 2)), rng.uniform(-0.003, 0.006, 30),
+                            np.tile(q, (30, 1))])
+    mesh = box((0.015, 0.01, 0.006))
+    down = np.array([0.0, 0.0, -1.0])
+    batch = sim.query_batch(mesh, rows, down, np.zeros(3))
+    assert 5 < np.count_nonzero(batch.contact_count) < 30
+    for i, row in enumerate(rows):
+        one = sim.query(mesh, Pose(position=row[:3], orientation=row[3:]), down, np.zeros(3))
+        assert batch.contact_count[i] == one.contact_count
+        np.testing.assert_allclose(batch.wrenches[i], one.wrench.as_vector(), rtol=1e-10,
+                                   atol=1e-13)

@@ -469,24 +469,27 @@ def table(results: Sequence[Mapping]) -> str:
 
 
 def plot(results: Sequence[Mapping], path) -> None:
-    """Bar chart of the force RMSE per object and model, as a fraction of the peak force."""
+    """Bar charts of the force RMSE over the peak force, per object and model: all, line, cyl."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    methods = sorted({m for r in results for m in r['scores']},
-                     key=['semi_empirical', 'fem', 'fem_field'].index)
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    order = ['semi_empirical', 'fem', 'fem_field']
+    methods = sorted({m for r in results for m in r['scores']}, key=order.index)
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), sharey=True)
     width = 0.8 / max(len(methods), 1)
     x = np.arange(len(results))
-    for k, m in enumerate(methods):
-        v = [r['scores'][m]['force_rmse'] / r['peak_force'] if m in r['scores'] else np.nan
-             for r in results]
-        ax.bar(x + (k - (len(methods) - 1) / 2) * width, v, width, label=m)
-    ax.set_xticks(x, [r['object'] for r in results])
-    ax.set_ylabel('force RMSE / peak force')
-    ax.set_title('Line and cylinder trials, held out: FEM vs semi-empirical')
-    ax.legend()
+    for ax, key, title in zip(axes, ('force_rmse', 'force_rmse_line', 'force_rmse_cylinder'),
+                              ('all trials', 'line trials', 'cylinder trials')):
+        for k, m in enumerate(methods):
+            v = [(r['scores'][m][key] or np.nan) / r['peak_force'] if m in r['scores']
+                 else np.nan for r in results]
+            ax.bar(x + (k - (len(methods) - 1) / 2) * width, v, width, label=m)
+        ax.set_xticks(x, [r['object'] for r in results])
+        ax.set_title(title)
+    axes[0].set_ylabel('force RMSE / peak force')
+    axes[0].legend()
+    fig.suptitle('Held-out line and cylinder probe trials: calibrated FEM vs semi-empirical')
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -38,7 +38,8 @@ A response without ``onsets`` gets ``d0 = 0``, the paper's rule.
 
 Speed: one KD-tree per approach direction over the projected surface (cached), a conservative
 per-cell height bound that discards rigid samples that cannot penetrate before any tree query,
-and the LCPs of many poses solved as padded stacks grouped by size.
+and the LCPs of many poses solved as padded stacks grouped by size, each round building only
+the columns of ``G`` its free sets need (:class:`~pointforce_ros.contact.lcp.PointShapeStack`).
 """
 
 import contextlib

@@ -10,11 +10,11 @@ model under the same version.
 Before a poke joins the training set, the current model predicts it: that *prequential* error is
 a genuine held-out figure, reported as ``validation_rmse``.
 
-With accepted effects (``effects=``, what ``pointforce diagnose`` writes to ``effects.json``)
-every poke is corrected before its curve is cut (:func:`~pointforce_ros.effects.correct_record`;
-the plastic set counts the earlier pokes at the spot over the whole store), the model is baked
-on the corrected surface (surface offset, and the set where the object was poked), and the
-effects are saved with the model so that the contact service adds their forward terms.
+With accepted effects (``effects=``, what ``pointforce diagnose`` writes to ``effects.json``) every
+poke is corrected before its curve is cut (:func:`~pointforce_ros.effects.correct.correct_record`;
+the plastic set counts the earlier pokes at the spot over the whole store), the model is baked on
+the corrected surface (surface offset, and the set where the object was poked), and the effects are
+saved with the model so that the contact service adds their forward terms.
 """
 
 import threading

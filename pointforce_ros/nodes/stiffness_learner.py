@@ -42,7 +42,7 @@ from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.markers import model_markers
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.contact.uncertainty import uncertainty_sources
-from pointforce_ros.effects.correct import effects_from_dict
+from pointforce_ros.effects.accepted import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.files import (load_model, load_shape, load_shape_uncertainty,

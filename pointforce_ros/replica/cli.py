@@ -24,6 +24,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument('--held-out', type=int, default=3, help='held-out pokes')
     p.add_argument('--no-damping', action='store_true', help='skip the damping step')
     p.add_argument('--seed', type=int, default=0, help='train/held-out split seed')
+    p.add_argument('--calibrators', default='scaling,paper',
+                   help='comma-separated: scaling (ours), paper (seed 002 MLP)')
+    p.add_argument('--paper-grid', type=int, default=3,
+                   help="points per Lame parameter of the paper calibrator's grid")
     p.set_defaults(func=run)
     return p
 
@@ -32,5 +36,7 @@ def run(args) -> int:
     """Run ``pointforce replica`` with parsed ``args``; returns the exit status."""
     from pointforce_ros.replica.build import build_replica  # loads pybullet: this command only
     build_replica(args.data, args.out, engine=args.engine, h=args.h, train=args.train,
-                  held_out=args.held_out, damping=not args.no_damping, seed=args.seed)
+                  held_out=args.held_out, damping=not args.no_damping, seed=args.seed,
+                  calibrators=tuple(c for c in args.calibrators.split(',') if c),
+                  paper_grid=args.paper_grid)
     return 0

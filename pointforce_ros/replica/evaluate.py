@@ -26,11 +26,12 @@ import time
 
 import numpy as np
 
+from pointforce_ros.replica.build import replica_body
 from pointforce_ros.replica.calibrate import (evaluate, force_at, force_time_summary,
                                               simulate_loading, summary)
 from pointforce_ros.replica.contour import contour_error
 from pointforce_ros.replica.data import load_pokes, subset
-from pointforce_ros.replica.mesh import heightfield_tet_mesh, read_vtk
+from pointforce_ros.replica.mesh import read_vtk
 from pointforce_ros.replica.replica import read_description
 from pointforce_ros.replica.scene import Material, SceneConfig
 
@@ -75,9 +76,7 @@ def main(argv=None) -> int:
               'figures': {k: figures[k] for k in ('scaling', 'paper') if k in figures},
               'reproduced': summary(evaluate(mesh, material, held, config))}
     if args.h_fine:
-        coarse, fine = (heightfield_tet_mesh(data.surface_points, size,
-                                             surface_normals=data.surface_normals)
-                        for size in (h, args.h_fine))
+        coarse, fine = (replica_body(data, size)[0] for size in (h, args.h_fine))
         rows = []
         for p in held:
             row = {'poke': p.poke_id, 'measured_N': float(p.force[-1])}

@@ -17,7 +17,7 @@ import sys
 from pointforce_ros.replica.build import PLATE_CONFIG
 from pointforce_ros.replica.data import load_pokes
 from pointforce_ros.replica.evaluate import held_out_figures
-from pointforce_ros.replica.mesh import ball_tet_mesh
+from pointforce_ros.replica.mesh import ball_tet_mesh, read_vtk
 from pointforce_ros.replica.replica import write_replica
 from pointforce_ros.replica.scene import Material
 
@@ -31,10 +31,15 @@ def main() -> int:
     desc = json.loads((HERE / 'ball.replica.json').read_text())
     material = Material(**desc['material'])
     data = load_pokes(HERE / 'ball_plate.npz')
+    out = HERE / 'ball_replica'
     mesh = ball_tet_mesh(data.ball_radius, H_COARSE)
+    # the figures of the mesh as the VTK holds it (9 digits): the ringing contact turns a
+    # 1e-9 m node shift into a few percent of force, so the test must see the same nodes
+    write_replica(out, mesh, material, PLATE_CONFIG)
+    mesh = read_vtk(out / 'body.vtk', H_COARSE)
     figs = held_out_figures(mesh, material, PLATE_CONFIG, data)
     figs['data'] = 'test/data/replica/ball_plate.npz'
-    write_replica(HERE / 'ball_replica', mesh, material, PLATE_CONFIG, figures=figs)
+    write_replica(out, mesh, material, PLATE_CONFIG, figures=figs)
     print(json.dumps(figs, indent=1))
     return 0
 

@@ -11,6 +11,7 @@ Prints one JSON object (also written to ``DIR/evaluation.json``):
   errors at the largest compression and over the curve, before/after the damping step,
   simulations, wall time);
 * ``reproduced``: the chosen replica's held-out errors recomputed from the files;
+* ``phases`` (with ``--phases``): the force-time residual by phase on ramp-and-hold pokes;
 * ``resolution``: the force of the replica's material at the deepest point of each held-out
   poke at the replica's mesh and at ``--h-fine`` (how far a replica moves with resolution);
 * ``contour``: with ``--clouds`` (push files that hold the camera cloud under load), the
@@ -28,7 +29,7 @@ import numpy as np
 
 from pointforce_ros.replica.build import replica_body
 from pointforce_ros.replica.calibrate import (evaluate, force_at, force_time_summary,
-                                              simulate_loading, summary)
+                                              simulate_loading, simulate_series, summary)
 from pointforce_ros.replica.contour import contour_error
 from pointforce_ros.replica.data import load_pokes, subset
 from pointforce_ros.replica.mesh import read_vtk
@@ -53,12 +54,44 @@ def held_out_figures(mesh, material, config, data) -> dict:
     return out
 
 
+def phase_residuals(mesh, material, pokes, config) -> dict:
+    """Force-time residual of ramp-and-hold pokes by phase: what the damping step can see.
+
+    Per poke: RMS of (replica - measured) force while the pusher moves and while it holds,
+    the mean signed residual of each phase, and the relaxation over the hold (force in its
+    first 0.1 s minus its last 0.1 s) of both. Newtons; pokes without ``series`` are skipped.
+    """
+    rows = []
+    for p in pokes:
+        if p.series is None:
+            continue
+        t_sim, f_sim = simulate_series(mesh, material, p, config)
+        t_m, d_m, f_m = p.series
+        resid = np.interp(t_m, t_sim, f_sim) - f_m
+        holding = d_m >= d_m.max() - 1e-12
+        t_hold = t_m[holding] - t_m[holding][0]
+        first, last = t_hold <= 0.1, t_hold >= t_hold[-1] - 0.1
+        sim_hold = np.interp(t_m[holding], t_sim, f_sim)
+        rows.append({'poke': p.poke_id, 'speed_m_s': p.speed,
+                     'push_rms_N': float(np.sqrt(np.mean(resid[~holding] ** 2))),
+                     'push_mean_N': float(np.mean(resid[~holding])),
+                     'hold_rms_N': float(np.sqrt(np.mean(resid[holding] ** 2))),
+                     'hold_mean_N': float(np.mean(resid[holding])),
+                     'relaxation_measured_N': float(f_m[holding][first].mean()
+                                                    - f_m[holding][last].mean()),
+                     'relaxation_replica_N': float(sim_hold[first].mean()
+                                                   - sim_hold[last].mean())})
+    return {'pokes': rows}
+
+
 def main(argv=None) -> int:
     """Run the evaluation; print and write the JSON."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('replica', help='replica directory')
     ap.add_argument('--h-fine', type=float, default=0.0075, help='refined mesh, m (0: skip)')
     ap.add_argument('--clouds', default=None, help='glob of push files with camera clouds')
+    ap.add_argument('--phases', action='store_true',
+                    help='force-time residual by phase (push, hold) on held-out series')
     args = ap.parse_args(argv)
     started = time.monotonic()
     root = Path(args.replica)
@@ -75,6 +108,8 @@ def main(argv=None) -> int:
               'poisson': desc['poisson'], 'h_m': h,
               'figures': {k: figures[k] for k in ('scaling', 'paper') if k in figures},
               'reproduced': summary(evaluate(mesh, material, held, config))}
+    if args.phases:
+        result['phases'] = phase_residuals(mesh, material, held, config)
     if args.h_fine:
         coarse, fine = (replica_body(data, size)[0] for size in (h, args.h_fine))
         rows = []

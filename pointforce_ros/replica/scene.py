@@ -24,6 +24,13 @@ Engine traits found on this machine (PyBullet 3.2.7, DIRECT), handled here, not 
   weighs ``scale^2`` more than in the cell, which only matters for the dynamic response.
 * Gravity is off: the cell's FEM ground truth has no self weight, and a weightless pusher
   needs no tare beyond the first samples.
+* A flat plate (``SceneConfig.pusher = 'plate'``, seed 002's compression of a ball) also
+  passes through a 90 mm ball's top nodes at the cell's scale (0.1 N instead of ~40 N at
+  30 mm on a 7.5 mm mesh) and holds at ``scale`` 10. Under it the motor alone stops ~2 mm
+  short of its target (``track_gain`` corrects the target), and the motor force rings on
+  the contact (~4 % step to step, +-5 % after a 0.1 s ``force_window``); the static curve is
+  read through a quartic in depth (``static_degree``). The outcome is chaotic at that level:
+  moving the nodes by 1e-9 m moved a 15 mm ball's error at 30 mm from 4.93 to 4.70 %.
 * The response depends on mesh resolution and the contact margin (contact starts about a
   margin early); a replica records both, see :mod:`pointforce_ros.replica.traits`.
 

@@ -1,36 +1,33 @@
-"""One camera-only force estimate against the F/T reading on the simulated cell (for the demo).
+"""One camera-only force estimate against the F/T reading (seed 001 on the cell, for the demo).
 
 The live cell's camera renders the object's rest shape only (the emulator does not feed it the
-deformed surface), so a camera-only estimate needs the deformed views from elsewhere. This
-makes them the way the wing's fixtures are made (``test/data/deformation/
-make_deformation_fixtures.py``), from the cell's own pieces: its object (the ground-truth FEM,
-neo-Hookean, frictionless contact, used only as the truth) and its depth camera (the
-scenario's bias and noise, the ring viewpoints). Two static pushes of the cell's point probe
-along the inward normal, both solved on one FE mesh so that rest and deformed views share one
-discretisation:
+deformed surface), so the demo's check makes deformed views the way the wing's fixtures are
+made (``test/data/deformation/make_deformation_fixtures.py``) and hands them here. The data
+making needs the simulated cell (its FEM truth and camera), which the house rule keeps out of
+this wing: it lives in ``bringup`` (``test/data/deformation/bringup_camera_check.py`` until it
+is moved there). This module is the estimator's side:
 
-1. an identification push: (E, nu) from its force (the F/T truth) and its deformed view
+1. (E, nu) from one push's force (the F/T truth) and its deformed views
    (:func:`.identify.identify_elasticity`, as the node's ``~/identify``);
-2. a held-out push: the force from its deformed view alone (:func:`.force.estimate_force`, as
-   the node's ``~/estimate_force``), printed against the F/T truth of that push.
+2. the force of another, held-out push from its deformed view alone
+   (:func:`.force.estimate_force`, as the node's ``~/estimate_force``), to print against the
+   F/T reading of that push.
 
-Everything the estimator sees is what a real cell gives it: the rest scan, the deformed
-clouds, the contact point and (for identification only) the measured force. Units SI, frame
-``base``; the forces are those on the object.
+The estimator sees what a real cell gives it: the rest scan with normals, the deformed clouds,
+the camera pose, the contact point from the arm (moved along the camera's line of sight onto the
+scan, :func:`contact_on_scan`: a camera depth bias otherwise offsets the dent from the load
+sideways) and, for identification only, the measured force. Units SI, frame ``base``; forces
+on the object.
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 import time
-from typing import Sequence
-
 import numpy as np
 
 from pointforce_ros.deformation.force import estimate_force, ForceConfig
 from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
 from pointforce_ros.deformation.mesh import volume_mesh_from_surface
 from pointforce_ros.deformation.observe import rest_offsets
-from pointforce_ros.errors import InvalidInput
-from pointforce_ros.types import Mesh
 
 
 @dataclass(frozen=True)
@@ -85,101 +82,71 @@ class CameraForceCheck:
                 f' ms, {self.seconds:.0f} s in all')
 
 
-def _boundary_mesh(hex_mesh) -> np.ndarray:
-    """(2 B, 3) triangles of a hex mesh's boundary faces (all but the bottom), outward."""
-    f = hex_mesh.boundary_faces
-    return np.concatenate([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
+def contact_on_scan(contact, scan: np.ndarray, camera_origin, radius: float = 0.002
+                    ) -> np.ndarray:
+    """Move the contact point along the camera's line of sight onto the scanned surface.
 
-
-def _render(camera, pose, vertices, triangles, occluder=None) -> np.ndarray:
-    """Visible object points (P, 3) in ``base`` of one view, with an optional occluding mesh."""
-    verts, tris = vertices, triangles
-    if occluder is not None:
-        verts = np.concatenate([vertices, occluder.vertices])
-        tris = np.concatenate([triangles, occluder.triangles + len(vertices)])
-    mesh = Mesh(verts, tris)
-    _, prim, _ = camera.true_depth(mesh, pose)
-    frame = camera.render(mesh, pose, organised=True)
-    keep = frame.valid() & (prim >= 0) & (prim < len(triangles))
-    return frame.points[keep] @ pose[:3, :3].T + pose[:3, 3]
-
-
-def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: float = 0.005,
-                          identify_offset=(-0.015, 0.010), estimate_offset=(0.012, -0.008),
-                          element_size: float = 0.004, truth_h=None) -> CameraForceCheck:
-    """Identify on one static push, estimate the force of another from the camera alone.
+    A depth bias moves every scanned point along its viewing ray; the contact point comes
+    from the arm, in the true frame. Moving it along the ray through it until it meets the
+    scan (the median ray distance of the scan points within ``radius`` of that ray) puts
+    it where the scan saw that surface point, with only the camera pose known.
 
     Args:
-        spec: the cell's object (:class:`pointforce_ros.sim.objects.ObjectSpec`).
-        camera: the cell's depth camera (:class:`pointforce_ros.sim.camera.DepthCamera`).
-        poses: the camera's ring viewpoints ((4, 4) ``base <- optical``); all of them scan
-            the rest shape, the first sees the pushes.
-        depth: probe travel past contact of both pushes, metres.
-        identify_offset, estimate_offset: (x, y) of the pushes from the object's centre, m.
-        element_size: the estimator's mesh size, metres.
-        truth_h: the ground-truth FE mesh size (default the object's live mesh size), m.
+        contact: (3,) contact point from the arm, metres, ``base``.
+        scan: (P, 3) rest scan, metres, ``base``.
+        camera_origin: (3,) optical centre of the camera that took the scan.
+        radius: lateral radius about the ray, metres.
 
-    Raises:
-        InvalidInput: no viewpoint, a non-positive depth, or a push the truth cannot solve.
+    Returns:
+        (3,) the contact point on the scan (unchanged when no scan point is near the ray).
 
     """
-    # the cell's ground truth (used only to make the data, never by the estimator)
-    from pointforce_ros.sim.fem.live import POINT_PROBE
-    from pointforce_ros.sim.fem.probes import point_probe, pose_for_push
-    from pointforce_ros.sim.fem.solver import FemModel
-    from pointforce_ros.rotations import quaternion_to_matrix
+    q = np.asarray(contact, dtype=float)
+    ray = q - np.asarray(camera_origin, dtype=float)
+    ray /= np.linalg.norm(ray)
+    rel = np.asarray(scan, dtype=float) - q
+    along = rel @ ray
+    lateral = np.linalg.norm(rel - np.outer(along, ray), axis=1)
+    near = (lateral <= radius) & (np.abs(along) <= 0.01)
+    if not near.any():
+        return q
+    return q + float(np.median(along[near])) * ray
 
-    t0 = time.perf_counter()
-    poses = list(poses)
-    if not poses or not depth > 0:
-        raise InvalidInput('camera_force_check: need at least one viewpoint and depth > 0')
-    h = float(truth_h or spec.mesh_live)
-    hex_mesh = spec.build_mesh(h, h_z=spec.size[2] / 10)
-    hex_mesh = replace(hex_mesh, top_nodes=np.arange(hex_mesh.n_nodes))
-    model = FemModel(hex_mesh, spec.gauss_young(hex_mesh), spec.poisson, support=spec.support)
-    tris = _boundary_mesh(hex_mesh)
-    probe = point_probe(**POINT_PROBE)
-    rest = np.concatenate([_render(camera, p, hex_mesh.nodes, tris) for p in poses])
-    pushes = []
-    for off in (identify_offset, estimate_offset):
-        x, y = spec.centre[0] + off[0], spec.centre[1] + off[1]
-        q = np.asarray(spec.top_point(x, y), dtype=float)
-        d = -np.asarray(spec.top_normal(x, y), dtype=float)
-        res = model.indent(probe, pose_for_push(q, d), d, np.linspace(0.0, depth, 5)[1:],
-                           torque_centre=q)
-        ppose = pose_for_push(q + depth * d, d)
-        rot = quaternion_to_matrix(ppose.orientation)
-        occluder = Mesh(probe.vertices @ rot.T + ppose.position, probe.triangles)
-        cloud = _render(camera, poses[0], res.surface[-1], tris, occluder)
-        pushes.append((q, -res.force[-1], cloud))
-    mesh = volume_mesh_from_surface(rest, element_size=element_size, layers=8, grading=1.5)
+
+def check_from_views(rest, rest_normals, identify_states, estimate_state, camera_origin,
+                     element_size: float = 0.004, depth: float = float('nan'),
+                     started: float = None) -> CameraForceCheck:
+    """Identify on one push's states, estimate another push's force from its view alone.
+
+    Args:
+        rest: (P, 3) rest scan, metres, ``base``.
+        rest_normals: (P, 3) its outward normals (they matter: without them side points enter
+            the top's height field; measured on the foam block's fixtures: E 15-17 kPa and nu
+            0.49 instead of 55 kPa and 0.2-0.25).
+        identify_states: ``[(contact point (3,), force on the object (3,), cloud (Q, 3))]``
+            of the identification push (any depths).
+        estimate_state: ``(contact point, F/T force, cloud)`` of the held-out push; its force
+            is only compared with, never used.
+        camera_origin: (3,) optical centre of the camera that saw the pushes.
+        element_size: the estimator's mesh size, metres.
+        depth: the held-out push's depth (reported), metres.
+        started: ``time.perf_counter()`` when the data making began (for ``seconds``).
+
+    Raises:
+        InvalidInput: as :func:`.identify.identify_elasticity` and :func:`.force.estimate_force`.
+
+    """
+    t0 = time.perf_counter() if started is None else started
+    mesh = volume_mesh_from_surface(rest, rest_normals, element_size=element_size, layers=8,
+                                    grading=1.5)
     offset = rest_offsets(mesh, rest)
-    q, force, cloud = pushes[0]
-    fit, fem = identify_elasticity(mesh, [Poke(q, force, cloud)], IdentifyConfig(),
-                                   rest_offset=offset)
-    q, force, cloud = pushes[1]
-    est = estimate_force(fem, q, cloud, ForceConfig(), rest_offset=offset)
+    pokes = [Poke(contact_on_scan(q, rest, camera_origin), f, c) for q, f, c in identify_states]
+    fit, fem = identify_elasticity(mesh, pokes, IdentifyConfig(), rest_offset=offset)
+    q, force, cloud = estimate_state
+    est = estimate_force(fem, contact_on_scan(q, rest, camera_origin), cloud, ForceConfig(),
+                         rest_offset=offset)
     return CameraForceCheck(camera_force=est.force, camera_std=est.magnitude_std,
-                            ft_force=force, contact_point=q, depth=float(depth),
+                            ft_force=np.asarray(force, dtype=float),
+                            contact_point=np.asarray(q, dtype=float), depth=float(depth),
                             young=fit.young, poisson=fit.poisson,
                             seconds=time.perf_counter() - t0, estimate_seconds=est.seconds)
-
-
-def camera_force_check(cell, depth: float = 0.005) -> CameraForceCheck:
-    """Run :func:`camera_force_check_on` with a running simulated cell's object and camera.
-
-    Args:
-        cell: a :class:`pointforce_ros.bringup.cell.CellSession` with the simulated camera
-            (``cell.spec.spec``, ``cell.camera.camera``, ``cell.camera.poses``).
-        depth: push depth past contact, metres.
-
-    Raises:
-        InvalidInput: the cell has no simulated object or camera (a real cell: there the
-            node's ``~/estimate_force`` runs on the real camera's clouds).
-
-    """
-    sim_camera = getattr(cell, 'camera', None)
-    if getattr(cell, 'spec', None) is None or sim_camera is None:
-        raise InvalidInput('camera_force_check: needs the simulated object and camera; on a '
-                           'real cell call /deformation_force/estimate_force during a push')
-    return camera_force_check_on(cell.spec.spec, sim_camera.camera, sim_camera.poses, depth)

@@ -12,10 +12,11 @@ the top surface there rises in proportion to nu (not at all at nu = 0), a vertic
 camera sees. This study identifies (E, nu) with the wing's own identification
 (:func:`.identify.identify_elasticity`) on sets of pushes of the homogeneous foam block (truth
 E 50 kPa, nu 0.30): top pushes only (the earlier figure), side pushes only, and both; and
-reports nu, its profile interval and how much the fit residual changes over nu (the
-observability). Fixtures: ``test/data/deformation/rest_foam_block.npz``,
-``push_foam_block_<k>.npz`` (top) and ``side_foam_block_<k>.npz`` (side, made by
-``make_side_pushes.py``).
+reports nu, its profile interval, how much the fit residual changes over nu (the
+observability) and the camera-only force error each model gives on the held-out top pushes
+(one normal and two 20 deg oblique, at 3, 5 and 8 mm; vector error in % of |F|). Fixtures:
+``test/data/deformation/rest_foam_block.npz``, ``push_foam_block_<k>.npz`` (top) and
+``side_foam_block_<k>.npz`` (side, made by ``make_side_pushes.py``).
 
 ``python -m pointforce_ros.deformation.poisson_study [--out DIR]`` prints the table (and writes
 ``poisson_study.json``).
@@ -35,6 +36,7 @@ from pointforce_ros.deformation.identify import (_best_compliance, _loads,
                                                  identify_elasticity, IdentifyConfig, Poke,
                                                  ReducedPoissonFamily)
 from pointforce_ros.deformation.fem import CorotationalFem
+from pointforce_ros.deformation.force import estimate_force, ForceConfig
 from pointforce_ros.deformation.mesh import volume_mesh_from_surface
 from pointforce_ros.deformation.observe import rest_offsets, SurfaceMatcher
 from pointforce_ros.errors import DataError
@@ -68,6 +70,18 @@ def residual_profile(mesh, pokes, offset, config: IdentifyConfig, grid) -> np.nd
                      for v in grid])
 
 
+def heldout_errors(fem, pushes, offset) -> np.ndarray:
+    """Vector force errors (% of |F|) of camera-only estimates on every state of ``pushes``."""
+    out = []
+    for push in pushes:
+        for depth in push['depths']:
+            poke = pokes_of(push, float(depth))
+            est = estimate_force(fem, poke.contact_point, poke.cloud, ForceConfig(),
+                                 rest_offset=offset)
+            out.append(100 * np.linalg.norm(est.force - poke.force) / np.linalg.norm(poke.force))
+    return np.array(out)
+
+
 def study(folder=FIXTURES, element_size: float = 0.004, depths: Sequence[float] = (0.003, 0.005)
           ) -> Dict:
     """Identify on the top-only, side-only and combined sets; return rows per set and depth.
@@ -92,6 +106,7 @@ def study(folder=FIXTURES, element_size: float = 0.004, depths: Sequence[float] 
     offset = rest_offsets(mesh, rest['points'])
     config = IdentifyConfig()
     top_id = [p for p in top if str(p['role']) == 'identify']
+    heldout = [p for p in top if str(p['role']) == 'heldout']
     grid = np.linspace(0.02, 0.47, 10)
     rows = []
     for depth in depths:
@@ -99,7 +114,8 @@ def study(folder=FIXTURES, element_size: float = 0.004, depths: Sequence[float] 
                 'side (2 pushes)': [pokes_of(p, depth) for p in side],
                 'top + side': [pokes_of(p, depth) for p in top_id + side]}
         for name, pokes in sets.items():
-            fit, _ = identify_elasticity(mesh, pokes, config, rest_offset=offset)
+            fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset)
+            errors = heldout_errors(fem, heldout, offset)
             sse = residual_profile(mesh, pokes, offset, config, grid)
             rows.append({'set': name, 'depth_mm': 1e3 * depth, 'pokes': len(pokes),
                          'young': fit.young, 'poisson': fit.poisson,
@@ -108,6 +124,8 @@ def study(folder=FIXTURES, element_size: float = 0.004, depths: Sequence[float] 
                          'poisson_interval': list(fit.poisson_interval),
                          'residual_rms_mm': 1e3 * fit.residual_rms,
                          'residual_change_pct': float(100 * (sse.max() / sse.min() - 1)),
+                         'heldout_force_error_pct_median': float(np.median(errors)),
+                         'heldout_force_error_pct_max': float(np.max(errors)),
                          'profile_nu': grid.tolist(), 'profile_sse': sse.tolist(),
                          'seconds': fit.seconds})
     return {'rows': rows, 'truth': {'young': TRUTH[0], 'poisson': TRUTH[1]},
@@ -117,13 +135,15 @@ def study(folder=FIXTURES, element_size: float = 0.004, depths: Sequence[float] 
 def table(result: Dict) -> str:
     """Markdown table of the study."""
     lines = ['| set | depth mm | E kPa (err) | nu (err) | nu interval | residual change over nu'
-             ' 0.02-0.47 |', '|' + ' --- |' * 6]
+             ' 0.02-0.47 | held-out force error median / max |', '|' + ' --- |' * 7]
     for r in result['rows']:
         lo, hi = r['poisson_interval']
         lines.append(f'| {r["set"]} | {r["depth_mm"]:.0f} | {r["young"] / 1e3:.1f} '
                      f'({r["young_error_pct"]:+.1f} %) | {r["poisson"]:.3f} '
                      f'({r["poisson_error"]:+.3f}) | {lo:.3f}-{hi:.3f} | '
-                     f'{r["residual_change_pct"]:.1f} % |')
+                     f'{r["residual_change_pct"]:.1f} % | '
+                     f'{r.get("heldout_force_error_pct_median", float("nan")):.1f} / '
+                     f'{r.get("heldout_force_error_pct_max", float("nan")):.1f} % |')
     return '\n'.join(lines)
 
 

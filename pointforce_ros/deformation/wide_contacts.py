@@ -8,7 +8,8 @@ point pokes and never on the trial they are scored on:
   simulator.ContactSimulator`, seed 000) with the point model :class:`~pointforce_ros.response.
   ours.ContactGpModel` fitted on ``n_train`` pokes and the shape function ``(c, decay)``
   identified from the object's *other* trials (leave one trial out), exactly as figure 2
-  scores "ours" (:func:`pointforce_ros.lab.figures.figure_probes`).
+  scores "ours" (``pointforce_ros.lab.figures.figure_probes``; restated here with product
+  wings only: the house rule keeps ``deformation`` off ``lab`` and ``sim``).
 - ``fem``: this wing's model of the scanned object (:func:`.mesh.volume_mesh_from_surface`,
   linear tetrahedra, bottom fixed) with Young's modulus calibrated on the *same* pokes
   (:func:`calibrate_young`: each poke is re-simulated with the cell's point probe by
@@ -38,11 +39,15 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 import numpy as np
 
+from pointforce_ros.contact.identify import DECAY_GRID, shape_fits_from_probes
+from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.deformation.fem import CorotationalFem
 from pointforce_ros.deformation.mesh import TetMesh, volume_mesh_from_surface
 from pointforce_ros.deformation.rigid_contact import RigidProbeContact
 from pointforce_ros.errors import DataError, InvalidInput, PointforceError
+from pointforce_ros.paths import share_path
 from pointforce_ros.pokes.curves import PokeCurve
+from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.types import Mesh, Pose, Surface
 
 POISSON = 0.4
@@ -60,6 +65,65 @@ POKE_SAMPLES = 8
 
 FIELD_LENGTH = 0.015
 """Kernel length of the heterogeneous modulus field, metres."""
+
+DEFAULT_C = 0.004
+"""Shape constant figure 2 falls back to when none is identified, metres."""
+
+FIGURES_DATA = share_path('data', 'figures')
+"""Figure 2's fixtures (``pokes_<object>.npz``, ``probes_<object>.npz``)."""
+
+POINT_PROBE = dict(tip_radius=0.002, half_angle_deg=25.0, length=0.03)
+"""The cell's point probe (``pointforce_ros.sim.fem.live.POINT_PROBE``; the house rule keeps
+the product wings off ``sim``, so the geometry is restated here, as ``replica`` does)."""
+
+
+def point_probe(tip_radius: float = 0.002, half_angle_deg: float = 25.0, length: float = 0.03,
+                segments: int = 32) -> Mesh:
+    """Tapered point probe: spherical tip at the origin, cone opening towards -z (push +z).
+
+    Closed, convex, wound outward; the cell's probe geometry (see :data:`POINT_PROBE`).
+    """
+    alpha = np.radians(half_angle_deg)
+    ang = np.linspace(0.0, np.pi / 2 - alpha, 10)[1:]
+    ring_r = np.append(tip_radius * np.sin(ang), 0.0)
+    ring_z = -(tip_radius - tip_radius * np.cos(ang))
+    r_top = ring_r[-2] + (length + ring_z[-1]) * np.tan(alpha)
+    ring_r = np.append(ring_r[:-1], r_top)
+    ring_z = np.append(ring_z, -length)
+    theta = 2 * np.pi * np.arange(segments) / segments
+    verts = [np.zeros(3)]
+    for r, z in zip(ring_r, ring_z):
+        verts += [np.array([r * np.cos(t), r * np.sin(t), z]) for t in theta]
+    verts.append(np.array([0.0, 0.0, -length]))
+    verts = np.array(verts)
+    ring = [1 + k * segments + np.arange(segments) for k in range(len(ring_r))]
+    tris = [[0, ring[0][j], ring[0][(j + 1) % segments]] for j in range(segments)]
+    for a, b in zip(ring[:-1], ring[1:]):
+        for j in range(segments):
+            k = (j + 1) % segments
+            tris += [[a[j], b[j], b[k]], [a[j], b[k], a[k]]]
+    tris += [[len(verts) - 1, ring[-1][(j + 1) % segments], ring[-1][j]]
+             for j in range(segments)]
+    tris = np.array(tris, dtype=np.int64)
+    c = verts[tris]
+    normal = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    inward = np.einsum('ij,ij->i', normal, c.mean(axis=1) - verts.mean(axis=0)) < 0
+    tris[inward] = tris[inward][:, [0, 2, 1]]
+    return Mesh(verts, tris)
+
+
+def trial_poses(trial: Mapping) -> List[Pose]:
+    """Probe poses of every step of a trial: the start pose moved ``depths[k]`` along the push."""
+    start = np.asarray(trial['start_position'], dtype=float)
+    direction = np.asarray(trial['direction'], dtype=float)
+    return [Pose(start + float(s) * direction, trial['orientation'])
+            for s in np.asarray(trial['depths'], dtype=float)]
+
+
+def bake_depths(curves: Sequence[PokeCurve]) -> np.ndarray:
+    """Depths the point model is baked at for the simulator, metres (as figure 2)."""
+    lo = min(0.0, min(c.onset_d for c in curves)) - 0.002
+    return np.linspace(lo, 0.03, 121)
 
 
 # ----------------------------------------------------------------------------- calibration
@@ -241,12 +305,7 @@ def trial_scores(pred: Sequence[tuple], trials: Sequence[Mapping]) -> Dict:
 
 def semi_empirical_shapes(curves, surface: Surface, trials, say=print) -> List[tuple]:
     """Figure 2's leave-one-trial-out ``(c, decay)`` per trial (point model on every poke)."""
-    from pointforce_ros.contact.identify import DECAY_GRID, shape_fits_from_probes
-    from pointforce_ros.contact.simulator import ContactSimulator
-    from pointforce_ros.lab.figures import _bake_depths, DEFAULT_C, trial_poses
-    from pointforce_ros.response.ours import ContactGpModel
-
-    depths = _bake_depths(curves)
+    depths = bake_depths(curves)
     calibration = ContactSimulator(
         surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C)
     shapes = []
@@ -266,14 +325,8 @@ def semi_empirical_shapes(curves, surface: Surface, trials, say=print) -> List[t
 
 def semi_empirical_wrenches(curves, surface: Surface, trials, shapes) -> List[tuple]:
     """Figure 2's "ours": point model on ``curves``, each trial with its own ``(c, decay)``."""
-    # the lab's semi-empirical stack (sklearn GP, contact LCP) is only needed by this
-    # comparison, not by the wing's estimators
-    from pointforce_ros.contact.simulator import ContactSimulator
-    from pointforce_ros.lab.figures import _bake_depths, DEFAULT_C, trial_poses
-    from pointforce_ros.response.ours import ContactGpModel
-
     model = ContactGpModel().fit(list(curves), surface)
-    sim = ContactSimulator(surface, model.bake(surface, _bake_depths(curves)), DEFAULT_C)
+    sim = ContactSimulator(surface, model.bake(surface, bake_depths(curves)), DEFAULT_C)
     out = []
     for (c, decay), t in zip(shapes, trials):
         w = sim.with_shape_constant(c, decay).query_batch(
@@ -283,30 +336,36 @@ def semi_empirical_wrenches(curves, surface: Surface, trials, shapes) -> List[tu
 
 
 # ----------------------------------------------------------------------------- data
-def load_object_data(name: str, foam_block=FOAM_BLOCK, say=print):
-    """``(surface, curves, trials)`` of an object: the cell's figure fixtures or the block's.
-
-    Raises:
-        DataError: the fixture is missing (the message says how to make it).
-
-    """
-    from pointforce_ros.lab.figures import (arrays_to_curves, load_poke_fixture,
-                                            load_probe_fixture)
-
-    if name != 'foam_block':
-        surface, curves, _ = load_poke_fixture(name, say=say)
-        trials, _, _ = load_probe_fixture(name, say=say)
-        return surface, curves, trials
-    path = Path(foam_block)
-    if not path.is_file():
-        raise DataError(f'no {path}: make it with python '
-                        f'test/data/deformation/make_wide_contact_fixtures.py')
+def _npz(path: Path) -> Dict[str, np.ndarray]:
     with np.load(path, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
-    nrm = data['surface_normals'].astype(float)
-    surface = Surface(points=data['surface_points'].astype(float),
-                      normals=nrm / np.linalg.norm(nrm, axis=1, keepdims=True),
-                      colors=np.clip(data['surface_colors'].astype(float), 0.0, 1.0))
+        return {k: z[k] for k in z.files}
+
+
+def _curves(data: Mapping) -> List[PokeCurve]:
+    """Poke curves of a figure fixture (``curve_*`` arrays, as ``lab.figures`` packs them)."""
+    off = np.asarray(data['curve_offsets'])
+    out = []
+    for k in range(len(data['curve_ids'])):
+        s = slice(int(off[k]), int(off[k + 1]))
+        normal = np.asarray(data['curve_normals'][k], dtype=float)
+        out.append(PokeCurve(poke_id=str(data['curve_ids'][k]),
+                             point=np.asarray(data['curve_points'][k], dtype=float),
+                             normal=normal / np.linalg.norm(normal),
+                             d=np.asarray(data['curve_d'][s], dtype=float),
+                             f=np.asarray(data['curve_f'][s], dtype=float),
+                             onset_d=float(data['curve_onsets'][k]),
+                             t=np.asarray(data['curve_t'][s], dtype=float)))
+    return out
+
+
+def _surface(data: Mapping) -> Surface:
+    nrm = np.asarray(data['surface_normals'], dtype=float)
+    return Surface(points=np.asarray(data['surface_points'], dtype=float),
+                   normals=nrm / np.linalg.norm(nrm, axis=1, keepdims=True),
+                   colors=np.clip(np.asarray(data['surface_colors'], dtype=float), 0.0, 1.0))
+
+
+def _trials(data: Mapping) -> List[Dict]:
     trials = []
     for i, kind in enumerate(data['trial_kinds']):
         if str(kind) == 'skipped':
@@ -317,7 +376,31 @@ def load_object_data(name: str, foam_block=FOAM_BLOCK, say=print):
         t['kind'] = str(kind)
         t['mesh'] = Mesh(t.pop('vertices'), t.pop('triangles'))
         trials.append(t)
-    return surface, anchor_curves(arrays_to_curves(data), surface), trials
+    return trials
+
+
+def load_object_data(name: str, foam_block=FOAM_BLOCK, figures=FIGURES_DATA):
+    """``(surface, curves, trials)`` of an object: figure 2's fixtures, or the foam block's.
+
+    Raises:
+        DataError: the fixture is missing (the message says how to make it).
+
+    """
+    if name == 'foam_block':
+        path = Path(foam_block)
+        if not path.is_file():
+            raise DataError(f'no {path}: make it with python '
+                            f'test/data/deformation/make_wide_contact_fixtures.py')
+        data = _npz(path)
+        surface = _surface(data)
+        return surface, anchor_curves(_curves(data), surface), _trials(data)
+    pokes, probes = Path(figures) / f'pokes_{name}.npz', Path(figures) / f'probes_{name}.npz'
+    for path in (pokes, probes):
+        if not path.is_file():
+            raise DataError(f'no {path}: make it with python data/figures/make_figures_data.py '
+                            f'--object {name}')
+    data = _npz(pokes)
+    return _surface(data), _curves(data), _trials(_npz(probes))
 
 
 def anchor_curves(curves: Sequence[PokeCurve], surface: Surface, radius: float = 0.003
@@ -381,11 +464,8 @@ def compare_object(name: str, draws: int = 3, n_train: int = 10, element_size: f
         ``trials`` (kinds and peak forces), ``seconds`` (per method, per draw).
 
     """
-    from pointforce_ros.sim.fem.live import POINT_PROBE
-    from pointforce_ros.sim.fem.probes import point_probe
-
     t0 = time.monotonic()
-    surface, curves, trials = load_object_data(name, foam_block, say)
+    surface, curves, trials = load_object_data(name, foam_block)
     if len(curves) < n_train:
         raise InvalidInput(f'{name}: {len(curves)} pokes, need n_train = {n_train}')
     probe = point_probe(**POINT_PROBE)

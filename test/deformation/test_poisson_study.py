@@ -31,6 +31,8 @@ def test_a_side_push_state_is_read_at_the_asked_depth():
 def test_table_lists_every_row():
     row = {'set': 'top + side', 'depth_mm': 3.0, 'young': 5.15e4, 'young_error_pct': 2.9,
            'poisson': 0.303, 'poisson_error': 0.003, 'poisson_interval': [0.283, 0.334],
-           'residual_change_pct': 3.3}
+           'residual_change_pct': 3.3, 'heldout_force_error_pct_median': 6.5,
+           'heldout_force_error_pct_max': 11.7}
     text = table({'rows': [row]})
-    assert '| top + side | 3 | 51.5 (+2.9 %) | 0.303 (+0.003) | 0.283-0.334 | 3.3 % |' in text
+    assert ('| top + side | 3 | 51.5 (+2.9 %) | 0.303 (+0.003) | 0.283-0.334 | 3.3 % | '
+            '6.5 / 11.7 % |') in text

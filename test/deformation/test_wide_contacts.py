@@ -8,11 +8,12 @@ from pointforce_ros.deformation.mesh import block_mesh
 from pointforce_ros.deformation.rigid_contact import RigidProbeContact
 from pointforce_ros.deformation.wide_contacts import (anchor_curves, calibrate_young,
                                                       fem_trial_wrenches, modulus_field,
-                                                      poke_forces, scan_offset, trial_scores)
+                                                      point_probe, POINT_PROBE, poke_forces,
+                                                      scan_offset, trial_scores)
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
-from pointforce_ros.sim.fem.live import POINT_PROBE
-from pointforce_ros.sim.fem.probes import box_probe, point_probe, pose_for_push
+from pointforce_ros.sim.fem import live, probes
+from pointforce_ros.sim.fem.probes import box_probe, pose_for_push
 from pointforce_ros.types import Surface
 
 L, H = 0.02, 0.01
@@ -126,3 +127,19 @@ def test_scan_offset_and_anchoring_undo_a_camera_bias():
     np.testing.assert_allclose(seen.d, d - bias, atol=1e-12)
     assert seen.point[2] == pytest.approx(0.03 - bias)
     assert scan_offset([seen]) == pytest.approx(bias)
+
+
+def test_point_probe_is_the_cells():
+    assert POINT_PROBE == live.POINT_PROBE
+    ours, cell = point_probe(**POINT_PROBE), probes.point_probe(**live.POINT_PROBE)
+    np.testing.assert_allclose(ours.vertices.min(axis=0), cell.vertices.min(axis=0), atol=2e-5)
+    np.testing.assert_allclose(ours.vertices.max(axis=0), cell.vertices.max(axis=0), atol=2e-5)
+
+    def volume(m):
+        c = m.vertices[m.triangles]
+        return abs(np.einsum('ij,ij->i', c[:, 0], np.cross(c[:, 1], c[:, 2])).sum()) / 6.0
+    assert volume(ours) == pytest.approx(volume(cell), rel=0.02)
+    c = ours.vertices[ours.triangles]
+    outward = np.einsum('ij,ij->i', np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]),
+                        c.mean(axis=1) - ours.vertices.mean(axis=0))
+    assert np.all(outward > 0)

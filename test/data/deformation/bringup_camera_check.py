@@ -1,0 +1,132 @@
+#!/usr/bin/env python3
+"""Camera-only force check on the running simulated cell: the data-making glue for the demo.
+
+To be moved to ``pointforce_ros/bringup/camera_check.py`` (``bringup`` may import ``sim``; the
+deformation wing may not, by the house rule in ``test/test_boundary.py``). It makes two static
+pushes of the cell's point probe with the cell's ground-truth FEM (neo-Hookean, frictionless,
+one FE mesh fine over both sites so that rest and deformed views share one discretisation),
+renders them with the cell's own camera (the scenario's bias and noise; the probe occludes),
+and hands them to :func:`pointforce_ros.deformation.cell_check.check_from_views`.
+
+Demo use (inside ``with CellSession(...) as cell``)::
+
+    check = camera_force_check(cell)
+    print(f'[demo] {check.line()}')
+"""
+
+from dataclasses import replace
+import time
+from typing import Sequence
+
+import numpy as np
+
+from pointforce_ros.deformation.cell_check import CameraForceCheck, check_from_views
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.rotations import quaternion_to_matrix
+from pointforce_ros.sim.fem.live import POINT_PROBE
+from pointforce_ros.sim.fem.probes import point_probe, pose_for_push
+from pointforce_ros.sim.fem.solver import FemModel
+from pointforce_ros.types import Mesh
+
+
+def _boundary_mesh(hex_mesh) -> np.ndarray:
+    """(2 B, 3) triangles of a hex mesh's boundary faces (all but the bottom), outward."""
+    f = hex_mesh.boundary_faces
+    return np.concatenate([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
+
+
+def _render(camera, pose, vertices, triangles, occluder=None):
+    """Visible object points of one view in ``base``, with an optional occluding mesh.
+
+    Returns:
+        ``(points (P, 3), normals (P, 3))``: metres; the outward normal of the object
+        triangle each pixel hit (standing in for cloud_capture's normal estimate).
+
+    """
+    verts, tris = vertices, triangles
+    if occluder is not None:
+        verts = np.concatenate([vertices, occluder.vertices])
+        tris = np.concatenate([triangles, occluder.triangles + len(vertices)])
+    mesh = Mesh(verts, tris)
+    _, prim, _ = camera.true_depth(mesh, pose)
+    frame = camera.render(mesh, pose, organised=True)
+    keep = frame.valid() & (prim >= 0) & (prim < len(triangles))
+    c = verts[tris[prim[keep]]]
+    normal = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    return frame.points[keep] @ pose[:3, :3].T + pose[:3, 3], normal
+
+
+def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: float = 0.005,
+                          identify_offset=(-0.010, 0.006), estimate_offset=(0.010, -0.006),
+                          element_size: float = 0.004, truth_h: float = 0.002
+                          ) -> CameraForceCheck:
+    """Identify on one static push, estimate the force of another from the camera alone.
+
+    Args:
+        spec: the cell's object (:class:`pointforce_ros.sim.objects.ObjectSpec`).
+        camera: the cell's depth camera (:class:`pointforce_ros.sim.camera.DepthCamera`).
+        poses: the camera's ring viewpoints ((4, 4) ``base <- optical``); all of them scan
+            the rest shape, the first sees the pushes.
+        depth: probe travel past contact of both pushes, metres.
+        identify_offset, estimate_offset: (x, y) of the pushes from the object's centre, m.
+        element_size: the estimator's mesh size, metres.
+        truth_h: the ground-truth FE element size over both push sites (one zone around the
+            object's centre, graded coarser outside, as the fixtures), metres.
+
+    Raises:
+        InvalidInput: no viewpoint, a non-positive depth, or a push the truth cannot solve.
+
+    """
+    t0 = time.perf_counter()
+    poses = list(poses)
+    if not poses or not depth > 0:
+        raise InvalidInput('camera_force_check: need at least one viewpoint and depth > 0')
+    reach = max(np.hypot(*identify_offset), np.hypot(*estimate_offset)) + 0.006
+    hex_mesh = spec.build_mesh(float(truth_h), refine_at=tuple(spec.centre), fine_radius=reach,
+                               growth=1.5)
+    hex_mesh = replace(hex_mesh, top_nodes=np.arange(hex_mesh.n_nodes))
+    model = FemModel(hex_mesh, spec.gauss_young(hex_mesh), spec.poisson, support=spec.support)
+    tris = _boundary_mesh(hex_mesh)
+    probe = point_probe(**POINT_PROBE)
+    views = [_render(camera, p, hex_mesh.nodes, tris) for p in poses]
+    rest = np.concatenate([v[0] for v in views])
+    rest_normals = np.concatenate([v[1] for v in views])
+    steps = np.linspace(0.0, depth, 6)[1:]
+    states = []  # per push: [(contact point, force on the object, cloud)] per kept depth
+    for off, keep in ((identify_offset, (2, 4)), (estimate_offset, (4,))):
+        x, y = spec.centre[0] + off[0], spec.centre[1] + off[1]
+        q = np.asarray(spec.top_point(x, y), dtype=float)
+        d = -np.asarray(spec.top_normal(x, y), dtype=float)
+        res = model.indent(probe, pose_for_push(q, d), d, steps, torque_centre=q)
+        kept = []
+        for k in keep:
+            ppose = pose_for_push(q + steps[k] * d, d)
+            rot = quaternion_to_matrix(ppose.orientation)
+            occluder = Mesh(probe.vertices @ rot.T + ppose.position, probe.triangles)
+            kept.append((q, -res.force[k], _render(camera, poses[0], res.surface[k], tris,
+                                                   occluder)[0]))
+        states.append(kept)
+    return check_from_views(rest, rest_normals, states[0], states[1][0],
+                            np.asarray(poses[0])[:3, 3], element_size=element_size,
+                            depth=float(depth), started=t0)
+
+
+def camera_force_check(cell, depth: float = 0.005) -> CameraForceCheck:
+    """Run :func:`camera_force_check_on` with a running simulated cell's object and camera.
+
+    Args:
+        cell: a :class:`pointforce_ros.bringup.cell.CellSession` with the simulated camera
+            (``cell.spec.spec``, ``cell.camera.camera``, ``cell.camera.poses``).
+        depth: push depth past contact, metres.
+
+    Raises:
+        InvalidInput: the cell has no simulated object or camera (a real cell: there the
+            node's ``~/estimate_force`` runs on the real camera's clouds).
+
+    """
+    sim_camera = getattr(cell, 'camera', None)
+    if getattr(cell, 'spec', None) is None or sim_camera is None:
+        raise InvalidInput('camera_force_check: needs the simulated object and camera; on a '
+                           'real cell call /deformation_force/estimate_force during a push')
+    return camera_force_check_on(cell.spec.spec, sim_camera.camera, sim_camera.poses, depth)

@@ -11,4 +11,10 @@ truth):
 - :mod:`.force`: the contact force from a cloud alone, with residual and covariance.
 - :mod:`.bench`: timing of one force estimate and one identification against the paper's
   Nelder-Mead.
+- :mod:`.rigid_contact`: a rigid probe mesh pressed into the FEM (frictionless LCP at face
+  points): the force and torque of a wide contact.
+- :mod:`.wide_contacts`: figure 2's line/cylinder trials, the calibrated FEM against the
+  semi-empirical simulator (``python -m pointforce_ros.deformation.wide_contacts --out DIR``).
+- :mod:`.poisson_study`: nu with and without side pushes on the homogeneous block.
+- :mod:`.cell_check`: the estimator's side of the demo's camera-only force check.
 """

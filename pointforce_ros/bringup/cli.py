@@ -58,7 +58,7 @@ def _cmd_bench(args) -> int:
 def _cmd_demo(args) -> int:
     return _load('pointforce_ros.bringup.demo:run_demo')(
         out=args.out, quick=args.quick, object_name=args.object, scenario=args.scenario,
-        pokes=args.pokes)
+        pokes=args.pokes, camera_check=args.camera_check)
 
 
 NODES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench',
@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument('--object', default='lamb', help='simulated object (config/objects)')
     demo.add_argument('--scenario', default='realistic', help='sensor effects (config/scenarios)')
     demo.add_argument('--pokes', type=int, default=0, help='number of pokes (0: 8, or 4 quick)')
+    demo.add_argument('--camera-check', action='store_true',
+                      help='also estimate one contact force from the camera alone against the '
+                           'F/T (seed 001; two ground-truth FEM solves, about 5 min more)')
     demo.set_defaults(func=_cmd_demo)
 
     cell = sub.add_parser('cell', help='run the node suite on the simulated (or a real) cell; '

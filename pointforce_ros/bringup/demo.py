@@ -24,6 +24,7 @@ import numpy as np
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup import plots
+from pointforce_ros.bringup.camera_check import camera_force_check
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.contact.identify import (DECAY_GRID, identify_shape_constant_from_probe,
                                              identify_shape_constant_from_probes,
@@ -350,8 +351,12 @@ def _ground_truth(spec, queries):
 
 
 def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lamb',
-             scenario: str = 'realistic', pokes: int = 0) -> int:
-    """Run the demo; returns a process exit code."""
+             scenario: str = 'realistic', pokes: int = 0, camera_check: bool = False) -> int:
+    """Run the demo; returns a process exit code.
+
+    ``camera_check`` adds seed 001's camera-only contact-force estimate against the F/T
+    reading (:mod:`pointforce_ros.bringup.camera_check`: two ground-truth FEM solves, minutes).
+    """
     started = time.monotonic()
     out = Path(out)
     pokes = pokes or (4 if quick else 8)
@@ -431,6 +436,11 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
             what = ('after: c and L from sphere and rod' if c_and_l is not None else
                     'after: c from the sphere' if c_only is not None else 'c as set')
             _report(what, summary, len(queries))
+        if camera_check:
+            try:  # seed 001: the contact force from the camera alone, against the F/T
+                print(f'[demo] {camera_force_check(cell).line()}')
+            except PointforceError as exc:
+                print(f'[demo] no camera-only force estimate: {exc}')
         learner = cell.learner_node.learner
         model = learner.model
         figures = out / 'figures'

@@ -1,11 +1,11 @@
 """The demo's camera-only force check: ray registration, a coarse run on the cell's truth."""
 
-import importlib.util
 import os
 
 import numpy as np
 import pytest
 
+from pointforce_ros.bringup import camera_check
 from pointforce_ros.deformation.cell_check import contact_on_scan
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints
@@ -16,12 +16,8 @@ BLOCK = os.path.join(DATA, 'foam_block.yaml')
 
 
 def _glue():
-    """The bringup glue, kept beside the fixtures until it moves to pointforce_ros/bringup."""
-    spec = importlib.util.spec_from_file_location(
-        'bringup_camera_check', os.path.join(DATA, 'bringup_camera_check.py'))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """The bringup glue of the camera-only check."""
+    return camera_check
 
 
 def test_contact_moves_along_the_line_of_sight_by_the_depth_bias():

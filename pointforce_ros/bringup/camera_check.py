@@ -1,12 +1,10 @@
-#!/usr/bin/env python3
 """Camera-only force check on the running simulated cell: the data-making glue for the demo.
 
-To be moved to ``pointforce_ros/bringup/camera_check.py`` (``bringup`` may import ``sim``; the
-deformation wing may not, by the house rule in ``test/test_boundary.py``). It makes two static
-pushes of the cell's point probe with the cell's ground-truth FEM (neo-Hookean, frictionless,
-one FE mesh fine over both sites so that rest and deformed views share one discretisation),
-renders them with the cell's own camera (the scenario's bias and noise; the probe occludes),
-and hands them to :func:`pointforce_ros.deformation.cell_check.check_from_views`.
+``bringup`` may import ``sim``; the deformation wing may not (``test/test_boundary.py``). It makes
+two static pushes of the cell's point probe with the cell's ground-truth FEM (neo-Hookean,
+frictionless, one FE mesh fine over both sites so that rest and deformed views share one
+discretisation), renders them with the cell's own camera (the scenario's bias and noise; the probe
+occludes), and hands them to :func:`pointforce_ros.deformation.cell_check.check_from_views`.
 
 Demo use (inside ``with CellSession(...) as cell``)::
 

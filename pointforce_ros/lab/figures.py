@@ -702,9 +702,6 @@ def bake_depths(curves: Sequence[PokeCurve]) -> np.ndarray:
     return np.linspace(lo, 0.03, 121)
 
 
-_bake_depths = bake_depths
-
-
 def _simulate_ours(sim, trials) -> List[Tuple[np.ndarray, np.ndarray]]:
     out = []
     for t in trials:

@@ -19,7 +19,9 @@ Thin wiring of the deformation wing (:mod:`pointforce_ros.deformation`, seed 001
 - **Observations for identification** (the simplest design a real cell can use, with no hold
   and no timing by the operator): while a poke runs, each new cloud is paired with the F/T
   force of the moment; the pair with the largest force (the deepest static state) becomes the
-  poke's observation when the poke ends, named ``contact-<n>`` and renamed to the poke id
+  poke's observation when the poke ends, if its force reached ``min_observation_force`` (an
+  F/T hovering at the threshold is not a push: a demo run held 27 such 0.2 N observations at
+  one spot), named ``contact-<n>`` and renamed to the poke id
   that ``poke_server/poke_landed`` announces next (within ``landed_window`` seconds).
   ``~/observe`` (Trigger) also snapshots the newest cloud, force and contact point by hand
   (``observe-<n>``), for a cell that holds the probe still.
@@ -126,6 +128,10 @@ class DeformationForceNode(Node):
         self.contact_force = declare(self, 'contact_force', 0.2,
                                      'A poke runs while the F/T force on the object exceeds '
                                      'this (ends below half of it), N', bounds=(0.01, 100.0))
+        self.min_observation_force = declare(
+            self, 'min_observation_force', 0.5,
+            'A poke becomes an observation only if its force reached this, N (smaller ones '
+            'are the F/T hovering at contact_force, not pushes)', bounds=(0.0, 100.0))
         self.landed_window = declare(self, 'landed_window', 30.0,
                                      'A poke id on poke_server/poke_landed names the last '
                                      'observation if it ended this recently, s',
@@ -137,6 +143,8 @@ class DeformationForceNode(Node):
         live(self, {'consistency_sigma': lambda v: lambda: setattr(self, 'sigma', v),
                     'ft_sigma': lambda v: lambda: setattr(self, 'ft_sigma', v),
                     'contact_force': lambda v: lambda: setattr(self, 'contact_force', v),
+                    'min_observation_force':
+                        lambda v: lambda: setattr(self, 'min_observation_force', v),
                     'landed_window': lambda v: lambda: setattr(self, 'landed_window', v),
                     'max_observations':
                         lambda v: lambda: setattr(self, 'max_observations', v)})
@@ -261,7 +269,8 @@ class DeformationForceNode(Node):
                 self._contact, self._candidate = position.copy(), None
             elif self._contact is not None and magnitude < 0.5 * self.contact_force:
                 self._contact = None
-                if self._candidate is not None:
+                if (self._candidate is not None
+                        and self._candidate[0] >= self.min_observation_force):
                     self._count += 1
                     name = f'contact-{self._count}'
                     self._add_observation(name, self._candidate[1])

@@ -258,3 +258,13 @@ def test_bad_requests_are_refused_and_a_saturated_ft_is_flagged(cell, monkeypatc
     # the node still answers
     assert cell.estimate_at(point).success
     assert node.estimates_published == 2
+
+
+def test_an_ft_hovering_at_the_threshold_is_no_observation(cell):
+    """A demo run held 27 observations of 0.2 N at one spot: the F/T crossing contact_force."""
+    push = _fixture('push_foam_block_0')
+    for _ in range(3):
+        cell.poke(push, 0, ft_force=[0.0, 0.0, -0.3])
+    assert cell.node._observations == {}
+    cell.poke(push, 0)          # a real push: its force is newtons
+    assert list(cell.node._observations) == ['contact-1']

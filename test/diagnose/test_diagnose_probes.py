@@ -15,8 +15,16 @@ import numpy as np
 import pytest
 
 from pointforce_ros.diagnose import diagnose
-from pointforce_ros.diagnose.probes import generated_files, score_probe_trials
+from pointforce_ros.diagnose.probes import (compliance_corrected, CouplingResult,
+                                            fit_series_compliance, generated_files,
+                                            learn_contact_model, ProbeScore, score_probe_trials)
+from pointforce_ros.diagnose.report import write_report
+from pointforce_ros.diagnose.run import _probe_accepted
+from pointforce_ros.effects.accepted import effects_from_dict, effects_to_dict
+from pointforce_ros.effects.forward import ForwardTerms
 from pointforce_ros.errors import InvalidInput
+from pointforce_ros.pokes.trials import load_probe_trials, save_probe_trials
+from pointforce_ros.response.baked import BakedResponse
 
 HERE = Path(__file__).resolve().parents[1] / 'data' / 'diagnose'
 _spec = importlib.util.spec_from_file_location('diagnose_probe_trials', HERE / 'probe_trials.py')
@@ -29,7 +37,6 @@ def test_probe_trials_are_scored_before_and_after_through_diagnose(tmp_path):
     # pokes through a compliant arm (0.5 mm/N), probes with the learner's own coupling: diagnose
     # accepts the compliance on the pokes and the model learned with it answers the probes far
     # better; the coupling, right already, is not changed
-    from pointforce_ros.diagnose.report import write_report
     trials = probe_data.make_trials(0.004)
     report = diagnose(datasets.make('series_compliance'), seed=0, bootstrap=0,
                       probes=trials, surface=probe_data.top_surface(), shape_constant=0.004,
@@ -81,7 +88,6 @@ def test_generate_folder_files_are_found_from_the_folder_or_its_pokes(tmp_path):
 
 
 def test_generated_probe_file_round_trips_into_trials(tmp_path):
-    from pointforce_ros.pokes.trials import load_probe_trials, save_probe_trials
     trials = probe_data.make_trials(0.004, count=1)
     save_probe_trials([{'kind': t.kind, 'vertices': t.mesh.vertices,
                         'triangles': t.mesh.triangles, 'start_position': t.start.position,
@@ -101,7 +107,6 @@ def test_generated_probe_file_round_trips_into_trials(tmp_path):
 def test_stiff_arm_missed_on_pokes_is_found_on_probe_trials_through_the_arm(tmp_path):
     # 20 N/mm: on point pokes it only reparametrises each curve (d_meas = d + C f) and is
     # absorbed; a paddle or cylinder deflects the arm by the total force of all its contacts
-    from pointforce_ros.diagnose.report import write_report
     trials = probe_data.make_trials(0.004, count=6, compliance=datasets.STIFF_ARM)
     assert all(t.compliant for t in trials)
     report = diagnose(datasets.make('stiff_arm'), seed=0, bootstrap=0, probes=trials,
@@ -130,8 +135,6 @@ def test_stiff_arm_missed_on_pokes_is_found_on_probe_trials_through_the_arm(tmp_
 
 def test_compliance_correction_of_a_baked_table_is_the_series_spring():
     # a row learned through a compliance C has 1/k_m = 1/k + C; the correction returns k
-    from pointforce_ros.diagnose.probes import compliance_corrected
-    from pointforce_ros.response.baked import BakedResponse
     depths = np.linspace(0.0, 0.01, 41)
     k_true = np.array([500.0, 2000.0, 8000.0])
     c = 1e-4
@@ -149,10 +152,6 @@ def test_compliance_correction_of_a_baked_table_is_the_series_spring():
 
 def test_effects_accepted_on_probe_trials_are_written_for_the_learner():
     # spatial_coupling's c goes into effects.json; the service says who applies it
-    from pointforce_ros.effects.accepted import effects_from_dict, effects_to_dict
-    from pointforce_ros.diagnose.run import _probe_accepted
-    from pointforce_ros.effects.forward import ForwardTerms
-    from pointforce_ros.diagnose.probes import CouplingResult, ProbeScore
     coupling = CouplingResult(assumed=0.004, fitted=0.012, std=0.001, rmse_before=2.0,
                               rmse_after=0.3, improvement=0.85, p_value=0.004,
                               delta_score=-20.0, improved=8, accepted=True, trials=8)
@@ -179,7 +178,6 @@ def test_no_arm_compliance_is_made_up_from_a_point_model_uniformly_too_stiff():
     # a point model uniformly too stiff (here by 12 %; noisy pokes once did that to ours) makes
     # rigid-arm trials look compliant: a compliance would soak the error up (33 N/mm at
     # p = 0.05 without the force-scale nuisance)
-    from pointforce_ros.diagnose.probes import fit_series_compliance, learn_contact_model
     spec = importlib.util.spec_from_file_location('diagnose_effect_table_probes',
                                                   HERE / 'effect_table.py')
     table = importlib.util.module_from_spec(spec)

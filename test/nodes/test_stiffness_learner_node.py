@@ -1,13 +1,19 @@
 """stiffness_learner over DDS: refits on poke_landed, latched model, restart, suggestions."""
 
+import json
+
 import numpy as np
 import pytest
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import SuggestPoke
+from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
+from pointforce_ros.contact import ContactSimulator
+from pointforce_ros.effects.accepted import effects_to_dict
+from pointforce_ros.effects.forward import model_surface
 from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
 from pointforce_ros.sim.session import halfspace_object, simulate_campaign
 from pointforce_ros.model.files import load_model, save_surface
@@ -72,8 +78,6 @@ def test_refit_on_landed_poke_survives_restart_and_suggests(ros_graph, tmp_path)
 
 
 def test_shape_constant_set_at_run_time_saves_a_new_model(ros_graph, tmp_path):
-    from rcl_interfaces.srv import SetParameters
-
     _setup(tmp_path)
     _learner(ros_graph, tmp_path)
     probe = ros_graph.add(Node('c_probe', context=ros_graph.context))
@@ -118,8 +122,6 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
     learner restarts: it must use the persisted (c, L), and its model (5 pokes, requested as
     v5, a version taken by other content) is saved as v7, the version it must publish.
     """
-    from rcl_interfaces.srv import SetParameters
-
     store, records = _setup(tmp_path)
     learner = _learner(ros_graph, tmp_path)
     probe = ros_graph.add(Node('shape_probe', context=ros_graph.context))
@@ -149,8 +151,6 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
 
 def test_uncertainty_sources_go_into_every_model_and_survive_a_restart(ros_graph, tmp_path):
     """Issue 17: the calibration's (c, L) covariance and shares reach the contact service."""
-    from rcl_interfaces.srv import SetParameters
-
     store, records = _setup(tmp_path)
     learner = _learner(ros_graph, tmp_path)
     probe = ros_graph.add(Node('uncertainty_probe', context=ros_graph.context))
@@ -231,8 +231,6 @@ def _heldout_rmse(model, records):
 
     Answered by the contact simulator on the surface the contact service uses.
     """
-    from pointforce_ros.contact import ContactSimulator
-    from pointforce_ros.effects.forward import model_surface
     sim = ContactSimulator(model_surface(model), model.response, model.shape_constant)
     err = []
     for r in records:
@@ -245,8 +243,6 @@ def _heldout_rmse(model, records):
 
 
 def test_effects_file_corrects_the_pokes_and_lowers_the_heldout_error(ros_graph, tmp_path):
-    import json
-    from pointforce_ros.effects.accepted import effects_to_dict
     results = {}
     for name, effects in (('plain', None), ('effects', PLASTIC), ('broken', 'broken')):
         folder = tmp_path / name
@@ -281,7 +277,6 @@ def test_effects_file_corrects_the_pokes_and_lowers_the_heldout_error(ros_graph,
 
 
 def test_a_shape_constant_in_the_effects_file_sets_the_parameter_and_model(ros_graph, tmp_path):
-    import json
     _plastic_setup(tmp_path)
     path = tmp_path / 'effects.json'
     path.write_text(json.dumps({'spatial_coupling': {'shape_constant': 0.0021}}))

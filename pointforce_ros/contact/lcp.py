@@ -302,18 +302,12 @@ def solve_lcp_batch(G, d: np.ndarray, valid: Optional[np.ndarray] = None,
         bad = vt & ((Ft & (xt < -e)) | (~Ft & (wt < -e)))
         x[todo] = np.where(Ft, xt, 0.0)
         done = ~bad.any(axis=1)
-        if np.all(done):
-            todo = todo[:0]
+        todo = _next_round(F, todo, done, bad, best, chances)
+        if not len(todo):
             break
-        keep = ~done
-        idx = todo[keep]
-        _pivot(F, idx, bad[keep], best, chances)
-        todo = idx
     if len(todo):
-        w = (Gv[todo] @ x[todo][:, :, None])[:, :, 0] - d[todo]
-        worst = max(_residuals(w, x[todo], valid[todo]))
-        raise NotConverged(f'LCP: {len(todo)} problem(s) still infeasible after {max_iter} '
-                           f'pivoting rounds (residual {worst:.3g})')
+        _not_converged((Gv[todo] @ x[todo][:, :, None])[:, :, 0] - d[todo], x[todo],
+                       valid[todo], max_iter)
     x = np.maximum(x, 0.0)
     u = (Gv @ x[:, :, None])[:, :, 0]
     if product is not None:
@@ -325,6 +319,23 @@ def _residuals(w, x, valid) -> np.ndarray:
     """(B,) ``max |min(x, w)|`` over the valid entries of each row."""
     r = np.where(valid, np.abs(np.minimum(x, w)), 0.0)
     return r.max(axis=1) if r.shape[1] else np.zeros(len(r))
+
+
+def _next_round(F, todo, done, bad, best, chances) -> np.ndarray:
+    """Pivot the problems of ``todo`` not ``done``; return them (empty when all are done)."""
+    if np.all(done):
+        return todo[:0]
+    keep = ~done
+    idx = todo[keep]
+    _pivot(F, idx, bad[keep], best, chances)
+    return idx
+
+
+def _not_converged(w, x, valid, max_iter: int) -> None:
+    """Raise NotConverged for the ``len(x)`` problems still infeasible (``w = G x - d``)."""
+    worst = max(_residuals(w, x, valid))
+    raise NotConverged(f'LCP: {len(x)} problem(s) still infeasible after {max_iter} '
+                       f'pivoting rounds (residual {worst:.3g})')
 
 
 def _pivot(F, idx, bad, best, chances) -> None:
@@ -401,19 +412,13 @@ def _solve_points(G: PointShapeStack, d: np.ndarray, valid: np.ndarray, F: np.nd
             yc = np.maximum(y[fin], 0.0)
             uf = up[fin] if np.all(yc == y[fin]) else (cols[fin] @ yc[:, :, None])[:, :, 0]
             u[todo[fin][:, None], perm[fin]] = uf
-        if np.all(done):
-            todo = todo[:0]
+        todo = _next_round(F, todo, done, bad, best, chances)
+        if not len(todo):
             break
-        keep = ~done
-        idx = todo[keep]
-        _pivot(F, idx, bad[keep], best, chances)
-        todo = idx
     if len(todo):
         dense = PointShapeStack(G.points[todo], G.c, G.decay).dense()
-        w = (dense @ x[todo][:, :, None])[:, :, 0] - d[todo]
-        worst = max(_residuals(w, x[todo], valid[todo]))
-        raise NotConverged(f'LCP: {len(todo)} problem(s) still infeasible after {max_iter} '
-                           f'pivoting rounds (residual {worst:.3g})')
+        _not_converged((dense @ x[todo][:, :, None])[:, :, 0] - d[todo], x[todo], valid[todo],
+                       max_iter)
     x = np.maximum(x, 0.0)
     if product is not None:
         product[...] = u

@@ -47,6 +47,31 @@ def _learner(graph, tmp_path):
         Parameter('poll_period', value=600.0)]))
 
 
+class LearnerProbe:
+    """A client of the learner: its published model statuses and a parameter setter."""
+
+    def __init__(self, graph, name: str):
+        self.graph = graph
+        node = graph.add(Node(name, context=graph.context))
+        self.statuses = []
+        node.create_subscription(ModelStatus, '/stiffness_learner/model', self.statuses.append,
+                                 LATCHED)
+        self.client = node.create_client(SetParameters, '/stiffness_learner/set_parameters')
+
+    def wait_version(self, version: int):
+        """Wait for the model ``version``; return its status."""
+        self.graph.wait_for(lambda: self.statuses and self.statuses[-1].version == version, 30,
+                            f'model v{version}')
+        return self.statuses[-1]
+
+    def set(self, name: str, value):
+        """Set one learner parameter over its service; return the SetParametersResult."""
+        assert self.client.wait_for_service(timeout_sec=10)
+        request = SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()])
+        return self.graph.wait_future(self.client.call_async(request), 20, name).results[0]
+
+
 def test_refit_on_landed_poke_survives_restart_and_suggests(ros_graph, tmp_path):
     store, records = _setup(tmp_path)
     learner = _learner(ros_graph, tmp_path)
@@ -80,18 +105,12 @@ def test_refit_on_landed_poke_survives_restart_and_suggests(ros_graph, tmp_path)
 def test_shape_constant_set_at_run_time_saves_a_new_model(ros_graph, tmp_path):
     _setup(tmp_path)
     _learner(ros_graph, tmp_path)
-    probe = ros_graph.add(Node('c_probe', context=ros_graph.context))
-    statuses = []
-    probe.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
-    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 30, 'model v4')
-    first = load_model(statuses[-1].model_path)
-    client = probe.create_client(SetParameters, '/stiffness_learner/set_parameters')
-    assert client.wait_for_service(timeout_sec=10)
+    probe = LearnerProbe(ros_graph, 'c_probe')
+    statuses = probe.statuses
+    first = load_model(probe.wait_version(4).model_path)
 
     def set_c(value, name='shape_constant'):
-        request = SetParameters.Request(
-            parameters=[Parameter(name, value=value).to_parameter_msg()])
-        return ros_graph.wait_future(client.call_async(request), 20, 'set c').results[0]
+        return probe.set(name, value)
 
     assert not set_c(0.5).successful            # outside [1e-4, 0.1] m: refused
     assert statuses[-1].version == 4
@@ -124,17 +143,12 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
     """
     store, records = _setup(tmp_path)
     learner = _learner(ros_graph, tmp_path)
-    probe = ros_graph.add(Node('shape_probe', context=ros_graph.context))
-    statuses = []
-    probe.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
-    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 30, 'model v4')
-    client = probe.create_client(SetParameters, '/stiffness_learner/set_parameters')
-    assert client.wait_for_service(timeout_sec=10)
+    probe = LearnerProbe(ros_graph, 'shape_probe')
+    statuses = probe.statuses
+    probe.wait_version(4)
     for name, value, version in [('shape_constant', 0.0007, 5), ('shape_decay', 0.008, 6)]:
-        request = SetParameters.Request(
-            parameters=[Parameter(name, value=value).to_parameter_msg()])
-        assert ros_graph.wait_future(client.call_async(request), 20, name).results[0].successful
-        ros_graph.wait_for(lambda: statuses[-1].version == version, 30, f'model v{version}')
+        assert probe.set(name, value).successful
+        probe.wait_version(version)
     ros_graph.remove(learner)  # the node is killed
     store.add(records[4])
     statuses.clear()
@@ -153,25 +167,15 @@ def test_uncertainty_sources_go_into_every_model_and_survive_a_restart(ros_graph
     """Issue 17: the calibration's (c, L) covariance and shares reach the contact service."""
     store, records = _setup(tmp_path)
     learner = _learner(ros_graph, tmp_path)
-    probe = ros_graph.add(Node('uncertainty_probe', context=ros_graph.context))
-    statuses = []
-    probe.create_subscription(ModelStatus, '/stiffness_learner/model', statuses.append, LATCHED)
-    ros_graph.wait_for(lambda: statuses and statuses[-1].version == 4, 30, 'model v4')
-    assert 'shape_cov' not in load_model(statuses[-1].model_path).meta
-    client = probe.create_client(SetParameters, '/stiffness_learner/set_parameters')
-    assert client.wait_for_service(timeout_sec=10)
-
-    def set_param(name, value):
-        request = SetParameters.Request(
-            parameters=[Parameter(name, value=value).to_parameter_msg()])
-        return ros_graph.wait_future(client.call_async(request), 20, name).results[0]
-
-    refused = set_param('shape_cov', [0.04, 0.5, -0.5, 400.0])      # not symmetric
+    probe = LearnerProbe(ros_graph, 'uncertainty_probe')
+    statuses = probe.statuses
+    assert 'shape_cov' not in load_model(probe.wait_version(4).model_path).meta
+    refused = probe.set('shape_cov', [0.04, 0.5, -0.5, 400.0])      # not symmetric
     assert not refused.successful and 'symmetric' in refused.reason
-    assert set_param('shape_cov', [0.04, 0.5, 0.5, 400.0]).successful
-    ros_graph.wait_for(lambda: statuses[-1].version == 5, 30, 'model v5')
-    assert set_param('relative_std', 0.07).successful
-    ros_graph.wait_for(lambda: statuses[-1].version == 6, 30, 'model v6')
+    assert probe.set('shape_cov', [0.04, 0.5, 0.5, 400.0]).successful
+    probe.wait_version(5)
+    assert probe.set('relative_std', 0.07).successful
+    probe.wait_version(6)
     meta = load_model(statuses[-1].model_path).meta
     assert meta['shape_cov'] == [[0.04, 0.5], [0.5, 400.0]] and meta['relative_std'] == 0.07
     ros_graph.remove(learner)  # the node is killed

@@ -4,7 +4,9 @@
 two static pushes of the cell's point probe with the cell's ground-truth FEM (neo-Hookean,
 frictionless, one FE mesh fine over both sites so that rest and deformed views share one
 discretisation), renders them with the cell's own camera (the scenario's bias and noise; the probe
-occludes), and hands them to :func:`pointforce_ros.deformation.cell_check.check_from_views`.
+occludes), each static state as a few stacked frames of the camera that sees the pushes, with
+that camera's rest frames as the residual's reference, and hands them to
+:func:`pointforce_ros.deformation.cell_check.check_from_views`.
 
 Demo use (inside ``with CellSession(...) as cell``)::
 
@@ -25,6 +27,9 @@ from pointforce_ros.sim.fem.live import POINT_PROBE
 from pointforce_ros.sim.fem.probes import point_probe, pose_for_push
 from pointforce_ros.sim.fem.solver import FemModel
 from pointforce_ros.types import Mesh
+
+FRAMES = 4
+"""Depth frames stacked per static state (2 s of the cell's 2 Hz camera)."""
 
 
 def _boundary_mesh(hex_mesh) -> np.ndarray:
@@ -57,8 +62,8 @@ def _render(camera, pose, vertices, triangles, occluder=None):
 
 def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: float = 0.005,
                           identify_offset=(-0.010, 0.006), estimate_offset=(0.010, -0.006),
-                          element_size: float = 0.004, truth_h: float = 0.002
-                          ) -> CameraForceCheck:
+                          element_size: float = 0.004, truth_h: float = 0.002,
+                          frames: int = FRAMES, field: bool = False) -> CameraForceCheck:
     """Identify on one static push, estimate the force of another from the camera alone.
 
     Args:
@@ -71,6 +76,10 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
         element_size: the estimator's mesh size, metres.
         truth_h: the ground-truth FE element size over both push sites (one zone around the
             object's centre, graded coarser outside, as the fixtures), metres.
+        frames: depth frames the pushing camera takes of each static state (and of the rest
+            shape, the residual's reference), stacked: a held push is static for a second or
+            more, and the camera's noise is independent from frame to frame.
+        field: identify a heterogeneous modulus field seeded by the pushes' own moduli.
 
     Raises:
         InvalidInput: no viewpoint, a non-positive depth, or a push the truth cannot solve.
@@ -78,8 +87,9 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
     """
     t0 = time.perf_counter()
     poses = list(poses)
-    if not poses or not depth > 0:
-        raise InvalidInput('camera_force_check: need at least one viewpoint and depth > 0')
+    if not poses or not depth > 0 or int(frames) < 1:
+        raise InvalidInput('camera_force_check: need at least one viewpoint, depth > 0 and '
+                           'frames >= 1')
     reach = max(np.hypot(*identify_offset), np.hypot(*estimate_offset)) + 0.006
     hex_mesh = spec.build_mesh(float(truth_h), refine_at=tuple(spec.centre), fine_radius=reach,
                                growth=1.5)
@@ -90,6 +100,8 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
     views = [_render(camera, p, hex_mesh.nodes, tris) for p in poses]
     rest = np.concatenate([v[0] for v in views])
     rest_normals = np.concatenate([v[1] for v in views])
+    view_rest = np.concatenate([views[0][0]] + [_render(camera, poses[0], hex_mesh.nodes, tris)[0]
+                                                for _ in range(int(frames) - 1)])
     steps = np.linspace(0.0, depth, 6)[1:]
     states = []  # per push: [(contact point, force on the object, cloud)] per kept depth
     for off, keep in ((identify_offset, (2, 4)), (estimate_offset, (4,))):
@@ -102,12 +114,13 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
             ppose = pose_for_push(q + steps[k] * d, d)
             rot = quaternion_to_matrix(ppose.orientation)
             occluder = Mesh(probe.vertices @ rot.T + ppose.position, probe.triangles)
-            kept.append((q, -res.force[k], _render(camera, poses[0], res.surface[k], tris,
-                                                   occluder)[0]))
+            cloud = np.concatenate([_render(camera, poses[0], res.surface[k], tris, occluder)[0]
+                                    for _ in range(int(frames))])
+            kept.append((q, -res.force[k], cloud))
         states.append(kept)
     return check_from_views(rest, rest_normals, states[0], states[1][0],
                             np.asarray(poses[0])[:3, 3], element_size=element_size,
-                            depth=float(depth), started=t0)
+                            depth=float(depth), started=t0, view_rest=view_rest, field=field)
 
 
 def camera_force_check(cell, depth: float = 0.005) -> CameraForceCheck:

@@ -119,6 +119,9 @@ class ElasticityFit:
             interval; an interval reaching a bound says the data does not pin nu.
         young_interval: (lo, hi) of E over the same nu interval, widened by E's own
             standard error at each nu (same ``sigma^2``), Pa.
+        local_young: (n,) each poke's own best E at the fitted nu and field (its points
+            alone), Pa: where the pokes disagree the object is not what the field says (the
+            samples that seed a heterogeneous field, :func:`.wide_contacts.modulus_field`).
 
     """
 
@@ -132,6 +135,13 @@ class ElasticityFit:
     factorise_seconds: float = 0.0
     poisson_interval: Tuple[float, float] = (float('nan'), float('nan'))
     young_interval: Tuple[float, float] = (float('nan'), float('nan'))
+    local_young: Tuple[float, ...] = ()
+
+    @property
+    def young_relative_std(self) -> float:
+        """Half the width of :attr:`young_interval` over E (about one standard deviation)."""
+        lo, hi = self.young_interval
+        return float((hi - lo) / (2.0 * self.young)) if np.isfinite(hi - lo) else float('nan')
 
 
 def _loads(mesh: TetMesh, pokes: Sequence[Poke], radius: float) -> np.ndarray:
@@ -265,8 +275,8 @@ def _poisson_profile(matches, family: 'ReducedPoissonFamily', corr, bounds, nu: 
 
 def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
                         config: IdentifyConfig = IdentifyConfig(), rest_offset=None,
-                        young_guess: float = 5e4, fem: Optional[CorotationalFem] = None
-                        ) -> Tuple[ElasticityFit, CorotationalFem]:
+                        young_guess: float = 5e4, fem: Optional[CorotationalFem] = None,
+                        young_field=None) -> Tuple[ElasticityFit, CorotationalFem]:
     """Identify (E, nu): closed-form E per nu, bounded 1-D search over nu, co-rotation refine.
 
     Args:
@@ -278,6 +288,9 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
         fem: the object's model as built when its surface was scanned (factorised at its
             own nu, which becomes the reference nu); built here at ``reference_poisson`` when
             None. It is refactorised at the found (E, nu) and returned.
+        young_field: optional (M,) relative element modulus (a heterogeneous object: the
+            shape of the field is given, its scale E and nu are identified; the returned
+            ``young`` is the field's mean). Default: the given model's field, else uniform.
 
     Returns:
         ``(fit, fem)``: the fit and the model factorised at it (for force estimates).
@@ -292,12 +305,24 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
     matchers = [SurfaceMatcher(mesh, p.contact_point, p.cloud, config.match,
                                rest_offset=rest_offset) for p in pokes]
     t_fact = 0.0
+    field = None
+    if young_field is not None:
+        field = as_array(young_field, 'young_field', (len(mesh.tets),))
+        if not np.all(field > 0):
+            raise InvalidInput('identify: young_field must be positive everywhere')
+        field = field / field.mean()
     if fem is None:
         t1 = time.perf_counter()
-        fem = CorotationalFem(mesh, young_guess, config.reference_poisson)
+        fem = CorotationalFem(mesh, young_guess * (1.0 if field is None else field),
+                              config.reference_poisson)
         t_fact += time.perf_counter() - t1
     elif fem.mesh is not mesh:
         raise InvalidInput('identify: the given model was built on another mesh')
+    elif field is not None:
+        t1 = time.perf_counter()
+        fem.set_material(fem.young * field, fem.poisson)
+        t_fact += time.perf_counter() - t1
+    field = fem.element_young / fem.young
     loads = _loads(mesh, pokes, config.load_radius)
     family = ReducedPoissonFamily(fem, loads, config.krylov)
     corr = np.zeros_like(loads)
@@ -320,7 +345,7 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
                                f'clouds do not move with the measured forces')
         state['matches'] = [m.match(unit[:, j] * s) for j, m in enumerate(matchers)]
     t1 = time.perf_counter()
-    fem.set_material(1.0 / s, nu)
+    fem.set_material(field / s, nu)
     t_fact += time.perf_counter() - t1
     unit = fem.solve_linear(loads) * fem.young  # exact unit-modulus solutions at nu
     for _ in range(int(config.refine_iter)):
@@ -336,11 +361,14 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
     s, sse, npts = _best_compliance(state['matches'], unit, corr)
     nu_interval, young_interval = _poisson_profile(state['matches'], family, corr,
                                                    config.poisson_bounds, nu)
-    fem.set_material(1.0 / s, nu)
+    local = tuple(1.0 / _best_compliance([m], unit[:, [j]], corr[:, [j]])[0]
+                  for j, m in enumerate(state['matches']))
+    fem.set_material(field / s, nu)
     fit = ElasticityFit(young=1.0 / s, poisson=nu, residual_rms=float(np.sqrt(sse / npts)),
                         points=npts, evaluations=state['evals'],
                         seconds=time.perf_counter() - t0, error=sse, factorise_seconds=t_fact,
-                        poisson_interval=nu_interval, young_interval=young_interval)
+                        poisson_interval=nu_interval, young_interval=young_interval,
+                        local_young=local)
     return fit, fem
 
 

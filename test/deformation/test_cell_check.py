@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pointforce_ros.bringup import camera_check
-from pointforce_ros.deformation.cell_check import contact_on_scan
+from pointforce_ros.deformation.cell_check import contact_on_scan, direction_std_deg
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints
 from pointforce_ros.sim.objects import load_object
@@ -59,3 +59,11 @@ def test_a_cell_without_a_simulated_camera_is_refused():
 
     with pytest.raises(InvalidInput, match='simulated object and camera'):
         _glue().camera_force_check(RealCell())
+
+
+def test_direction_std_of_an_isotropic_covariance_is_sigma_over_the_force():
+    f = np.array([0.0, 0.0, -2.0])
+    # sigma 0.1 N in every direction: about 0.05 rad across a 2 N force
+    assert direction_std_deg(f, 0.01 * np.eye(3)) == pytest.approx(np.degrees(0.05), rel=1e-9)
+    # uncertainty along the force only: no direction uncertainty
+    assert direction_std_deg(f, np.diag([0.0, 0.0, 0.04])) == pytest.approx(0.0, abs=1e-12)

@@ -153,3 +153,26 @@ def test_foam_block_identification_and_held_out_force_against_the_cell():
     # measured: median 6.5 %, worst 11.7 % (at 3 mm, 0.7 N)
     assert np.median(errors) < 0.1
     assert max(errors) < 0.15
+
+
+def test_identification_with_a_given_modulus_field_recovers_its_scale_and_local_moduli(mesh):
+    # a block twice as stiff on its +x half: a uniform fit reads the two pokes' own moduli
+    # apart (local_young), and the true field shape gives back the true scale
+    centroid = mesh.nodes[mesh.tets].mean(axis=1)
+    field = np.where(centroid[:, 0] > 0.5, 2.0, 1.0)
+    field /= field.mean()
+    truth = CorotationalFem(mesh, 4e4 * field, 0.35)
+    points = [[0.485, 0.0, SIZE[2]], [0.515, 0.0, SIZE[2]]]
+    forces = [[0.0, 0.0, -0.6], [0.0, 0.0, -0.9]]
+    pokes = [Poke(p, f, _sample_surface(mesh, _push(truth, p, f), 5000, 3e-5, 40 + k))
+             for k, (p, f) in enumerate(zip(points, forces))]
+    uniform, _ = identify_elasticity(mesh, pokes, IdentifyConfig(poisson_bounds=(0.34, 0.36)))
+    soft, stiff = uniform.local_young
+    assert stiff > 1.4 * soft, uniform.local_young
+    fit, fem = identify_elasticity(mesh, pokes, IdentifyConfig(poisson_bounds=(0.34, 0.36)),
+                                   young_field=field)
+    assert fit.young == pytest.approx(4e4, rel=0.05)
+    np.testing.assert_allclose(fem.element_young / fem.young, field, rtol=1e-9)
+    assert fit.young_relative_std > 0
+    with pytest.raises(InvalidInput, match='positive'):
+        identify_elasticity(mesh, pokes, young_field=-field)

@@ -1,0 +1,214 @@
+#!/usr/bin/env python3
+"""Camera-only force on held-out static pushes, leave one site out (issue 18's scoring).
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 python test/data/deformation/held_out_study.py --object foam_block
+    python test/data/deformation/held_out_study.py --object lamb --field       # E field
+    python test/data/deformation/held_out_study.py --object foam_block --frames 1 \\
+        --reference merged                                               # the old check
+
+Scenario: the object (``foam_block`` from this folder's YAML, or a cell object such as
+``lamb`` or ``plush``) is pushed at a few sites (normal, and tilted 20 deg) by the cell's point
+probe to 3, 5 and 8 mm; the truth is the cell's neo-Hookean FEM on one hexahedral mesh over all
+sites (``--truth-h``, cached under ``--out`` as ``truth_<object>.npz``: minutes per push). The
+demo cell's camera (realistic scenario: 2 mm depth bias, noise ``2e-4 + 4e-3 z^2`` m; ring of
+two viewpoints at 0.35 m, 55 deg) scans the rest shape from both viewpoints; the first one
+films every push, the probe hiding what it hides, ``--frames`` frames per static state. Each
+push is held out in turn: (E, nu) (and with ``--field`` a modulus field seeded by the other
+sites' own moduli) is identified on the other sites' 3 and 5 mm states with their F/T forces,
+and the held-out push's force at each depth is estimated from its clouds alone
+(:func:`pointforce_ros.deformation.cell_check.check_from_views`). Printed per state: the
+magnitude error, the direction error, the reported 1-sigma, and whether the truth is inside
+2 sigma; then the means.
+"""
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+
+for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ.setdefault(_var, '1')
+
+import numpy as np  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', '..')))
+
+from pointforce_ros.bringup.camera_check import _render  # noqa: E402
+from pointforce_ros.deformation.cell_check import check_from_views  # noqa: E402
+from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints  # noqa: E402
+from pointforce_ros.sim.fem.live import POINT_PROBE  # noqa: E402
+from pointforce_ros.sim.fem.probes import point_probe, pose_for_push  # noqa: E402
+from pointforce_ros.sim.fem.solver import FemModel  # noqa: E402
+from pointforce_ros.sim.objects import load_object  # noqa: E402
+from pointforce_ros.sim.scenario import load_scenario  # noqa: E402
+from pointforce_ros.types import Mesh  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+SITES = {
+    # object: [(dx, dy from the footprint centre m, tilt deg, tilt azimuth deg)]
+    'foam_block': [(-0.010, 0.006, 0, 0), (0.010, -0.006, 0, 0), (0.0, 0.0, 0, 0),
+                   (0.012, 0.010, 0, 0), (-0.012, -0.008, 20, 0), (0.005, 0.008, 20, 90)],
+    'lamb': [(0.015, 0.005, 0, 0), (0.028, 0.008, 0, 0), (-0.020, -0.015, 0, 0),
+             (-0.015, 0.010, 20, 0), (0.005, -0.015, 20, 90)],   # the first two over the bone
+    'plush': [(0.020, 0.012, 0, 0), (0.008, 0.018, 0, 0), (-0.025, -0.015, 0, 0),
+              (-0.010, 0.0, 20, 0), (0.010, -0.015, 20, 90)],   # firm wad, its edge, pocket
+}
+DEPTHS = np.array([1.5, 3.0, 4.0, 5.0, 6.5, 8.0]) * 1e-3
+"""Probe travel steps of the truth solve, metres."""
+KEEP = (1, 3, 5)
+"""Stored steps: 3, 5 and 8 mm."""
+IDENTIFY = (0, 1)
+"""Stored states of the other sites used for identification: 3 and 5 mm."""
+
+
+def say(msg):
+    """Print a progress line at once."""
+    print(msg, flush=True)
+
+
+def spec_of(name):
+    """Object spec: this folder's YAML first, else the cell's object of that name."""
+    local = os.path.join(HERE, f'{name}.yaml')
+    return load_object(local if os.path.isfile(local) else name)
+
+
+def push_direction(normal, tilt_deg, azimuth_deg):
+    """Inward normal ``-normal`` tilted by ``tilt_deg`` towards the azimuth (about +z)."""
+    d = -np.asarray(normal, dtype=float)
+    if tilt_deg == 0:
+        return d
+    az = np.radians(azimuth_deg)
+    axis = np.cross(d, [np.cos(az), np.sin(az), 0.0])
+    axis /= np.linalg.norm(axis)
+    return Rotation.from_rotvec(-np.radians(tilt_deg) * axis).apply(d)
+
+
+def solve_truth(name, path, h):
+    """Solve every site's push with the cell's FEM on one mesh; cache node positions."""
+    spec = spec_of(name)
+    sites = SITES[name]
+    cx, cy = spec.centre
+    half = (max(abs(s[0]) for s in sites) + 0.008, max(abs(s[1]) for s in sites) + 0.008)
+    mesh = spec.build_mesh(h, refine_at=(cx, cy), fine_radius=half, growth=1.5)
+    mesh = dataclasses.replace(mesh, top_nodes=np.arange(mesh.n_nodes))
+    model = FemModel(mesh, spec.gauss_young(mesh), spec.poisson, support=spec.support)
+    probe = point_probe(**POINT_PROBE)
+    out = dict(nodes=mesh.nodes, faces=mesh.boundary_faces, young=spec.young,
+               poisson=spec.poisson, truth_h=h)
+    for k, (dx, dy, tilt, az) in enumerate(sites):
+        t0 = time.time()
+        q = np.asarray(spec.top_point(cx + dx, cy + dy), dtype=float)
+        d = push_direction(spec.top_normal(cx + dx, cy + dy), tilt, az)
+        res = model.indent(probe, pose_for_push(q, d), d, DEPTHS, torque_centre=q,
+                           keep_solved=True)
+        keep = [i for i in KEEP if i < len(res.depths)]
+        out.update({f'p{k}_q': q, f'p{k}_dir': d, f'p{k}_tilt': tilt,
+                    f'p{k}_depths': res.depths[keep], f'p{k}_force': -res.force[keep],
+                    f'p{k}_surface': np.stack([res.surface[i] for i in keep]).astype(np.float32),
+                    'count': k + 1})
+        np.savez_compressed(path, **out)
+        say(f'{name} push {k}: {np.round(res.depths[keep] * 1e3, 1)} mm, |F| '
+            f'{np.round(np.linalg.norm(-res.force[keep], axis=1), 2)} N, {time.time() - t0:.0f} s')
+
+
+def load_truth(path):
+    """The cached pushes: ``(nodes, triangles, [dict(q, d, tilt, depths, force, surface)])``."""
+    t = dict(np.load(path))
+    f = t['faces']
+    tris = np.concatenate([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
+    pushes = [dict(q=t[f'p{k}_q'], d=t[f'p{k}_dir'], tilt=float(t[f'p{k}_tilt']),
+                   depths=t[f'p{k}_depths'], force=t[f'p{k}_force'],
+                   surface=t[f'p{k}_surface'].astype(float)) for k in range(int(t['count']))]
+    return t['nodes'], tris, pushes
+
+
+def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2):
+    """Rest scan (all viewpoints), the first viewpoint's rest frames and every push's clouds."""
+    kw = load_scenario('realistic').camera_kwargs()
+    kw['seed'] = seed
+    camera = DepthCamera(**kw)
+    lo, hi = nodes[:, :2].min(axis=0), nodes[:, :2].max(axis=0)
+    poses = ring_viewpoints([*(0.5 * (lo + hi)), 0.0], distance, count=views)
+    scans = [_render(camera, p, nodes, tris) for p in poses]
+    rest = np.concatenate([s[0] for s in scans])
+    normals = np.concatenate([s[1] for s in scans])
+    view_rest = np.concatenate([scans[0][0]] + [_render(camera, poses[0], nodes, tris)[0]
+                                                for _ in range(frames - 1)])
+    probe = point_probe(**POINT_PROBE)
+    for p in pushes:
+        p['clouds'] = []
+        for i, depth in enumerate(p['depths']):
+            pose = pose_for_push(p['q'] + depth * p['d'], p['d'])
+            rot = Rotation.from_quat(pose.orientation).as_matrix()
+            occluder = Mesh(probe.vertices @ rot.T + pose.position, probe.triangles)
+            p['clouds'].append(np.concatenate([
+                _render(camera, poses[0], p['surface'][i], tris, occluder)[0]
+                for _ in range(frames)]))
+    return rest, normals, view_rest, np.asarray(poses[0])[:3, 3]
+
+
+def main(argv=None):
+    """Parse the command line, solve or load the truth, score every held-out push."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--object', default='foam_block', choices=sorted(SITES))
+    ap.add_argument('--out', default='out/held_out_pushes')
+    ap.add_argument('--truth-h', type=float, default=0.003, help='truth element size, m')
+    ap.add_argument('--frames', type=int, default=4, help='frames stacked per static state')
+    ap.add_argument('--reference', choices=('view', 'merged'), default='view',
+                    help="residual reference: the pushing camera's rest frames, or the "
+                         'merged multi-view scan (the check before issue 18\'s fix)')
+    ap.add_argument('--field', action='store_true', help='heterogeneous modulus field')
+    ap.add_argument('--seed', type=int, default=7)
+    ap.add_argument('--json', help='write the rows and the summary here')
+    args = ap.parse_args(argv)
+    os.makedirs(args.out, exist_ok=True)
+    path = os.path.join(args.out, f'truth_{args.object}.npz')
+    if not os.path.isfile(path):
+        solve_truth(args.object, path, args.truth_h)
+    nodes, tris, pushes = load_truth(path)
+    rest, normals, view_rest, origin = render_views(nodes, tris, pushes, args.frames, args.seed)
+    rows = []
+    for j, held in enumerate(pushes):
+        states = [(p['q'], p['force'][i], p['clouds'][i]) for k, p in enumerate(pushes)
+                  if k != j for i in IDENTIFY if i < len(p['depths'])]
+        for i, depth in enumerate(held['depths']):
+            c = check_from_views(rest, normals, states,
+                                 (held['q'], held['force'][i], held['clouds'][i]), origin,
+                                 depth=float(depth), field=args.field,
+                                 view_rest=view_rest if args.reference == 'view' else None)
+            rows.append(dict(push=j, tilt=held['tilt'], depth=float(depth),
+                             force=float(np.linalg.norm(c.ft_force)),
+                             magnitude_error=float(np.linalg.norm(c.camera_force)
+                                                   / np.linalg.norm(c.ft_force) - 1.0),
+                             direction_deg=c.direction_error_deg,
+                             magnitude_std=c.camera_std / float(np.linalg.norm(c.ft_force)),
+                             direction_std_deg=c.direction_std_deg, inside=c.inside,
+                             young=c.young, poisson=c.poisson))
+            r = rows[-1]
+            say(f'push {j} (tilt {r["tilt"]:.0f}) {depth * 1e3:.1f} mm |F| {r["force"]:.2f} N: '
+                f'magnitude {100 * r["magnitude_error"]:+.1f} % +- '
+                f'{100 * r["magnitude_std"]:.1f}, direction {r["direction_deg"]:.1f} +- '
+                f'{r["direction_std_deg"]:.1f} deg, {"inside" if r["inside"] else "OUTSIDE"} '
+                f'2 sigma; E {r["young"] / 1e3:.1f} kPa, nu {r["poisson"]:.2f}')
+    mag = np.abs([r['magnitude_error'] for r in rows])
+    ang = np.array([r['direction_deg'] for r in rows])
+    summary = dict(object=args.object, frames=args.frames, reference=args.reference,
+                   field=args.field, states=len(rows),
+                   magnitude_mean_pct=100 * float(mag.mean()),
+                   magnitude_max_pct=100 * float(mag.max()),
+                   direction_mean_deg=float(ang.mean()), direction_max_deg=float(ang.max()),
+                   inside_2sigma=float(np.mean([r['inside'] for r in rows])))
+    say('summary ' + json.dumps(summary))
+    if args.json:
+        with open(args.json, 'w') as f:
+            json.dump(dict(rows=rows, summary=summary), f, indent=1)
+
+
+if __name__ == '__main__':
+    main()

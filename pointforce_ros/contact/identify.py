@@ -16,16 +16,20 @@ Two ways are implemented:
 * :func:`shape_fit_covariance`: how well the pushes determine ``(log c, 1 / L)``: the
   Gauss-Newton (Laplace) covariance at the fit, for the wrench's uncertainty
   (:mod:`pointforce_ros.contact.uncertainty`).
+* :func:`calibrate_shape`: the joint fit with every uncertainty source the service needs, the
+  share of the force it misses taken from leave-one-push-out refits (how well ``(c, L)`` from
+  some pushes predicts another push), not from the fit's own residual.
 """
 
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
 from pointforce_ros.contact.lcp import check_decay, shape_function
+from pointforce_ros.contact.uncertainty import lateral_share, uncertainty_sources
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.types import as_array, Mesh, Pose, Surface
 
@@ -352,3 +356,132 @@ def shape_fit_covariance(simulator, pokes: Sequence[tuple], fit: ShapeFit,
                  (0.01 * float(np.mean(np.abs(measured)))) ** 2)
     precision = np.diag(1.0 / np.asarray(prior_std, dtype=np.float64) ** 2)
     return sigma2 * np.linalg.inv(jac.T @ jac + sigma2 * precision)
+
+
+@dataclass(frozen=True)
+class ShapeCalibration:
+    """``(c, L)`` from calibration pushes with the wrench's uncertainty sources.
+
+    Attributes:
+        fit: the joint fit on every push (:func:`identify_shape_constant_from_probes`).
+        shape_cov: (2, 2) covariance of ``(log c, 1 / L [1/m])``: the joint fit's
+            (:func:`shape_fit_covariance`) plus, on ``log c``, the spread between the pushes'
+            own ``c`` (``per_push``): ``(1 + 1/m)`` times their sample variance over the
+            ``m >= 2`` pushes that determine one (what a new probe's ``c`` may differ by).
+        relative_std: share of the force along the push that the model misses on a push it
+            was not fitted to: the root mean square, over the pushes, of each push's relative
+            RMS error predicted by ``c`` refitted on the other pushes (at ``fit.decay``);
+            never below ``in_sample_std``, which it is with one push or where no refit
+            converged.
+        lateral_std: RMS force across the push not predicted, over the RMS normal force
+            (:func:`~pointforce_ros.contact.uncertainty.lateral_share`; 0 where no push has
+            force vectors).
+        in_sample_std: the joint fit's RMS residual along the push over the pushes' RMS force.
+        per_push: ``c`` (metres) fitted to each push alone at ``fit.decay``, ``nan`` where
+            that push does not determine it (its optimum on a search bound).
+        held_out: per push, in order, ``(c refitted on the others or nan, relative RMS error
+            of that push predicted with it or nan)``.
+
+    """
+
+    fit: ShapeFit
+    shape_cov: np.ndarray
+    relative_std: float
+    lateral_std: float
+    in_sample_std: float
+    per_push: Tuple[float, ...] = ()
+    held_out: Tuple[Tuple[float, float], ...] = ()
+
+    def sources(self) -> Dict:
+        """Return the sources in the model-``meta`` form (the learner stores them)."""
+        return uncertainty_sources(shape_cov=self.shape_cov, relative_std=self.relative_std,
+                                   lateral_std=self.lateral_std)
+
+
+def _along(sim, poke) -> Tuple[np.ndarray, np.ndarray]:
+    """Predicted and measured force along the push (``-approach``), N, of one push."""
+    mesh, poses, approach, measured = poke
+    a = np.asarray(approach, dtype=np.float64)
+    measured = np.asarray(measured, dtype=np.float64)
+    pred = -sim.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3] @ a
+    return pred, (measured if measured.ndim == 1 else -measured @ a)
+
+
+def _relative_error(sim, poke) -> float:
+    pred, measured = _along(sim, poke)
+    size = float(np.sqrt(np.mean(measured ** 2)))       # a push with no force has no share
+    return float(np.sqrt(np.mean((pred - measured) ** 2))) / size if size > 0 else float('nan')
+
+
+def calibrate_shape(simulator, pokes: Sequence[tuple],
+                    decays: Optional[Sequence[float]] = DECAY_GRID,
+                    c_bounds: Tuple[float, float] = (1e-4, 0.1)) -> ShapeCalibration:
+    """Identify ``(c, L)`` from calibration pushes with the wrench's uncertainty sources.
+
+    The joint fit is :func:`identify_shape_constant_from_probes`. Its residual and its
+    covariance understate the error on a new probe: ``c`` absorbs the point model's error
+    under the pushes it was fitted to, and a line and a cylinder want different ``c`` (on the
+    figure objects the fits from one object's probe trials scatter by a factor 2-4 in ``c``,
+    far more than the joint fit's covariance says). So, at the joint decay length ``L`` (one
+    push rarely determines ``L``: ``c`` and ``L`` trade off along a ridge):
+
+    * each push is predicted by ``c`` refitted on the other pushes, and ``relative_std`` is
+      the root mean square of those held-out relative errors;
+    * ``c`` is fitted to each push alone, and their spread is added to the covariance of
+      ``log c`` (:class:`ShapeCalibration`).
+
+    Everything comes from the calibration pushes alone. ``n`` pushes cost one fit over the
+    decay lengths and ``2 n`` fits of ``c`` alone (``n`` with two pushes).
+
+    Args:
+        simulator: as for :func:`identify_shape_constant_from_probes`.
+        pokes: ``(mesh, poses, approach, measured_force)`` per push, ``measured_force`` (T,)
+            along ``-approach`` or (T, 3) vectors (these also give ``lateral_std``).
+        decays: decay lengths to try, metres (default :data:`DECAY_GRID`; ``None``: the
+            simulator's own).
+        c_bounds: search interval for ``c``, metres.
+
+    Returns:
+        :class:`ShapeCalibration`.
+
+    Raises:
+        InvalidInput: as :func:`identify_shape_constant_from_probes`.
+        NotConverged: the joint fit's ``c`` lies on a search bound at every decay length.
+
+    """
+    pokes = list(pokes)
+    fit = identify_shape_constant_from_probes(simulator, pokes, c_bounds, decays)
+    calibrated = simulator.with_shape_constant(fit.c, fit.decay)
+    pred, measured = zip(*(_along(calibrated, p) for p in pokes))
+    pred, measured = np.concatenate(pred), np.concatenate(measured)
+    scale = max(float(np.sqrt(np.mean(measured ** 2))), 1e-12)
+    in_sample = float(np.sqrt(np.mean((pred - measured) ** 2))) / scale
+
+    def c_alone(subset) -> float:
+        try:
+            return identify_shape_constant_from_probes(simulator, subset, c_bounds,
+                                                       (fit.decay,)).c
+        except NotConverged:
+            return float('nan')
+
+    per_push = [c_alone([p]) for p in pokes] if len(pokes) > 1 else []
+    held_out = []
+    for i, poke in enumerate(pokes):
+        if len(pokes) == 1:
+            held_out.append((float('nan'), float('nan')))
+            continue
+        c = per_push[1 - i] if len(pokes) == 2 else c_alone(pokes[:i] + pokes[i + 1:])
+        error = (_relative_error(simulator.with_shape_constant(c, fit.decay), poke)
+                 if np.isfinite(c) else float('nan'))
+        held_out.append((c, error))
+    errors = np.array([e for _, e in held_out if np.isfinite(e)])
+    relative = max(float(np.sqrt(np.mean(errors ** 2))) if len(errors) else 0.0, in_sample)
+    cov = shape_fit_covariance(simulator, pokes, fit)
+    alone = np.log([c for c in per_push if np.isfinite(c)])
+    if len(alone) >= 2:
+        cov[0, 0] += (1.0 + 1.0 / len(alone)) * float(np.var(alone, ddof=1))
+    vectors = [p for p in pokes if np.asarray(p[3]).ndim == 2]
+    lateral = lateral_share(calibrated, vectors) if vectors else 0.0
+    return ShapeCalibration(fit=fit, shape_cov=cov, relative_std=relative, lateral_std=lateral,
+                            in_sample_std=in_sample, per_push=tuple(per_push),
+                            held_out=tuple(held_out))

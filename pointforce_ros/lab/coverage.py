@@ -3,12 +3,13 @@
 For each object with a probe fixture (``data/figures/probes_<name>.npz``: FEM full-solve line and
 cylinder trials) the point model is trained on ``n_train`` random pokes of its poke fixture, and
 each trial is scored with the shape function calibrated on the object's *other* trials (leave one
-trial out, as figure 2): ``(c, L)`` from
-:func:`~pointforce_ros.contact.identify.shape_fits_from_probes`, its covariance
-(:func:`~pointforce_ros.contact.identify.shape_fit_covariance`), the fit's relative residual and
-the lateral share (:func:`~pointforce_ros.contact.uncertainty.lateral_share`): the sources the
-learner stores in a model and the contact service turns into ``wrench_std``. The truth of the
-trial never enters its interval.
+trial out, as figure 2) by :func:`~pointforce_ros.contact.identify.calibrate_shape`: ``(c, L)``,
+its covariance widened by the spread of ``c`` between those trials, the share of the force
+missed on a trial the fit has not seen (each of the *other* trials predicted from the rest in
+turn) and the lateral share: the sources the learner stores in a model and the contact service
+turns into ``wrench_std``. The truth of the trial never enters its interval.
+``sources='fit_only'`` takes the joint fit's own covariance and residual share instead (what the
+demo stored before issue 17's second pass), for a before/after comparison.
 
 ``python -m pointforce_ros.lab.coverage --out DIR`` prints one line per object and the pooled
 coverage, and writes ``coverage.json`` and ``coverage.png`` (normalised errors ``err / std``
@@ -22,11 +23,9 @@ from typing import Callable, Dict, Mapping, Optional, Sequence
 
 import numpy as np
 
-from pointforce_ros.contact.identify import (DECAY_GRID, shape_fit_covariance,
-                                             shape_fits_from_probes)
+from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID, shape_fit_covariance
 from pointforce_ros.contact.simulator import ContactSimulator
-from pointforce_ros.contact.uncertainty import (lateral_share, uncertainty_sources,
-                                                wrench_uncertainty, Z90)
+from pointforce_ros.contact.uncertainty import uncertainty_sources, wrench_uncertainty, Z90
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.lab.figures import (bake_depths, DATA_DIR, DEFAULT_C, load_poke_fixture,
                                         load_probe_fixture, OBJECTS, PROBE_TRAIN_POKES,
@@ -43,7 +42,7 @@ def _push(trial: Mapping) -> tuple:
 
 def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequence[Mapping],
                    n_train: int = PROBE_TRAIN_POKES, seed: int = 0,
-                   say: Callable[[str], None] = print) -> Dict:
+                   say: Callable[[str], None] = print, sources: str = 'calibrated') -> Dict:
     """Score the 90 % intervals of every probe-trial step of one object (module docstring).
 
     Args:
@@ -54,16 +53,23 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
         n_train: training pokes.
         seed: draw of the training pokes.
         say: progress lines.
+        sources: ``'calibrated'`` (the default: what
+            :meth:`~pointforce_ros.contact.identify.ShapeCalibration.sources` gives) or
+            ``'fit_only'`` (the joint fit's own covariance and relative residual).
 
     Returns:
         ``{'normal': (S,) normalised error err/std of the force along the push, 'force': (S, 3)
-        of each force component, 'pred', 'std', 'true': (S, 3) N, 'kinds': (S,) trial kind}``
-        over the ``S`` steps of all trials.
+        of each force component, 'pred', 'std', 'true': (S, 3) N, 'kinds': (S,) trial kind,
+        'relative_std': (S,) the relative share each step's interval used}`` over the ``S``
+        steps of all trials.
 
     Raises:
-        InvalidInput: fewer than 2 trials or fewer than ``n_train`` curves.
+        InvalidInput: fewer than 2 trials or fewer than ``n_train`` curves, or an unknown
+            ``sources``.
 
     """
+    if sources not in ('calibrated', 'fit_only'):
+        raise InvalidInput(f"sources: 'calibrated' or 'fit_only', got {sources!r}")
     trials = list(trials)
     if len(trials) < 2:
         raise InvalidInput('probe_coverage: need >= 2 trials (the others calibrate (c, L))')
@@ -73,23 +79,21 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
     train = [curves[i] for i in rng.choice(len(curves), size=n_train, replace=False)]
     baked = ContactGpModel().fit(train, surface).bake(surface, bake_depths(curves))
     nominal = ContactSimulator(surface, baked, DEFAULT_C)
-    rows = {'normal': [], 'force': [], 'pred': [], 'std': [], 'true': [], 'kinds': []}
+    rows = {'normal': [], 'force': [], 'pred': [], 'std': [], 'true': [], 'kinds': [],
+            'relative_std': []}
     for j, trial in enumerate(trials):
         others = [_push(t) for i, t in enumerate(trials) if i != j]
         try:
-            fit = min(shape_fits_from_probes(nominal, others, decays=DECAY_GRID),
-                      key=lambda f: f.rmse)
+            cal = calibrate_shape(nominal, others, decays=DECAY_GRID)
         except (PointforceError, ValueError) as exc:
             say(f'[coverage]   trial {j}: (c, L) not identified from the others ({exc})')
             continue
-        calibrated = nominal.with_shape_constant(fit.c, fit.decay)
-        measured = np.concatenate([np.asarray(p[3]) @ -np.asarray(p[2]) for p in others])
-        sources = uncertainty_sources(
+        fit = cal.fit
+        meta = cal.sources() if sources == 'calibrated' else uncertainty_sources(
             shape_cov=shape_fit_covariance(nominal, others, fit),
-            relative_std=fit.rmse / np.sqrt(np.mean(measured ** 2)),
-            lateral_std=lateral_share(calibrated, others))
+            relative_std=cal.in_sample_std, lateral_std=cal.lateral_std)
         model = ContactModel(surface=surface, response=baked, shape_constant=fit.c, version=1,
-                             shape_decay=fit.decay, meta=sources)
+                             shape_decay=fit.decay, meta=meta)
         out = wrench_uncertainty(model, trial['mesh'], trial_poses(trial), trial['direction'],
                                  trial['torque_centre'])
         pred, std = out.wrench[:, :3], np.maximum(out.std[:, :3], 1e-12)
@@ -102,15 +106,18 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
         rows['std'].append(std)
         rows['true'].append(true)
         rows['kinds'] += [trial['kind']] * len(true)
+        rows['relative_std'] += [meta.get('relative_std', 0.0)] * len(true)
         say(f'[coverage]   trial {j} ({trial["kind"]}): c {1e3 * fit.c:.2f} mm, L '
             + (f'{1e3 * fit.decay:.0f} mm' if np.isfinite(fit.decay) else 'none')
-            + f'; covered {np.mean(np.abs(rows["normal"][-1]) <= Z90):.0%} of '
-            f'{len(true)} steps')
+            + f', relative std {meta.get("relative_std", 0.0):.0%} (in-sample '
+            f'{cal.in_sample_std:.0%}); covered '
+            f'{np.mean(np.abs(rows["normal"][-1]) <= Z90):.0%} of {len(true)} steps')
     if not rows['normal']:
         raise InvalidInput('probe_coverage: no trial could be calibrated from the others')
     return {'normal': np.concatenate(rows['normal']), 'force': np.vstack(rows['force']),
             'pred': np.vstack(rows['pred']), 'std': np.vstack(rows['std']),
-            'true': np.vstack(rows['true']), 'kinds': np.array(rows['kinds'])}
+            'true': np.vstack(rows['true']), 'kinds': np.array(rows['kinds']),
+            'relative_std': np.array(rows['relative_std'])}
 
 
 def summary(result: Mapping) -> Dict:
@@ -124,7 +131,9 @@ def summary(result: Mapping) -> Dict:
             'below': int(np.sum(normal < 0)), 'above': int(np.sum(normal > 0)),
             'width_over_force': float(np.median(2 * Z90 * np.linalg.norm(std, axis=1)
                                                 / np.maximum(peak, 1e-9))),
-            'mean_force': float(np.mean(np.linalg.norm(pred, axis=1)))}
+            'mean_force': float(np.mean(np.linalg.norm(pred, axis=1))),
+            'relative_std': float(np.median(result['relative_std']))
+            if 'relative_std' in result else float('nan')}
 
 
 def _plot(results: Mapping[str, Mapping], path: Path) -> None:
@@ -156,6 +165,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--train', type=int, default=PROBE_TRAIN_POKES,
                         help='training pokes of the point model')
+    parser.add_argument('--sources', choices=('calibrated', 'fit_only'), default='calibrated',
+                        help="uncertainty sources: calibrate_shape's (default) or the joint "
+                        "fit's own covariance and residual (before issue 17's second pass)")
     args = parser.parse_args(argv)
     results, table = {}, {}
     for name in args.objects:
@@ -163,17 +175,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         trials, _, _ = load_probe_fixture(name, args.data)
         print(f'[coverage] {name}: {len(trials)} probe trials, point model on {args.train} '
               f'of {len(curves)} pokes')
-        results[name] = probe_coverage(curves, surface, trials, args.train, args.seed)
+        results[name] = probe_coverage(curves, surface, trials, args.train, args.seed,
+                                       sources=args.sources)
         table[name] = summary(results[name])
         s = table[name]
         print(f'[coverage] {name}: 90 % intervals cover {s["coverage_normal"]:.0%} of '
               f'{s["steps"]} steps (force along the push; {s["coverage_force"]:.0%} of all '
               f'components); predicted below truth {s["below"]}, above {s["above"]}; median '
-              f'width {s["width_over_force"]:.0%} of the force')
+              f'width {s["width_over_force"]:.0%} of the force (median relative std '
+              f'{s["relative_std"]:.0%})')
     pooled = {key: np.concatenate([np.asarray(r[key]) for r in results.values()])
-              if key in ('normal', 'kinds') else
+              if key in ('normal', 'kinds', 'relative_std') else
               np.vstack([np.asarray(r[key]) for r in results.values()])
-              for key in ('normal', 'force', 'pred', 'std', 'true', 'kinds')}
+              for key in ('normal', 'force', 'pred', 'std', 'true', 'kinds', 'relative_std')}
     table['pooled'] = summary(pooled)
     s = table['pooled']
     print(f'[coverage] pooled: {s["coverage_normal"]:.0%} of {s["steps"]} steps covered (goal '

@@ -30,3 +30,8 @@ def test_summary_counts_what_lies_inside_the_nominal_interval():
 def test_probe_coverage_needs_other_trials_to_calibrate():
     with pytest.raises(InvalidInput, match='2 trials'):
         probe_coverage([], None, [{}])
+
+
+def test_probe_coverage_refuses_unknown_sources():
+    with pytest.raises(InvalidInput, match='sources'):
+        probe_coverage([], None, [{}, {}], sources='leave_one_step_out')

@@ -1,0 +1,86 @@
+"""Shape calibration with its uncertainty sources: the relative share from held-out pushes."""
+
+import numpy as np
+import pytest
+
+from pointforce_ros.contact.identify import calibrate_shape, shape_fit_covariance
+from pointforce_ros.contact.simulator import ContactSimulator
+from pointforce_ros.contact.uncertainty import uncertainty_sources
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.lab.synthetic_contact import patch_contact_model
+from pointforce_ros.shapes import box, icosphere
+from pointforce_ros.types import Pose
+
+DOWN = np.array([0.0, 0.0, -1.0])
+AT = np.array([0.505, 0.004, 0.04])
+DECAY = 0.02
+
+
+def _truth_and_pokes():
+    """Sphere, paddle and rod pushes on the patch, measured by the true (c, L) = (4, 20) mm."""
+    model = patch_contact_model()
+    truth = ContactSimulator(model.surface, model.response, model.shape_constant, decay=DECAY)
+    probes = [(icosphere(0.01, 3), [AT + [0, 0, 0.01 - d] for d in (0.002, 0.003)]),
+              (box([0.04, 0.006, 0.02]), [AT + [0, 0, -d] for d in (0.001, 0.002)]),
+              (box([0.006, 0.03, 0.006]), [AT + [-0.008, 0, -d] for d in (0.001, 0.002)])]
+    pokes = []
+    for mesh, positions in probes:
+        poses = [Pose(position=p) for p in positions]
+        force = -truth.query_batch(mesh, poses, DOWN, AT).wrenches[:, :3] @ DOWN
+        assert np.all(force > 0.5)
+        pokes.append((mesh, poses, DOWN, force))
+    # the fit starts from a simulator with the wrong constant and the paper's tail
+    return truth.with_shape_constant(0.01, np.inf), pokes
+
+
+def test_exact_pushes_leave_no_share_and_recover_the_constant():
+    start, pokes = _truth_and_pokes()
+    cal = calibrate_shape(start, pokes, decays=(DECAY,))
+    assert cal.fit.c == pytest.approx(0.004, rel=1e-4) and cal.fit.decay == DECAY
+    np.testing.assert_allclose(cal.per_push, 0.004, rtol=1e-4)
+    assert len(cal.held_out) == 3
+    for c, error in cal.held_out:
+        assert c == pytest.approx(0.004, rel=1e-4) and error < 1e-5
+    assert cal.relative_std < 1e-5 and cal.lateral_std == 0.0
+    # the pushes agree about c: nothing is added to the fit's own covariance
+    np.testing.assert_allclose(cal.shape_cov, shape_fit_covariance(start, pokes, cal.fit),
+                               rtol=1e-6)
+    assert np.all(np.linalg.eigvalsh(cal.shape_cov) > 0)
+
+
+def test_a_push_the_others_do_not_explain_sets_the_share_and_the_spread_of_c():
+    start, pokes = _truth_and_pokes()
+    mesh, poses, approach, force = pokes[1]
+    pokes[1] = (mesh, poses, approach, 1.3 * force)   # 30 % the true (c, L) cannot give
+    cal = calibrate_shape(start, pokes, decays=(DECAY,))
+    # the sphere and rod alone pin the true c: the paddle is missed by 0.3 / 1.3 of its force
+    c, error = cal.held_out[1]
+    assert c == pytest.approx(0.004, rel=1e-4)
+    assert error == pytest.approx(0.3 / 1.3, rel=1e-4)
+    errors = np.array([e for _, e in cal.held_out])
+    assert np.all(errors > 0.05)                 # the joint fit's pull spoils the other two
+    assert cal.relative_std == pytest.approx(np.sqrt(np.mean(errors ** 2)))
+    # the fit's own residual understates it: the joint c absorbs part of the paddle's error
+    assert cal.in_sample_std < cal.relative_std
+    # the paddle alone asks for another c; that spread goes onto log c, and only there
+    assert abs(np.log(cal.per_push[1] / 0.004)) > 0.1
+    added = cal.shape_cov - shape_fit_covariance(start, pokes, cal.fit)
+    spread = (1 + 1 / 3) * np.var(np.log(cal.per_push), ddof=1)
+    np.testing.assert_allclose(added, [[spread, 0.0], [0.0, 0.0]], rtol=1e-6, atol=1e-9)
+    sources = cal.sources()
+    assert sources == uncertainty_sources(shape_cov=cal.shape_cov,
+                                          relative_std=cal.relative_std)
+
+
+def test_two_pushes_predict_each_other_and_one_push_falls_back_to_the_fit_residual():
+    start, pokes = _truth_and_pokes()
+    mesh, poses, approach, force = pokes[0]
+    pokes[0] = (mesh, poses, approach, force * np.array([1.1, 0.95]))
+    pair = calibrate_shape(start, pokes[:2], decays=(DECAY,))
+    assert [c for c, _ in pair.held_out] == [pair.per_push[1], pair.per_push[0]]
+    one = calibrate_shape(start, pokes[:1], decays=(DECAY,))
+    assert one.per_push == () and np.all(np.isnan(one.held_out))
+    assert one.relative_std == one.in_sample_std > 0
+    np.testing.assert_allclose(one.shape_cov, shape_fit_covariance(start, pokes[:1], one.fit))
+    with pytest.raises(InvalidInput, match='no pokes'):
+        calibrate_shape(start, [], decays=(DECAY,))

@@ -13,6 +13,9 @@ Figures, each against a baseline measured in the same run:
 
 Round trips are timed by an event-driven client: the future's done callback sets a
 ``threading.Event`` the benchmark waits on (with a deadline), so no poll period is in the figure.
+The client spins on a ``SingleThreadedExecutor`` (as ``spin_until_future_complete`` does); the
+``*_mt_client`` series repeat the single query and the Trigger from a client on a 2-thread
+``MultiThreadedExecutor``, whose hand-off to its pool costs about 0.4 ms per round trip here.
 The contact service runs as deployed, in its own process (``python -m
 pointforce_ros.nodes.contact_wrench``, the console script's ``main``), and so does the Trigger
 service (on the same kind of executor); the benchmark is the planner's process. All of them use
@@ -224,13 +227,23 @@ def _load_test(clients: int, calls: int) -> dict:
 
 def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3,
                  ContactWrenchBatch):
-    """Single, Mesh-message, Trigger, small-batch and large-batch round trips (seconds)."""
+    """Single, Mesh-message, Trigger, small-batch and large-batch round trips (seconds).
+
+    The planner's client node spins on a ``SingleThreadedExecutor`` of its own, as a planner
+    calling ``spin_until_future_complete`` does; a second client node on the launcher's
+    ``MultiThreadedExecutor`` times the single query and the Trigger again (``*_mt``), so the
+    cost of the client's executor choice is in the same run.
+    """
     from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
-    client_node = planner.add(Node('bench_client', context=planner.context))
+    client_node = planner.add(Node('bench_client', context=planner.context), isolated=True,
+                              threads=1)
+    mt_node = planner.add(Node('bench_client_mt', context=planner.context))
     single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
     batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
     trigger = client_node.create_client(Trigger, '/bench_trigger/trigger')
-    for client in (single, batch, trigger):
+    single_mt = mt_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    trigger_mt = mt_node.create_client(Trigger, '/bench_trigger/trigger')
+    for client in (single, batch, trigger, single_mt, trigger_mt):
         if not client.wait_for_service(timeout_sec=60):
             raise RuntimeError(f'service {client.srv_name} did not appear within 60 s')
     vertices, triangles = mesh_to_flat(sphere)
@@ -243,17 +256,21 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
                                           approach=approach, torque_centre=to_point(CENTRE),
                                           skip_uncertainty=True, **flat)
     for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
-        round_trip(single, _single_request(pose, flat), 30, 'contact_wrench')
-        round_trip(trigger, Trigger.Request(), 30, 'trigger')
-    rtt, msg_rtt, trigger_rtt = [], [], []
+        for client in (single, single_mt):
+            round_trip(client, _single_request(pose, flat), 30, 'contact_wrench')
+        for client in (trigger, trigger_mt):
+            round_trip(client, Trigger.Request(), 30, 'trigger')
+    rtt, msg_rtt, trigger_rtt, mt_rtt, mt_trigger_rtt = [], [], [], [], []
     for pose in poses[:n_single]:   # interleaved: all see the same machine load
-        for mesh, times in ((flat, rtt), (as_msg, msg_rtt)):
-            elapsed, resp = round_trip(single, _single_request(pose, mesh), 30,
+        for client, mesh, times in ((single, flat, rtt), (single, as_msg, msg_rtt),
+                                    (single_mt, flat, mt_rtt)):
+            elapsed, resp = round_trip(client, _single_request(pose, mesh), 30,
                                        'contact_wrench')
             if not resp.success:
                 raise RuntimeError(f'contact_wrench refused: {resp.message}')
             times.append(elapsed)
         trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
+        mt_trigger_rtt.append(round_trip(trigger_mt, Trigger.Request(), 30, 'trigger')[0])
     std_rtt = []
     for pose in poses[:max(n_single // 5, 20)]:   # with the wrench's standard deviation
         elapsed, resp = round_trip(single, _single_request(pose, flat, False), 30,
@@ -272,7 +289,9 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     ros_batch, resp = round_trip(batch, batch_request(poses), 120, 'contact_wrench_batch')
     if not resp.success:
         raise RuntimeError(f'batch refused: {resp.message}')
-    return rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch, std_rtt
+    return dict(rtt=rtt, msg_rtt=msg_rtt, trigger_rtt=trigger_rtt, small_rtt=small_rtt,
+                ros_batch=ros_batch, std_rtt=std_rtt, mt_rtt=mt_rtt,
+                mt_trigger_rtt=mt_trigger_rtt)
 
 
 def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
@@ -332,25 +351,31 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
                     _start('pointforce_ros.bringup.bench_ros', 'trigger')]
         try:
             with InProcessLauncher(threads=2) as planner:
-                rtt, msg_rtt, trigger_rtt, small_rtt, ros_batch, std_rtt = _round_trips(
-                    planner, sphere, poses, n_single, n_small, small_batch, Vector3,
-                    ContactWrenchBatch)
+                trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
+                                     Vector3, ContactWrenchBatch)
             out.update(_load_test(load_clients, load_calls))
             out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
         finally:
             _stop(services)
-    p50, p99 = _percentiles(rtt)
+    ros_batch = trips['ros_batch']
+    p50, p99 = _percentiles(trips['rtt'])
     c50, c99 = _percentiles(core)
-    t50, t99 = _percentiles(trigger_rtt)
-    m50, m99 = _percentiles(msg_rtt)
-    s50, s99 = _percentiles(std_rtt)
-    b50, b99 = _percentiles(small_rtt)
+    t50, t99 = _percentiles(trips['trigger_rtt'])
+    m50, m99 = _percentiles(trips['msg_rtt'])
+    s50, s99 = _percentiles(trips['std_rtt'])
+    b50, b99 = _percentiles(trips['small_rtt'])
+    mt50, mt99 = _percentiles(trips['mt_rtt'])
+    mtt50, mtt99 = _percentiles(trips['mt_trigger_rtt'])
     bc50, bc99 = _percentiles(core_small)
     out.update(single_rtt_p50_ms=p50, single_rtt_p99_ms=p99, core_query_p50_ms=c50,
                core_query_p99_ms=c99, ros_rtt_over_core=p50 / c50,
                ros_overhead_p50_ms=p50 - c50, trigger_rtt_p50_ms=t50, trigger_rtt_p99_ms=t99,
                single_rtt_mesh_msg_p50_ms=m50, single_rtt_mesh_msg_p99_ms=m99,
                single_rtt_with_std_p50_ms=s50, single_rtt_with_std_p99_ms=s99,
+               single_rtt_mt_client_p50_ms=mt50, single_rtt_mt_client_p99_ms=mt99,
+               trigger_rtt_mt_client_p50_ms=mtt50, trigger_rtt_mt_client_p99_ms=mtt99,
+               client_executor='SingleThreadedExecutor (the *_mt_client series: a '
+                               '2-thread MultiThreadedExecutor)',
                single_queries=n_single, small_batch_poses=small_batch,
                small_batch_rtt_p50_ms=b50, small_batch_rtt_p99_ms=b99,
                small_batch_core_p50_ms=bc50, small_batch_core_p99_ms=bc99,

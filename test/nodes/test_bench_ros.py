@@ -42,11 +42,13 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
                 'ros_overhead_p50_ms', 'trigger_rtt_p50_ms', 'trigger_rtt_p99_ms',
                 'small_batch_rtt_p50_ms', 'small_batch_rtt_p99_ms', 'small_batch_core_p50_ms',
                 'single_rtt_mesh_msg_p50_ms', 'single_rtt_with_std_p50_ms',
+                'single_rtt_mt_client_p50_ms', 'trigger_rtt_mt_client_p50_ms',
                 'batch_ros_poses_per_s'):
         assert out[key] > 0, key
     # a round trip holds the core's work, but the two are timed in separate loops on a shared
     # machine (a 100-pose batch: 71 ms round trip against 64 ms core), so allow their noise
     assert out['single_rtt_p50_ms'] > 0.8 * out['core_query_p50_ms']
+    assert out['single_rtt_mt_client_p50_ms'] > 0.8 * out['core_query_p50_ms']
     assert out['single_rtt_p99_ms'] >= out['single_rtt_p50_ms']
     assert out['small_batch_rtt_p50_ms'] > 0.8 * out['small_batch_core_p50_ms']
     # the wrench's spread takes four more solves; the latency series skip it

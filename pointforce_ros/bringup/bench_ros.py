@@ -35,7 +35,6 @@ import sys
 import tempfile
 import threading
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +46,7 @@ from std_srvs.srv import Trigger
 
 from msg_adapters.geometry import mesh_to_flat, mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
+from pointforce_ros.bringup.domain import private_domain
 from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
@@ -112,21 +112,6 @@ def _single_request(pose, mesh_fields, skip_uncertainty: bool = True):
     return ContactWrench.Request(pose=pose_to_msg(pose), approach=Vector3(x=0.0, y=0.0, z=-1.0),
                                  torque_centre=to_point(CENTRE), skip_uncertainty=skip_uncertainty,
                                  **mesh_fields)
-
-
-@contextmanager
-def _own_domain():
-    """Use a ROS domain of this run's own (children inherit it); restore the old one after."""
-    old = os.environ.get('ROS_DOMAIN_ID')
-    os.environ['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop('ROS_DOMAIN_ID', None)
-        else:
-            os.environ['ROS_DOMAIN_ID'] = old
 
 
 def _start(*args) -> subprocess.Popen:
@@ -299,8 +284,16 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
     """Run the benchmark; returns a JSON-able dict (times in ms unless the key says).
 
     ``campaign=False`` leaves out the poke campaign (the F/T stream figures); ``quick`` uses
-    fewer calls (and ``load_calls`` of 50).
+    fewer calls (and ``load_calls`` of 50). Everything runs in a ROS domain of its own
+    (:func:`~pointforce_ros.bringup.domain.private_domain`), the poke campaign included.
     """
+    with private_domain() as domain:
+        out = _bench_ros(quick, campaign, load_clients, load_calls)
+    out['ros_domain'] = domain
+    return out
+
+
+def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) -> dict:
     from geometry_msgs.msg import Vector3
     from pointforce_interfaces.action import Poke
     from pointforce_interfaces.srv import ContactWrenchBatch
@@ -344,19 +337,18 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
     start = time.perf_counter()
     server.answer_batch(query(poses))
     core_batch = time.perf_counter() - start
-    with _own_domain():
-        # the services as deployed, each in its own process; this process is the planner
-        services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args', '-p',
-                           f'model_dir:={work / "models"}'),
-                    _start('pointforce_ros.bringup.bench_ros', 'trigger')]
-        try:
-            with InProcessLauncher(threads=2) as planner:
-                trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
-                                     Vector3, ContactWrenchBatch)
-            out.update(_load_test(load_clients, load_calls))
-            out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
-        finally:
-            _stop(services)
+    # the services as deployed, each in its own process; this process is the planner
+    services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args', '-p',
+                       f'model_dir:={work / "models"}'),
+                _start('pointforce_ros.bringup.bench_ros', 'trigger')]
+    try:
+        with InProcessLauncher(threads=2) as planner:
+            trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
+                                 Vector3, ContactWrenchBatch)
+        out.update(_load_test(load_clients, load_calls))
+        out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
+    finally:
+        _stop(services)
     ros_batch = trips['ros_batch']
     p50, p99 = _percentiles(trips['rtt'])
     c50, c99 = _percentiles(core)

@@ -55,10 +55,18 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _domain_id(text: str) -> int:
+    """argparse type: a ROS domain id, 0-232."""
+    value = int(text)
+    if not 0 <= value <= 232:
+        raise argparse.ArgumentTypeError(f'{value} is outside 0-232')
+    return value
+
+
 def _cmd_demo(args) -> int:
     return _load('pointforce_ros.bringup.demo:run_demo')(
         out=args.out, quick=args.quick, object_name=args.object, scenario=args.scenario,
-        pokes=args.pokes, camera_check=args.camera_check)
+        pokes=args.pokes, camera_check=args.camera_check, domain=args.domain)
 
 
 NODES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench',
@@ -138,6 +146,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument('--camera-check', action='store_true',
                       help='also estimate one contact force from the camera alone against the '
                            'F/T (seed 001; two ground-truth FEM solves, about 5 min more)')
+    demo.add_argument('--domain', type=_domain_id, default=None,
+                      help='ROS domain of the simulated cell (default: one of its own, '
+                           'localhost only, so it never meets a real cell or another run)')
     demo.set_defaults(func=_cmd_demo)
 
     cell = sub.add_parser('cell', help='run the node suite on the simulated (or a real) cell; '

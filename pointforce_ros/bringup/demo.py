@@ -26,6 +26,7 @@ from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup import plots
 from pointforce_ros.bringup.camera_check import camera_force_check
 from pointforce_ros.bringup.cell import CellSession
+from pointforce_ros.bringup.domain import private_domain
 from pointforce_ros.contact.identify import (DECAY_GRID, identify_shape_constant_from_probe,
                                              identify_shape_constant_from_probes,
                                              shape_fit_covariance)
@@ -351,12 +352,25 @@ def _ground_truth(spec, queries):
 
 
 def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lamb',
-             scenario: str = 'realistic', pokes: int = 0, camera_check: bool = False) -> int:
+             scenario: str = 'realistic', pokes: int = 0, camera_check: bool = False,
+             domain: Optional[int] = None) -> int:
     """Run the demo; returns a process exit code.
 
     ``camera_check`` adds seed 001's camera-only contact-force estimate against the F/T
     reading (:mod:`pointforce_ros.bringup.camera_check`: two ground-truth FEM solves, minutes).
+    The simulated cell runs in ROS domain ``domain``, by default one of its own on localhost
+    (:func:`~pointforce_ros.bringup.domain.private_domain`): its nodes carry the product's
+    names and must not meet a real cell's or another run's.
     """
+    with private_domain(domain) as chosen:
+        print(f'[demo] ROS domain {chosen}'
+              + (' (private to this run, localhost only; RViz: ROS_DOMAIN_ID='
+                 f'{chosen} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)' if domain is None else ''))
+        return _run_demo(out, quick, object_name, scenario, pokes, camera_check)
+
+
+def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
+              camera_check: bool) -> int:
     started = time.monotonic()
     out = Path(out)
     pokes = pokes or (4 if quick else 8)

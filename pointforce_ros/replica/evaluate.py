@@ -15,7 +15,10 @@ Prints one JSON object (also written to ``DIR/evaluation.json``):
 * ``resolution``: the force of the replica's material at the deepest point of each held-out
   poke at the replica's mesh and at ``--h-fine`` (how far a replica moves with resolution);
 * ``contour``: with ``--clouds`` (push files that hold the camera cloud under load), the
-  replica's top along the section through the probe against the camera's, % of the width.
+  replica's top along the section through the probe against the camera's, % of the width;
+* ``section``: where the data file holds the truth's deformed section (``section_xz`` of the
+  plate-on-ball fixture), the replica's section at the same compression against it, % of
+  the section's width (:func:`pointforce_ros.replica.contour.ball_section_error`).
 """
 
 import argparse
@@ -30,19 +33,21 @@ import numpy as np
 from pointforce_ros.replica.build import replica_body
 from pointforce_ros.replica.calibrate import (evaluate, force_at, force_time_summary,
                                               simulate_loading, simulate_series, summary)
-from pointforce_ros.replica.contour import contour_error
+from pointforce_ros.replica.contour import ball_section_error, contour_error
 from pointforce_ros.replica.data import load_pokes, subset
 from pointforce_ros.replica.mesh import read_vtk
 from pointforce_ros.replica.replica import read_description
 from pointforce_ros.replica.scene import Material, SceneConfig
 
 
-def held_out_figures(mesh, material, config, data) -> dict:
+def held_out_figures(mesh, material, config, data, section=None) -> dict:
     """Figures of a replica on the held-out trials of ``data`` (a :class:`PokeSet`).
 
     The static force errors at the largest compression and over the curve on every held-out
     poke, and, where the pokes carry a ramp-and-hold ``series``, the force-time error of the
-    fastest held-out one (the shortest simulation). Percent, newtons.
+    fastest held-out one (the shortest simulation). Percent, newtons. With ``section``
+    (``(compression, section_xz)`` of :func:`truth_section`) also the section's errors
+    (:func:`pointforce_ros.replica.contour.ball_section_error`) as ``section_<key>``.
     """
     _, held = data.split()
     out = summary(evaluate(mesh, material, held, config))
@@ -51,6 +56,9 @@ def held_out_figures(mesh, material, config, data) -> dict:
         fastest = max(timed, key=lambda p: p.speed)
         out.update(force_time_summary(mesh, material, [fastest], config))
         out['force_time_poke'] = fastest.poke_id
+    if section is not None:
+        errors = ball_section_error(mesh, material, config, section[0], section[1])
+        out.update({f'section_{k}': v for k, v in errors.items()})
     return out
 
 
@@ -82,6 +90,20 @@ def phase_residuals(mesh, material, pokes, config) -> dict:
                      'relaxation_replica_N': float(sim_hold[first].mean()
                                                    - sim_hold[last].mean())})
     return {'pokes': rows}
+
+
+def truth_section(data):
+    """Return ``(compression, section_xz)`` stored in the data file ``data``, or None.
+
+    Only a single ``.npz`` with ``section_xz`` (``make_ball_plate.py``) holds one.
+    """
+    path = Path(str(data))
+    if path.suffix != '.npz' or not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as z:
+        if 'section_xz' not in z:
+            return None
+        return float(z['section_depth']), np.asarray(z['section_xz'], float)
 
 
 def main(argv=None) -> int:
@@ -137,6 +159,10 @@ def main(argv=None) -> int:
             rows.append(dict(row, poke=Path(f).stem, depth_m=depth))
         result['contour'] = {'pokes': rows, 'median_error_pct':
                              float(np.median([r['error_pct'] for r in rows])) if rows else None}
+    section = truth_section(figures['data'])
+    if section is not None:
+        result['section'] = dict(ball_section_error(mesh, material, config, section[0],
+                                                    section[1]), compression_truth_m=section[0])
     result['seconds'] = time.monotonic() - started
     text = json.dumps(result, indent=1, default=float)
     (root / 'evaluation.json').write_text(text)

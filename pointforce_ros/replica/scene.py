@@ -142,6 +142,10 @@ class SceneConfig:
         onset: where a simulated depth counts from: ``'force'`` (where the force first
             exceeds 1 % of its peak, as a fitted onset of measured pokes) or ``'geometry'``
             (the undeformed top, less the collision margin: truth counted from contact).
+        anchor_height: the body's nodes within this height of its lowest node are anchored
+            to the table, metres (0: the lowest nodes only). A ball touches the table at one
+            node; anchored there alone it tilts under a frictionless plate (rotating about
+            the pin lowers its top), which neither the cell's ball nor its FEM truth does.
 
     """
 
@@ -164,6 +168,7 @@ class SceneConfig:
     force_window: float = 0.0
     static_degree: int = 0
     onset: str = 'force'
+    anchor_height: float = 0.0
 
     def __post_init__(self):
         for name in ('scale', 'time_step', 'probe_radius', 'density', 'tip_mass', 'max_force'):
@@ -178,6 +183,8 @@ class SceneConfig:
             raise InvalidInput(f"SceneConfig.onset: {self.onset!r} is not 'force' or 'geometry'")
         if not (np.isfinite(self.plate_half_width) and self.plate_half_width > 0):
             raise InvalidInput('SceneConfig.plate_half_width: must be > 0')
+        if not (np.isfinite(self.anchor_height) and self.anchor_height >= 0):
+            raise InvalidInput('SceneConfig.anchor_height: must be >= 0 m')
 
 
 def probe_obj(radius: float, half_angle_deg: float, length: float, segments: int = 24) -> str:
@@ -339,7 +346,7 @@ class ReplicaScene:
             physicsClientId=c)
         if self.body_id < 0:
             raise InvalidInput(f'PyBullet could not load the soft body {self.vtk_path}')
-        for node in self.mesh.bottom_nodes():
+        for node in self.mesh.bottom_nodes(max(1e-6, cfg.anchor_height)):
             pb.createSoftBodyAnchor(self.body_id, int(node), -1, -1, physicsClientId=c)
         self.pusher_id = None
 

@@ -7,7 +7,7 @@ import pytest
 
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.replica.data import load_pokes
-from pointforce_ros.replica.evaluate import held_out_figures
+from pointforce_ros.replica.evaluate import held_out_figures, truth_section
 from pointforce_ros.replica.replica import load_replica
 from pointforce_ros.replica.scene import Material, SceneConfig
 
@@ -47,8 +47,12 @@ def test_saved_ball_replica_reloads_and_reproduces_its_reported_figures():
         loaded.scene.close()
     assert desc['config']['pusher'] == 'plate'
     again = held_out_figures(mesh, Material(**desc['material']), SceneConfig(**desc['config']),
-                             load_pokes(DATA / 'ball_plate.npz'))
+                             load_pokes(DATA / 'ball_plate.npz'),
+                             section=truth_section(DATA / 'ball_plate.npz'))
     for key, value in desc['figures'].items():
         if isinstance(value, float):
             assert again[key] == pytest.approx(value, rel=1e-3, abs=1e-6), key
     assert np.isfinite(again['force_time_pct']) and again['at_max_pct'] >= 0
+    # the section is compared at the truth's compression, and the ball stays upright
+    assert again['section_compression_m'] == pytest.approx(0.030, abs=0.001)
+    assert again['section_error_pct'] < 3.0

@@ -20,15 +20,21 @@ probe, Newton with line search), not from the engine being calibrated:
   sampled at 250 Hz, with seeded Gaussian F/T noise ``NOISE`` N. Each trial also carries its
   static curve: the relaxed force at ``STATIC_DEPTHS`` (what a staircase relaxation test
   reads at the end of each hold) with its own noise. Roles: ``TRAIN`` and the rest held out.
+* Section (for the contour check): ``section_xz``, the deformed outline of the ball in the
+  plane ``y = 0`` at ``MAX_COMPRESSION`` (the held-out trials' largest compression), (S, 2)
+  points ``(x, z)`` in the table frame, ordered by angle about the deformed centre.
 
 Regenerate (about 2 minutes per mesh on the 2-core machine)::
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 .venv/bin/python test/data/replica/make_ball_plate.py
 
 writes ``ball_plate.npz`` beside this script (and prints the coarse/fine FEM comparison).
+``--core-young 150e3 --core-radius 0.025 --out .../ball_core.npz`` makes a heterogeneous ball
+(a stiff core in the soft ball: what one homogeneous replica can and cannot reach).
 """
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 import sys
 import time
@@ -77,15 +83,41 @@ def hemisphere_mesh(radius: float, n: int, layers: int):
     return replace_nodes(cube, radius * np.column_stack([x, y, z]))
 
 
-def relaxed_curve(n: int, layers: int, steps: int = 30):
-    """Return plate travel (K,) m (whole ball) and relaxed force (K,) N of the FEM."""
+def relaxed_curve(n: int, layers: int, steps: int = 30, core_young: float = 0.0,
+                  core_radius: float = 0.0):
+    """Return the FEM's plate travel (K,) m and relaxed force (K,) N (whole ball), and section.
+
+    The section is the ball's deformed outline in the plane ``y = 0`` at the largest
+    compression, (S, 2) points ``(x, z)``, metres, table frame (table at ``z = 0``), ordered
+    by angle about the deformed centre ``(0, RADIUS - MAX_COMPRESSION / 2)``: the hemisphere's
+    surface nodes of that plane and their mirror images below the mid-plane.
+
+    With ``core_young`` > 0 the elements whose centroid lies within ``core_radius`` (m) of
+    the ball's centre have that Young's modulus (Pa): a heterogeneous ball, stiff or soft
+    inside.
+    """
     mesh = hemisphere_mesh(RADIUS, n, layers)
-    model = FemModel(mesh, np.full(len(mesh.elements), YOUNG), POISSON, support='sliding')
+    young = np.full(len(mesh.elements), YOUNG)
+    if core_young > 0:
+        young[np.linalg.norm(mesh.centroids(), axis=1) < core_radius] = core_young
+    # every node reported at every step (the solver reports ``top_nodes``; nothing else
+    # reads them), so that the section can be taken from the sides as well as the cap
+    everything = replace(mesh, top_nodes=np.arange(mesh.n_nodes)[:, None])
+    model = FemModel(everything, young, POISSON, support='sliding')
     plate = box_probe((0.15, 0.15, 0.02), edge_radius=0.004)
     half = np.linspace(0.5, steps, steps) / steps * (MAX_COMPRESSION / 2)
     start = pose_for_push([0.0, 0.0, RADIUS], [0.0, 0.0, -1.0])
     res = model.indent(plate, start, [0.0, 0.0, -1.0], half)
-    return np.concatenate([[0.0], 2 * res.depths]), np.concatenate([[0.0], res.force[:, 2]])
+    rest = mesh.nodes
+    on_plane = (np.abs(rest[:, 1]) < 1e-9) & (np.abs(np.linalg.norm(rest, axis=1) - RADIUS)
+                                              < 1e-9)
+    upper = res.surface[-1][on_plane][:, [0, 2]]
+    mid = RADIUS - MAX_COMPRESSION / 2
+    section = np.concatenate([upper, upper[upper[:, 1] > 1e-9] * [1.0, -1.0]])
+    section[:, 1] += mid
+    section = section[np.argsort(np.arctan2(section[:, 1] - mid, section[:, 0]))]
+    return (np.concatenate([[0.0], 2 * res.depths]), np.concatenate([[0.0], res.force[:, 2]]),
+            section)
 
 
 def prony_force(t: np.ndarray, f_relaxed: np.ndarray) -> np.ndarray:
@@ -128,20 +160,26 @@ def main(argv=None) -> int:
     ap.add_argument('--n', type=int, default=16, help='elements across the fine mesh')
     ap.add_argument('--n-coarse', type=int, default=12, help='elements across the coarse mesh')
     ap.add_argument('--out', default=str(Path(__file__).with_name('ball_plate.npz')))
+    ap.add_argument('--core-young', type=float, default=0.0,
+                    help="Young's modulus of a core (Pa; 0: homogeneous ball)")
+    ap.add_argument('--core-radius', type=float, default=0.025, help='core radius, m')
     args = ap.parse_args(argv)
     curves = {}
     for n in (args.n_coarse, args.n):
         started = time.monotonic()
-        curves[n] = relaxed_curve(n, n // 2)
+        curves[n] = relaxed_curve(n, n // 2, core_young=args.core_young,
+                                  core_radius=args.core_radius)
         print(f'FEM n={n}: F(30 mm) = {curves[n][1][-1]:.3f} N in '
               f'{time.monotonic() - started:.0f} s', flush=True)
-    depth, force = curves[args.n]
-    coarse = np.interp(depth, *curves[args.n_coarse])
+    depth, force, section = curves[args.n]
+    coarse = np.interp(depth, *curves[args.n_coarse][:2])
     change = float(np.max(np.abs(coarse[1:] / force[1:] - 1)))
     print(f'coarse -> fine FEM: largest force change {100 * change:.2f} %')
     rng = np.random.default_rng(SEED)
     data = trials(depth, force, rng)
     flat = {k: np.concatenate(v) for k, v in data.items()}
+    core = ({'core_young': args.core_young, 'core_radius': args.core_radius}
+            if args.core_young > 0 else {})
     role = np.array(['train' if k in TRAIN else 'heldout' for k in range(len(SPEEDS))])
     np.savez_compressed(
         args.out, fem_depth=depth, fem_force=force, fem_force_coarse=coarse,
@@ -149,7 +187,7 @@ def main(argv=None) -> int:
         static_offsets=np.cumsum([0] + [len(d) for d in data['static_depth']]),
         speeds=np.array(SPEEDS), role=role, radius=RADIUS, hold=HOLD,
         young=YOUNG, poisson=POISSON, prony_g=PRONY_G, prony_tau=PRONY_TAU, noise=NOISE,
-        **flat)
+        section_xz=section, section_depth=MAX_COMPRESSION, **core, **flat)
     print(f'wrote {args.out}')
     return 0
 

@@ -5,7 +5,8 @@ The material is the one ``pointforce replica`` calibrated on ``ball_plate.npz`` 
 15 mm so that a test simulates it in seconds. The figures written with it are its held-out
 errors on ``ball_plate.npz``: the static force error at the largest compression and over the
 curve (one static simulation serves every held-out trial: they share the ball and the depth),
-and the force-time error of the fastest held-out trial. Regenerate (about a minute)::
+the force-time error of the fastest held-out trial, and the section at the largest
+compression against the FEM's (``section_*``). Regenerate (about a minute)::
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 .venv/bin/python test/data/replica/make_ball_replica.py
 """
@@ -16,7 +17,7 @@ import sys
 
 from pointforce_ros.replica.build import PLATE_CONFIG
 from pointforce_ros.replica.data import load_pokes
-from pointforce_ros.replica.evaluate import held_out_figures
+from pointforce_ros.replica.evaluate import held_out_figures, truth_section
 from pointforce_ros.replica.mesh import ball_tet_mesh, read_vtk
 from pointforce_ros.replica.replica import write_replica
 from pointforce_ros.replica.scene import Material
@@ -37,7 +38,8 @@ def main() -> int:
     # 1e-9 m node shift into a few percent of force, so the test must see the same nodes
     write_replica(out, mesh, material, PLATE_CONFIG)
     mesh = read_vtk(out / 'body.vtk', H_COARSE)
-    figs = held_out_figures(mesh, material, PLATE_CONFIG, data)
+    figs = held_out_figures(mesh, material, PLATE_CONFIG, data,
+                            section=truth_section(HERE / 'ball_plate.npz'))
     figs['data'] = 'test/data/replica/ball_plate.npz'
     write_replica(out, mesh, material, PLATE_CONFIG, figures=figs)
     print(json.dumps(figs, indent=1))

@@ -63,7 +63,8 @@ def _render(camera, pose, vertices, triangles, occluder=None):
 def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: float = 0.005,
                           identify_offset=(-0.010, 0.006), estimate_offset=(0.010, -0.006),
                           element_size: float = 0.004, truth_h: float = 0.002,
-                          frames: int = FRAMES, field: bool = False) -> CameraForceCheck:
+                          frames: int = FRAMES, field: bool = False, field_samples=None
+                          ) -> CameraForceCheck:
     """Identify on one static push, estimate the force of another from the camera alone.
 
     Args:
@@ -80,6 +81,8 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
             shape, the residual's reference), stacked: a held push is static for a second or
             more, and the camera's noise is independent from frame to frame.
         field: identify a heterogeneous modulus field seeded by the pushes' own moduli.
+        field_samples: ``(xy (n, 2) m, stiffness (n,))`` to seed the field instead (a learned
+            point model's force at one depth over the surface, for instance).
 
     Raises:
         InvalidInput: no viewpoint, a non-positive depth, or a push the truth cannot solve.
@@ -120,7 +123,8 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
         states.append(kept)
     return check_from_views(rest, rest_normals, states[0], states[1][0],
                             np.asarray(poses[0])[:3, 3], element_size=element_size,
-                            depth=float(depth), started=t0, view_rest=view_rest, field=field)
+                            depth=float(depth), started=t0, view_rest=view_rest, field=field,
+                            field_samples=field_samples)
 
 
 def camera_force_check(cell, depth: float = 0.005) -> CameraForceCheck:

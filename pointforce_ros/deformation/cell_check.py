@@ -50,7 +50,8 @@ class CameraForceCheck:
     Attributes:
         camera_force: (3,) estimated force on the object, newtons, ``base``.
         camera_std: standard deviation of ``|camera_force|``, newtons: the fit's (residuals as
-            independent) combined with the identified E's (the force scales with E).
+            independent) combined with the identified E's at its nu (the force scales with E;
+            :attr:`.identify.ElasticityFit.young_std`).
         ft_force: (3,) the F/T truth (the cell's FEM) of that push, newtons, ``base``.
         contact_point: (3,) the push's contact point, metres, ``base``.
         depth: probe travel past contact, metres.
@@ -216,7 +217,8 @@ def check_from_views(rest, rest_normals, identify_states, estimate_state, camera
     est = estimate_force(fem, contact_on_scan(q, rest, camera_origin), cloud,
                          ForceConfig(match=MATCH), rest_offset=offset)
     magnitude = float(np.linalg.norm(est.force))
-    model_std = magnitude * fit.young_relative_std if np.isfinite(fit.young_relative_std) else 0.0
+    relative = fit.young_std / fit.young
+    model_std = magnitude * relative if np.isfinite(relative) else 0.0
     return CameraForceCheck(camera_force=est.force,
                             camera_std=float(np.hypot(est.magnitude_std, model_std)),
                             ft_force=np.asarray(force, dtype=float),

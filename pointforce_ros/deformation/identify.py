@@ -119,6 +119,10 @@ class ElasticityFit:
             interval; an interval reaching a bound says the data does not pin nu.
         young_interval: (lo, hi) of E over the same nu interval, widened by E's own
             standard error at each nu (same ``sigma^2``), Pa.
+        young_std: standard deviation of E at the fitted nu (same ``sigma^2``), Pa: what a
+            force estimate inherits (a top view pins the compliance ``(1 - nu^2) / E`` that a
+            top-view force estimate uses, not E and nu apart, so the E interval over the nu
+            interval overstates it).
         local_young: (n,) each poke's own best E at the fitted nu and field (its points
             alone), Pa: where the pokes disagree the object is not what the field says (the
             samples that seed a heterogeneous field, :func:`.wide_contacts.modulus_field`).
@@ -136,6 +140,7 @@ class ElasticityFit:
     poisson_interval: Tuple[float, float] = (float('nan'), float('nan'))
     young_interval: Tuple[float, float] = (float('nan'), float('nan'))
     local_young: Tuple[float, ...] = ()
+    young_std: float = float('nan')
 
     @property
     def young_relative_std(self) -> float:
@@ -232,8 +237,8 @@ PROFILE_POINTS = 13
 
 
 def _poisson_profile(matches, family: 'ReducedPoissonFamily', corr, bounds, nu: float
-                     ) -> Tuple[Tuple[float, float], Tuple[float, float]]:
-    """(nu interval, E interval) from the profile of the residual over nu (see ElasticityFit).
+                     ) -> Tuple[Tuple[float, float], Tuple[float, float], float]:
+    """(nu interval, E interval, E's relative std at ``nu``) from the residual's profile.
 
     The profile is evaluated on a grid over the bounds plus the fitted nu (reduced-basis
     solutions, each a few milliseconds); the interval ends are interpolated linearly where the
@@ -270,7 +275,8 @@ def _poisson_profile(matches, family: 'ReducedPoissonFamily', corr, bounds, nu: 
     s_std = np.sqrt(sigma2 / np.maximum(den[keep], 1e-300))
     s_lo = np.clip(s[keep] - s_std, 1e-300, None)
     young = (float(np.min(1.0 / (s[keep] + s_std))), float(np.max(1.0 / s_lo)))
-    return (lo, hi), young
+    at = int(np.argmin(np.abs(v - nu)))
+    return (lo, hi), young, float(np.sqrt(sigma2 / max(den[at], 1e-300)) / s[at])
 
 
 def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
@@ -359,8 +365,8 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
         corr = np.column_stack([fem.solve_linear(fem.nonlinear_force(u[:, j]))
                                 for j in range(len(pokes))])
     s, sse, npts = _best_compliance(state['matches'], unit, corr)
-    nu_interval, young_interval = _poisson_profile(state['matches'], family, corr,
-                                                   config.poisson_bounds, nu)
+    nu_interval, young_interval, young_rel = _poisson_profile(state['matches'], family, corr,
+                                                              config.poisson_bounds, nu)
     local = tuple(1.0 / _best_compliance([m], unit[:, [j]], corr[:, [j]])[0]
                   for j, m in enumerate(state['matches']))
     fem.set_material(field / s, nu)
@@ -368,7 +374,7 @@ def identify_elasticity(mesh: TetMesh, pokes: Sequence[Poke],
                         points=npts, evaluations=state['evals'],
                         seconds=time.perf_counter() - t0, error=sse, factorise_seconds=t_fact,
                         poisson_interval=nu_interval, young_interval=young_interval,
-                        local_young=local)
+                        local_young=local, young_std=young_rel / s)
     return fit, fem
 
 

@@ -41,7 +41,7 @@ sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), '..',
 from pointforce_ros.bringup.camera_check import _render  # noqa: E402
 from pointforce_ros.deformation.cell_check import check_from_views  # noqa: E402
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints  # noqa: E402
-from pointforce_ros.sim.fem.live import POINT_PROBE  # noqa: E402
+from pointforce_ros.sim.fem.live import LiveContact, POINT_PROBE  # noqa: E402
 from pointforce_ros.sim.fem.probes import point_probe, pose_for_push  # noqa: E402
 from pointforce_ros.sim.fem.solver import FemModel  # noqa: E402
 from pointforce_ros.sim.objects import load_object  # noqa: E402
@@ -153,6 +153,18 @@ def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2):
     return rest, normals, view_rest, np.asarray(poses[0])[:3, 3]
 
 
+def point_samples(name, depth=0.003, spacing=0.004):
+    """``(xy (n, 2), force (n,))``: the cell's point-probe force at ``depth`` over a grid."""
+    spec = spec_of(name)
+    live = LiveContact.load(spec.name, build=False)
+    half = 0.5 * np.asarray(spec.size[:2]) - 0.004
+    gx, gy = np.meshgrid(*(np.arange(-h, h + 1e-9, spacing) for h in half), indexing='ij')
+    xy = np.column_stack([gx.ravel(), gy.ravel()]) + np.asarray(spec.centre)
+    force = np.array([live.normal_force(x, y, depth) for x, y in xy])
+    ok = force > 0
+    return xy[ok], force[ok]
+
+
 def main(argv=None):
     """Parse the command line, solve or load the truth, score every held-out push."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -163,7 +175,10 @@ def main(argv=None):
     ap.add_argument('--reference', choices=('view', 'merged'), default='view',
                     help="residual reference: the pushing camera's rest frames, or the "
                          'merged multi-view scan (the check before issue 18\'s fix)')
-    ap.add_argument('--field', action='store_true', help='heterogeneous modulus field')
+    ap.add_argument('--field', choices=('none', 'pokes', 'point'), default='none',
+                    help="heterogeneous modulus field seeded by the other sites' own moduli "
+                         "(pokes) or by the cell's point-probe response at 3 mm on a 4 mm grid "
+                         '(point: the live cache, standing in for a learned point model)')
     ap.add_argument('--seed', type=int, default=7)
     ap.add_argument('--json', help='write the rows and the summary here')
     args = ap.parse_args(argv)
@@ -173,6 +188,7 @@ def main(argv=None):
         solve_truth(args.object, path, args.truth_h)
     nodes, tris, pushes = load_truth(path)
     rest, normals, view_rest, origin = render_views(nodes, tris, pushes, args.frames, args.seed)
+    samples = point_samples(args.object) if args.field == 'point' else None
     rows = []
     for j, held in enumerate(pushes):
         states = [(p['q'], p['force'][i], p['clouds'][i]) for k, p in enumerate(pushes)
@@ -180,7 +196,8 @@ def main(argv=None):
         for i, depth in enumerate(held['depths']):
             c = check_from_views(rest, normals, states,
                                  (held['q'], held['force'][i], held['clouds'][i]), origin,
-                                 depth=float(depth), field=args.field,
+                                 depth=float(depth), field=args.field == 'pokes',
+                                 field_samples=samples,
                                  view_rest=view_rest if args.reference == 'view' else None)
             rows.append(dict(push=j, tilt=held['tilt'], depth=float(depth),
                              force=float(np.linalg.norm(c.ft_force)),

@@ -97,3 +97,18 @@ def test_point_model_check_reads_the_ratio_at_each_site():
     assert ratios['calibration'] == pytest.approx(1.2, rel=1e-6)      # x = cx - 20 mm
     assert ratios['query site #1'] == pytest.approx(0.9, rel=1e-6)    # the centre
     assert ratios['query site #3'] == pytest.approx(1.2, rel=1e-6)    # x = cx - 15 mm
+
+
+def test_the_stiffness_maps_truth_puts_the_tip_where_the_learned_map_does():
+    spec = load_object('lamb')
+    cx, cy = spec.centre
+    pts = np.array([[cx, cy, spec.top_height(cx, cy) + 0.002],          # camera 2 mm high
+                    [cx + 0.01, cy, spec.top_height(cx + 0.01, cy) - 0.001]])  # 1 mm low
+
+    class Truth:
+        def normal_force(self, x, y, d):
+            return 1000.0 * d
+
+    got = demo.true_force_below_observed(spec, Truth(), pts, 0.003)
+    np.testing.assert_allclose(got, [1.0, 4.0], rtol=1e-9)   # tips 1 and 4 mm deep
+    assert demo.true_force_below_observed(spec, Truth(), pts[:1], 0.0015)[0] == 0.0  # outside

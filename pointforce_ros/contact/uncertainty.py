@@ -7,16 +7,20 @@ pushes, :mod:`pointforce_ros.contact.identify`). :func:`wrench_uncertainty` prop
 the wrench by linearisation, with a finite difference per source (four contact solves per
 query, all through the public :class:`~pointforce_ros.contact.simulator.ContactSimulator`):
 
-* **response**: the force table raised by one standard deviation at every positive depth (the
-  errors of a smooth process over a probe's footprint, a few centimetres, move together: full
-  correlation is the conservative limit and what one extra solve can give; at depths <= 0 the
-  table is not a contact force and is not raised);
+* **response**: the force table raised by one standard deviation wherever it is a contact
+  force (above :data:`~pointforce_ros.response.baked.ONSET_FORCE`; the errors of a smooth
+  process over a probe's footprint, a few centimetres, move together: full correlation is the
+  conservative limit and what one extra solve can give; before each point's onset the table
+  is not a contact force and is not raised);
 * **shape**: ``(log c, 1 / L)`` moved by one standard deviation each (``1 / L`` so that the
   paper's ``g``, ``L = inf``, is the ordinary point ``1 / L = 0``); the two differences form the
   Jacobian ``J`` and the shape part of the covariance is ``J S J^T`` with ``S`` the 2x2
   covariance of ``(log c, 1 / L [1/m])`` (:func:`~pointforce_ros.contact.identify.
-  shape_fit_covariance` gives it from the calibration pushes);
-* **relative**: an optional share of the wrench (model discrepancy not in the two above);
+  calibrate_shape` gives it from the calibration pushes: the fit's covariance widened by the
+  spread of ``c`` between the pushes);
+* **relative**: an optional share of the wrench (model discrepancy not in the two above;
+  :func:`~pointforce_ros.contact.identify.calibrate_shape` measures it on pushes the fit has
+  not seen: a fit's own residual understates it, issue 17);
 * **lateral**: an optional share of the normal force (along the approach) as the standard
   deviation of the force across the approach (isotropic in that plane): the contact model
   carries no friction or tangential stiffness, so a measured lateral force (a sloped surface,
@@ -36,7 +40,7 @@ from scipy.special import ndtri
 
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.errors import InvalidInput
-from pointforce_ros.response.baked import BakedResponse
+from pointforce_ros.response.baked import BakedResponse, ONSET_FORCE
 from pointforce_ros.types import Mesh, Pose
 
 Z90 = 1.6448536269514722
@@ -89,11 +93,14 @@ class _Perturbed:
                                         spacing=spacing, decay=model.shape_decay)
         self.raised = None
         if response.std is not None:
-            # raised where the table is a contact force only: the spread at depths <= 0 (the
-            # process smoothing over the contact onset) would put every point near the mesh
-            # in contact and add force no contact makes (+1.4 N on 6 N sphere queries, where
-            # raising the positive depths gives +1.2 N, as scaling the table by its 19 %)
-            forces = response.forces + response.std * (response.depths > 0)
+            # raised where the table is a contact force only (above the onset force): the
+            # spread before the onset (the process smoothing over it) would put every point
+            # near the mesh in contact and add force no contact makes (+1.4 N on 6 N sphere
+            # queries, where raising the contact forces gives +1.2 N, as scaling the table by
+            # its 19 %). Not at depths > 0: where camera bias put the onset below the observed
+            # surface (d0 < 0) a shallow contact lies wholly at d <= 0, and its response part
+            # was zero (the dome's first probe steps: 0.6 N predicted, 0.9 N true, std 0.03 N)
+            forces = response.forces + response.std * (response.forces > ONSET_FORCE)
             ratio = np.where(response.forces[:, -1] > 0,
                              forces[:, -1] / np.maximum(response.forces[:, -1], 1e-12), 1.0)
             raised = BakedResponse(depths=response.depths, forces=forces,
@@ -149,8 +156,8 @@ def uncertainty_sources(shape_cov=None, relative_std=0.0, lateral_std=0.0) -> di
 
     Args:
         shape_cov: (2, 2) covariance of ``(log c, 1 / L [1/m])`` from the calibration pushes
-            (:func:`~pointforce_ros.contact.identify.shape_fit_covariance`), or a flat list of
-            its four entries; ``None`` or all zeros: none.
+            (:func:`~pointforce_ros.contact.identify.calibrate_shape`), or a flat list of its
+            four entries; ``None`` or all zeros: none.
         relative_std: share of the wrench not explained by the model (>= 0).
         lateral_std: share of the normal force across the approach (>= 0).
 

@@ -115,3 +115,20 @@ def test_shape_covariance_shrinks_with_more_informative_pushes():
     assert both[1, 1] < sphere_only[1, 1]
     with pytest.raises(InvalidInput):
         shape_fit_covariance(sim, [], fit)
+
+
+def test_response_part_reaches_contacts_before_the_observed_surface():
+    # camera bias: the table's force starts 1 mm before the observed surface (onset d0 < 0);
+    # a sphere 0.5 mm short of the surface touches only at d <= 0 and still gets the spread
+    model = _with_std(patch_contact_model(), 0.1)
+    r = model.response
+    early = BakedResponse(depths=r.depths - 0.001, forces=r.forces, slopes=r.slopes,
+                          std=r.std, version=r.version)
+    assert np.all(early.onsets() < -0.0009)
+    model = replace(model, response=early)
+    sphere, _, centre = _queries()[0]
+    poses = [Pose(position=centre + [0, 0, 0.01 + 0.0005])]
+    out = wrench_uncertainty(model, sphere, poses, DOWN, centre)
+    assert out.wrench[0, 2] > 0.01                       # in contact, wholly at d <= 0
+    np.testing.assert_allclose(out.parts['response'], 0.1 * np.abs(out.wrench),
+                               rtol=1e-6, atol=1e-9)

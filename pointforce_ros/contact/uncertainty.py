@@ -96,10 +96,11 @@ class _Perturbed:
             # raised where the table is a contact force only (above the onset force): the
             # spread before the onset (the process smoothing over it) would put every point
             # near the mesh in contact and add force no contact makes (+1.4 N on 6 N sphere
-            # queries, where raising the contact forces gives +1.2 N, as scaling the table by
-            # its 19 %). Not at depths > 0: where camera bias put the onset below the observed
-            # surface (d0 < 0) a shallow contact lies wholly at d <= 0, and its response part
-            # was zero (the dome's first probe steps: 0.6 N predicted, 0.9 N true, std 0.03 N)
+            # queries, where raising the depths > 0 gave +1.2 N, as scaling the table by its
+            # 19 %; not measured again with this mask). Not at depths > 0: where camera bias
+            # put the onset below the observed surface (d0 < 0) a shallow contact lies wholly
+            # at d <= 0, and its response part was zero (the dome's first probe steps: 0.6 N
+            # predicted, 0.9 N true, std 0.03 N)
             forces = response.forces + response.std * (response.forces > ONSET_FORCE)
             ratio = np.where(response.forces[:, -1] > 0,
                              forces[:, -1] / np.maximum(response.forces[:, -1], 1e-12), 1.0)

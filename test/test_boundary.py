@@ -2,10 +2,10 @@
 
 Wings by who uses them:
 
-* product: ground (``types``, ``errors``, ``rotations``, ``shapes``, ``paths``), ``surface``,
-  ``pokes``, ``response``, ``contact``, ``effects``, ``model``, ``drivers``, ``deformation``,
-  ``replica`` and the product ``nodes``; they never import ``sim``, ``bringup``, ``diagnose``
-  or ``lab``;
+* product: ground (``types``, ``errors``, ``rotations``, ``shapes``, ``paths``, ``dds``),
+  ``surface``, ``pokes``, ``response``, ``contact``, ``effects``, ``model``, ``drivers``,
+  ``deformation``, ``replica`` and the product ``nodes``; they never import ``sim``,
+  ``bringup``, ``diagnose`` or ``lab``;
 * everything but ``nodes``, ``bringup`` and ``msg_adapters`` is ROS-free (no rclpy, no message
   or interface packages); ``sim`` in particular never imports ROS;
 * a function-local import of a project module needs a stated reason (a ``#`` comment on its
@@ -26,8 +26,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / 'pointforce_ros'
-PRODUCT = {'types', 'errors', 'rotations', 'shapes', 'paths', 'surface', 'pokes', 'response',
-           'contact', 'effects', 'model', 'drivers', 'deformation', 'replica', 'nodes'}
+PRODUCT = {'types', 'errors', 'rotations', 'shapes', 'paths', 'dds', 'surface', 'pokes',
+           'response', 'contact', 'effects', 'model', 'drivers', 'deformation', 'replica', 'nodes'}
 RESEARCH = {'sim', 'bringup', 'diagnose', 'lab'}
 ROS_ALLOWED = {'nodes', 'bringup'}
 ROS_TOPS = ('rclpy', 'rosidl_runtime_py', 'pointforce_interfaces', 'ament_index_python')

@@ -13,6 +13,7 @@ from typing import Callable, Dict, List, Optional
 
 import yaml
 
+from pointforce_ros.dds import use_package_dds_profile
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.replica import cli as replica_cli
 
@@ -56,7 +57,7 @@ def _cmd_bench(args) -> int:
 
 
 def _domain_id(text: str) -> int:
-    """argparse type: a ROS domain id, 0-232."""
+    """Parse a ROS domain id (0-232) for argparse."""
     value = int(text)
     if not 0 <= value <= 232:
         raise argparse.ArgumentTypeError(f'{value} is outside 0-232')
@@ -214,6 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of the ``pointforce`` console script."""
     args = build_parser().parse_args(argv)
+    use_package_dds_profile()   # before any rclpy.init: the cell, demo and benches' participants
     try:
         return int(args.func(args) or 0)
     except PointforceError as exc:

@@ -307,7 +307,7 @@ def _report(label: str, summary: dict, count: int) -> None:
 
 
 def true_force_below_observed(spec, live, points: np.ndarray, depth: float) -> np.ndarray:
-    """True point-probe force (N) with the tip ``depth`` below each observed surface point.
+    """Return the true point-probe force (N) with the tip ``depth`` below each observed point.
 
     The learned model counts depth from the captured surface; the truth from the object's
     own. The tip sits at the same place for both: ``depth`` less the camera's error there

@@ -9,6 +9,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 
+from pointforce_ros.dds import use_package_dds_profile
 from pointforce_ros.errors import PointforceError
 
 
@@ -111,6 +112,7 @@ def qos_watch(node: Node, topic: str) -> SubscriptionEventCallbacks:
 
 def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
     """Spin one node the Jazzy way (ros2/demos): init, spin, shutdown on Ctrl-C or external."""
+    use_package_dds_profile()   # before the first rclpy.init of the process
     rclpy.init(args=args)
     node = None
     try:

@@ -39,6 +39,7 @@ from msg_adapters.contact_markers import contact_markers
 from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_from_request,
                                      fail, fill_batch_response, fill_contact_response,
                                      fill_wrench_std)
+from pointforce_ros.dds import use_package_dds_profile
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import declare, live
@@ -302,6 +303,7 @@ def spin_single_threaded(node_factory, args=None) -> None:
     2.9 ms p50; the p99 of 8 load clients 82 against 52 ms). A batch's chunks still run on the
     server's worker threads; while one batch is solved, single queries wait for it.
     """
+    use_package_dds_profile()   # before the first rclpy.init of the process
     rclpy.init(args=args)
     node = None
     try:

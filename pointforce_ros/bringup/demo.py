@@ -27,10 +27,9 @@ from pointforce_ros.bringup import plots
 from pointforce_ros.bringup.camera_check import camera_force_check
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.bringup.domain import private_domain
-from pointforce_ros.contact.identify import (DECAY_GRID, identify_shape_constant_from_probe,
-                                             identify_shape_constant_from_probes,
-                                             shape_fit_covariance)
-from pointforce_ros.contact.uncertainty import lateral_share, uncertainty_sources, Z90
+from pointforce_ros.contact.identify import (calibrate_shape, DECAY_GRID,
+                                             identify_shape_constant_from_probe)
+from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.serving import WrenchServer
@@ -145,9 +144,10 @@ def _calibrate(cell, spec):
 
     Returns ``(c_only, c_and_l, shape_cov, relative_std, lateral_std)``: the two
     :class:`ShapeFit` (either ``None`` when it cannot be done), the (2, 2) covariance of
-    ``(log c, 1/L)`` at the joint fit, the joint fit's relative residual (the share of the
-    force the contact model does not explain at the calibration pushes) and the RMS of the
-    measured force across the push not predicted there, as a share of the RMS normal force.
+    ``(log c, 1/L)`` with the spread of the pushes' own ``c``, the share of the force along a
+    push missed when it is predicted from the other push's ``c`` (never below the joint fit's
+    relative residual) and the RMS of the measured force across the push not predicted, as a
+    share of the RMS normal force (:func:`~pointforce_ros.contact.identify.calibrate_shape`).
     """
     pokes = _calibration_pokes(spec)
     if 'sphere' not in pokes:
@@ -166,21 +166,21 @@ def _calibrate(cell, spec):
     except PointforceError as exc:
         print(f'[demo] calibration with the sphere failed ({exc})')
     if 'rod' in pokes:
-        joint = [pokes['sphere'], pokes['rod']]
+        vectors = _calibration_pokes(spec, vectors=True)
         try:
-            c_and_l = identify_shape_constant_from_probes(simulator, joint, decays=DECAY_GRID)
-            cov = shape_fit_covariance(simulator, joint, c_and_l)
-            measured = np.concatenate([p[3] for p in joint])
-            rel = float(c_and_l.rmse / np.sqrt(np.mean(measured ** 2)))
-            lat = lateral_share(simulator.with_shape_constant(c_and_l.c, c_and_l.decay),
-                                _calibration_pokes(spec, vectors=True))
+            # (c, L) and the spread of a new probe's answer from the pushes alone: each push
+            # predicted by c refitted on the other, and the pushes' own c scattered
+            cal = calibrate_shape(simulator, [vectors['sphere'], vectors['rod']],
+                                  decays=DECAY_GRID)
+            c_and_l, cov, rel, lat = cal.fit, cal.shape_cov, cal.relative_std, cal.lateral_std
             decay = (f'{1e3 * c_and_l.decay:.0f} mm' if np.isfinite(c_and_l.decay)
                      else "none (the paper's g)")
             print(f'[demo] calibration push 2 ({1e3 * ROD_LENGTH:.0f} mm rod, r 10 mm, at '
                   f'{1e3 * ROD_DEPTHS[0]:.0f} and {1e3 * ROD_DEPTHS[-1]:.0f} mm, '
                   f'{", ".join(f"{f:.2f}" for f in pokes["rod"][3])} N measured): with the '
                   f'sphere c = {1e3 * c_and_l.c:.2f} mm and tail decay length L = {decay} '
-                  f'(fit RMSE {c_and_l.rmse:.2f} N, {100 * rel:.0f} % of the pushes\' force; '
+                  f'(fit RMSE {c_and_l.rmse:.2f} N, {100 * cal.in_sample_std:.0f} % of the '
+                  f'pushes\' force; each push predicted from the other: {100 * rel:.0f} %; '
                   f'std of log c {np.sqrt(cov[0, 0]):.2f}, of 1/L {np.sqrt(cov[1, 1]):.0f} /m; '
                   f'lateral force not predicted: {100 * lat:.0f} % of the normal force)')
         except PointforceError as exc:

@@ -26,7 +26,8 @@ Scenario of each file:
 Measured on the shared 2-core machine (heavily loaded, times are wall clock): lamb (4 x 5 grid)
 2199 s (4 x 5; 7 x 7 with 4 held-out solves: 614 s on a quieter machine), plush (5 x 4)
 414 s, thin_layer 1295 s (4 x 3; 7 x 7 with 4 held-out solves: 367 s), vest 1144 s (4 x 3;
-7 x 7 with 4 held-out solves: 525 s), dome 1640 s;
+7 x 7 with 4 held-out solves: 525 s), dome 1640 s, foam_block (7 x 7, 4 held-out solves)
+1100 s;
 validation: Hertz 669 s (0.35 mm runs 266-282 s), refinement about 95 min (the 1 mm run
 1032 s, the 0.75 mm run 4488 s).
 

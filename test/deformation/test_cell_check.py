@@ -1,12 +1,16 @@
 """The demo's camera-only force check: ray registration, a coarse run on the cell's truth."""
 
 import os
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from pointforce_ros.bringup import camera_check
-from pointforce_ros.deformation.cell_check import contact_on_scan, direction_std_deg
+from pointforce_ros.deformation.cell_check import (contact_on_scan, direction_std_deg,
+                                                   seeded_field)
+from pointforce_ros.deformation.identify import Poke
+from pointforce_ros.deformation.mesh import block_mesh
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints
 from pointforce_ros.sim.objects import load_object
@@ -67,3 +71,26 @@ def test_direction_std_of_an_isotropic_covariance_is_sigma_over_the_force():
     assert direction_std_deg(f, 0.01 * np.eye(3)) == pytest.approx(np.degrees(0.05), rel=1e-9)
     # uncertainty along the force only: no direction uncertainty
     assert direction_std_deg(f, np.diag([0.0, 0.0, 0.04])) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_point_model_seed_is_tempered_by_the_pokes_own_moduli():
+    # point-model stiffness doubles from -x to +x; the pokes' own moduli rise by sqrt(2) only:
+    # the field takes the seed's contrast to the power 0.5
+    mesh = block_mesh((0.06, 0.05, 0.03), 0.005, 3, corner=(0.47, -0.025))
+    gx, gy = np.meshgrid(np.linspace(0.47, 0.53, 13), np.linspace(-0.025, 0.025, 11))
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    stiffness = 2.0 ** ((xy[:, 0] - 0.47) / 0.06)
+    cloud = np.zeros((1, 3))
+    pokes = [Poke([x, 0.0, 0.03], [0.0, 0.0, -1.0], cloud) for x in (0.48, 0.50, 0.52)]
+    seed_at = 2.0 ** ((np.array([0.48, 0.50, 0.52]) - 0.47) / 0.06)
+    fit = SimpleNamespace(local_young=tuple(4e4 * np.sqrt(seed_at)))
+    field, exponent = seeded_field(mesh, pokes, fit, (xy, stiffness), length=0.004)
+    assert exponent == pytest.approx(0.5, abs=0.05)
+    x = mesh.nodes[mesh.tets].mean(axis=1)[:, 0]
+    contrast = field[x > 0.52].mean() / field[x < 0.48].mean()
+    assert 1.2 < contrast < 1.45   # sqrt(2 ** (0.8)) about 1.32; the full seed gives ~1.74
+    # without samples: the pokes' own moduli, exponent 1
+    _, one = seeded_field(mesh, pokes, fit)
+    assert one == 1.0
+    with pytest.raises(InvalidInput, match='no finite positive'):
+        seeded_field(mesh, pokes, fit, (xy, -stiffness))

@@ -489,7 +489,7 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
             print(f'[demo] no ground-truth stiffness map: {exc}')
         plots.plot_stiffness_map(surface, baked.forces[:, 1], figures / 'stiffness_map.png',
                                  depth=depth, pokes=model.poke_points, truth=truth,
-                                 title=f'{object_name}: force, tip below the captured surface by')
+                                 title=f'{object_name}: force, tip below the scan by')
         if sphere_answer is not None and len(sphere_answer.displacements):
             u = np.zeros(len(surface))
             u[np.asarray(sphere_answer.displaced_indices, dtype=int)] = \

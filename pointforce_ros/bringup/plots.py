@@ -58,17 +58,22 @@ def plot_stiffness_map(surface: Surface, forces: np.ndarray, path, *, depth: flo
                        title: str = 'Learned force at depth') -> Path:
     """Top view of the surface coloured by the force (N) at ``depth`` (m); pokes as crosses.
 
-    With ``truth`` (N,) a second panel shows the ground truth on the same colour scale.
+    With ``truth`` (N,) a second panel shows the ground truth on the same colour scale. Only
+    points facing up (normal within 45 deg of +z) are drawn: a side face seen from above is a
+    line, and a probe pushed "down" there is deep inside the object.
     """
     plt = _plt()
+    up = surface.normals[:, 2] >= np.cos(np.pi / 4)
     panels = 2 if truth is not None else 1
-    fig, axes = plt.subplots(1, panels, figsize=(6.2 * panels, 4.8), squeeze=False)
-    vmax = float(np.nanmax(forces if truth is None else np.concatenate([forces, truth])))
+    fig, axes = plt.subplots(1, panels, figsize=(6.4 * panels, 4.8), squeeze=False)
+    shown = [np.asarray(v, dtype=float)[up] for v in (forces, truth) if v is not None]
+    vmax = float(np.nanmax(np.concatenate(shown))) if np.any(up) else 1.0
     for ax, values, name in zip(axes[0], [forces, truth], ['learned', 'ground truth']):
         if values is None:
             continue
-        sc = ax.scatter(1e3 * surface.points[:, 0], 1e3 * surface.points[:, 1], c=values, s=4,
-                        cmap='magma', vmin=0.0, vmax=vmax)
+        sc = ax.scatter(1e3 * surface.points[up, 0], 1e3 * surface.points[up, 1],
+                        c=np.asarray(values, dtype=float)[up], s=4, cmap='magma', vmin=0.0,
+                        vmax=vmax)
         if pokes is not None and len(pokes):
             ax.plot(1e3 * pokes[:, 0], 1e3 * pokes[:, 1], 'x', color='cyan', ms=7, mew=2,
                     label='pokes')
@@ -76,7 +81,7 @@ def plot_stiffness_map(surface: Surface, forces: np.ndarray, path, *, depth: flo
         ax.set_aspect('equal')
         ax.set_xlabel('x (mm, base)')
         ax.set_ylabel('y (mm, base)')
-        ax.set_title(f'{title} {1e3 * depth:.1f} mm: {name}')
+        ax.set_title(f'{title} {1e3 * depth:.1f} mm: {name}', fontsize=10)
         fig.colorbar(sc, ax=ax, label='force (N)')
     return _save(fig, path)
 

@@ -73,7 +73,7 @@ def test_direction_std_of_an_isotropic_covariance_is_sigma_over_the_force():
     assert direction_std_deg(f, np.diag([0.0, 0.0, 0.04])) == pytest.approx(0.0, abs=1e-12)
 
 
-def test_a_point_model_seed_is_tempered_by_the_pokes_own_moduli():
+def test_a_point_model_seed_gives_its_contrast_or_a_power_fitted_to_the_pokes():
     # point-model stiffness doubles from -x to +x; the pokes' own moduli rise by sqrt(2) only:
     # the field takes the seed's contrast to the power 0.5
     mesh = block_mesh((0.06, 0.05, 0.03), 0.005, 3, corner=(0.47, -0.025))
@@ -84,13 +84,15 @@ def test_a_point_model_seed_is_tempered_by_the_pokes_own_moduli():
     pokes = [Poke([x, 0.0, 0.03], [0.0, 0.0, -1.0], cloud) for x in (0.48, 0.50, 0.52)]
     seed_at = 2.0 ** ((np.array([0.48, 0.50, 0.52]) - 0.47) / 0.06)
     fit = SimpleNamespace(local_young=tuple(4e4 * np.sqrt(seed_at)))
-    field, exponent = seeded_field(mesh, pokes, fit, (xy, stiffness), length=0.004)
+    field, exponent = seeded_field(mesh, pokes, fit, (xy, stiffness), length=0.004,
+                                   exponent=None)
     assert exponent == pytest.approx(0.5, abs=0.05)
     x = mesh.nodes[mesh.tets].mean(axis=1)[:, 0]
     contrast = field[x > 0.52].mean() / field[x < 0.48].mean()
     assert 1.2 < contrast < 1.45   # sqrt(2 ** (0.8)) about 1.32; the full seed gives ~1.74
-    # without samples: the pokes' own moduli, exponent 1
-    _, one = seeded_field(mesh, pokes, fit)
-    assert one == 1.0
+    # by default the seed's full contrast; without samples the pokes' own moduli
+    full, one = seeded_field(mesh, pokes, fit, (xy, stiffness), length=0.004)
+    assert one == 1.0 and full[x > 0.52].mean() / full[x < 0.48].mean() > 1.6
+    assert seeded_field(mesh, pokes, fit)[1] == 1.0
     with pytest.raises(InvalidInput, match='no finite positive'):
         seeded_field(mesh, pokes, fit, (xy, -stiffness))

@@ -41,8 +41,8 @@ def test_contact_moves_along_the_line_of_sight_by_the_depth_bias():
 
 
 def test_camera_estimate_of_a_held_out_push_on_coarse_meshes():
-    # plumbing on coarse meshes (5 mm truth, 6 mm model, about 10 s): the estimate pushes
-    # into the object with about the F/T's magnitude (the README's figure uses 2 mm / 4 mm)
+    # coarse meshes (5 mm truth, 6 mm model, about 10 s), a 2 mm depth bias: the estimate
+    # pushes into the object with about the F/T's magnitude (the README's figure uses 2 / 4 mm)
     spec = load_object(BLOCK)
     camera = DepthCamera(noise_a=1e-4, noise_b=2e-3, depth_unit=1e-4, depth_bias=0.002, seed=3)
     poses = ring_viewpoints([spec.centre[0], spec.centre[1], 0.02], 0.25, count=2,
@@ -51,7 +51,11 @@ def test_camera_estimate_of_a_held_out_push_on_coarse_meshes():
                                           truth_h=0.005)
     assert np.linalg.norm(check.ft_force) > 0.5
     assert check.camera_force[2] < 0 and check.ft_force[2] < 0
-    assert check.magnitude_error < 0.35
+    # measured: 4.2 % and 6.0 deg; with the merged two-view scan as the residual's reference
+    # (before issue 18's fix) 10.6 % and 25.0 deg: the 2 mm bias tilts the estimate
+    assert check.magnitude_error < 0.12
+    assert check.direction_error_deg < 15.0
+    assert check.inside and check.direction_std_deg > 0
     assert check.young > 0 and 0.0 <= check.poisson < 0.5
     assert 'camera-only force' in check.line()
 

@@ -215,7 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of the ``pointforce`` console script."""
     args = build_parser().parse_args(argv)
-    use_package_dds_profile()   # before any rclpy.init: the cell, demo and benches' participants
+    # before any rclpy.init: the demo and the benches call the contact service as a planner
+    # does; the cell hosts nodes
+    use_package_dds_profile(kind='planner' if args.command in ('demo', 'bench') else 'node')
     try:
         return int(args.func(args) or 0)
     except PointforceError as exc:

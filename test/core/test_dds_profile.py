@@ -5,7 +5,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pointforce_ros.dds import PROFILE_VARIABLES, use_package_dds_profile
+import pytest
+
+from pointforce_ros.dds import package_dds_profile, PROFILE_VARIABLES, use_package_dds_profile
 
 START_NODE = ("import rclpy; rclpy.init(); from rclpy.node import Node; Node('profile_check'); "
               "print('node up')")
@@ -19,6 +21,11 @@ def _start_a_node(profile: Path) -> subprocess.CompletedProcess:
 
 
 def test_the_package_profile_is_named_unless_the_user_names_one():
+    planner = {}
+    assert use_package_dds_profile(planner, kind='planner').endswith('fastdds_planner.xml')
+    # a node started by a planner process gets the nodes' profile, not the planner's
+    assert use_package_dds_profile(planner).endswith('config/fastdds.xml')
+    assert list(planner.values()) == [package_dds_profile('node')]
     env = {}
     path = use_package_dds_profile(env)
     assert path is not None and Path(path).is_file() and path.endswith('config/fastdds.xml')
@@ -30,8 +37,9 @@ def test_the_package_profile_is_named_unless_the_user_names_one():
     assert use_package_dds_profile(newer) == '/etc/my_cell/dds.xml' and len(newer) == 1
 
 
-def test_fast_dds_parses_the_profile_and_reports_a_broken_one(tmp_path):
-    path = Path(use_package_dds_profile({}))
+@pytest.mark.parametrize('kind', ['node', 'planner'])
+def test_fast_dds_parses_the_profile_and_reports_a_broken_one(tmp_path, kind):
+    path = Path(package_dds_profile(kind))
     run = _start_a_node(path)
     said = run.stdout + run.stderr          # Fast DDS logs its parser errors on stdout
     assert run.returncode == 0 and 'node up' in said, said

@@ -1,6 +1,5 @@
 """The demo's camera-only force check: ray registration, a coarse run on the cell's truth."""
 
-import os
 from types import SimpleNamespace
 
 import numpy as np
@@ -14,9 +13,6 @@ from pointforce_ros.deformation.mesh import block_mesh
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints
 from pointforce_ros.sim.objects import load_object
-
-DATA = os.path.join(os.path.dirname(__file__), '..', 'data', 'deformation')
-BLOCK = os.path.join(DATA, 'foam_block.yaml')
 
 
 def _glue():
@@ -43,7 +39,7 @@ def test_contact_moves_along_the_line_of_sight_by_the_depth_bias():
 def test_camera_estimate_of_a_held_out_push_on_coarse_meshes():
     # coarse meshes (5 mm truth, 6 mm model, about 10 s), a 2 mm depth bias: the estimate
     # pushes into the object with about the F/T's magnitude (the README's figure uses 2 / 4 mm)
-    spec = load_object(BLOCK)
+    spec = load_object('foam_block')
     camera = DepthCamera(noise_a=1e-4, noise_b=2e-3, depth_unit=1e-4, depth_bias=0.002, seed=3)
     poses = ring_viewpoints([spec.centre[0], spec.centre[1], 0.02], 0.25, count=2,
                             azimuth0_deg=200.0)

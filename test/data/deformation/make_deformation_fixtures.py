@@ -22,10 +22,10 @@ Scenario of each file (all lengths metres, forces newtons, frame ``base``):
   undeformed surface point and outward normal the probe tip starts on; ``role`` is
   ``identify`` or ``heldout``.
 
-The objects: ``foam_block`` (this folder's ``foam_block.yaml``: homogeneous, E 50 kPa,
-nu 0.30) and the cell's heterogeneous ``plush`` and ``dome``. Measured wall times per push on
-the shared, overloaded 2-core machine (load 8-10): foam_block 38-66 s, plush 80-265 s, dome
-255-843 s (plush + dome 2309 s in all).
+The objects: ``foam_block`` (the cell object ``config/objects/foam_block.yaml``: homogeneous,
+E 50 kPa, nu 0.30) and the cell's heterogeneous ``plush`` and ``dome``. Measured wall times
+per push on the shared, overloaded 2-core machine (load 8-10): foam_block 38-66 s, plush
+80-265 s, dome 255-843 s (plush + dome 2309 s in all).
 
 Known defect (to fix before trusting the dome): the rest cloud is rendered from a uniform 2 mm
 mesh, each push from its own graded mesh (2 mm at the push, up to 8 mm away). On a curved top

@@ -6,9 +6,9 @@ Usage::
     nice -n 10 python test/data/deformation/make_wide_contact_fixtures.py
 
 The five cell objects' line and cylinder trials live in ``data/figures/probes_<name>.npz``;
-none of those objects is homogeneous. This makes the same kind of data for this folder's
-``foam_block.yaml`` (E 50 kPa, nu 0.30), which is not a cell object yet (no live-path cache, so
-no recorded poke campaign):
+the figure objects are not homogeneous. This makes the same kind of data for the cell object
+``foam_block`` (``config/objects/foam_block.yaml``: E 50 kPa, nu 0.30; these fixtures predate
+its live-path cache and do not use it):
 
 - ``trialNN_*``, ``trial_kinds``: 2 line and 1 cylinder trials drawn and solved exactly as
   :func:`pointforce_ros.lab.figures.make_probe_fixture` does (:func:`pointforce_ros.sim.generate.
@@ -46,7 +46,6 @@ from pointforce_ros.sim.objects import load_object  # noqa: E402
 from pointforce_ros.sim.scenario import load_scenario  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-SPEC_PATH = os.path.join(HERE, 'foam_block.yaml')
 OUT = os.path.join(HERE, 'wide_foam_block.npz')
 POKES = 10
 POKE_STEPS = 10
@@ -88,7 +87,7 @@ def point_pokes(spec, count=POKES, steps=POKE_STEPS, seed=0):
 def main():
     """Build the fixture (about 25 min on the shared machine)."""
     t0 = time.monotonic()
-    spec = load_object(SPEC_PATH)
+    spec = load_object('foam_block')
     surface = _scan_surface(spec, load_scenario('realistic'), seed=0)
     say(f'surface: {len(surface.points)} points')
     trials = []

@@ -43,8 +43,10 @@ def main():
         force.append(f)
         print(f'{k + 1}/{len(poses)}: F = {np.round(f, 3)} N, {time.monotonic() - start:.0f} s',
               flush=True)
-    np.savez(HERE / pattern.format(spec.name),
-             depths=np.asarray(depths), force=np.array(force))
+    # the poses (position and quaternion) let the demo refuse a file made for another push
+    np.savez(HERE / pattern.format(spec.name), depths=np.asarray(depths),
+             force=np.array(force),
+             positions=np.array([np.r_[p.position, p.orientation] for p in poses]))
 
 
 if __name__ == '__main__':

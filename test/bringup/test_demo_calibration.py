@@ -8,21 +8,37 @@ from pointforce_ros.contact.uncertainty import lateral_share, Z90
 from pointforce_ros.sim.objects import load_object
 
 
-def test_two_calibration_pushes_with_different_tools_at_one_site():
+def test_two_calibration_pushes_with_different_tools():
     spec = load_object('lamb')
     pokes = demo._calibration_pokes(spec)
     assert set(pokes) == {'sphere', 'rod'}
     sphere, rod = pokes['sphere'], pokes['rod']
-    # the same site (where the first poke lands), different tools: the rod is wide along x
-    np.testing.assert_allclose(sphere[1][0].position[:2], rod[1][0].position[:2])
-    extent = np.ptp(rod[0].vertices, axis=0)
-    assert extent[0] == pytest.approx(demo.ROD_LENGTH, rel=1e-6)
+    # the sphere where the first poke lands, the rod at its own site with its axis along y
+    np.testing.assert_allclose(sphere[1][0].position[:2],
+                               np.asarray(spec.centre) + demo.CALIBRATION_OFFSET)
+    np.testing.assert_allclose(rod[1][0].position[:2], np.asarray(spec.centre) + demo.ROD_SITE)
+    world = rod[0].vertices @ rod[1][0].rotation().T
+    assert np.ptp(world[:, 1]) == pytest.approx(demo.ROD_LENGTH, rel=1e-6)
     assert np.ptp(sphere[0].vertices, axis=0)[0] == pytest.approx(0.04, rel=1e-3)
     # measured push-back grows with depth for both (the fixtures are FEM full solves)
     for _, poses, approach, force in (sphere, rod):
         assert len(poses) == 2 and np.all(np.diff(force) > 0) and np.all(force > 1.0)
     vectors = demo._calibration_pokes(spec, vectors=True)
     np.testing.assert_allclose(vectors['rod'][3][:, 2], rod[3])
+
+
+def test_a_calibration_file_made_for_another_probe_pose_is_not_used(tmp_path, monkeypatch,
+                                                                     capsys):
+    spec = load_object('lamb')
+    for name in ('demo_calibration_lamb.npz', 'demo_calibration_rod_lamb.npz'):
+        with np.load(demo.DATA / name, allow_pickle=False) as z:
+            data = dict(z)
+        if 'rod' in name:
+            data['positions'] = data['positions'] + [0.01, 0, 0, 0, 0, 0, 0]   # moved 10 mm
+        np.savez(tmp_path / name, **data)
+    monkeypatch.setattr(demo, 'DATA', tmp_path)
+    assert set(demo._calibration_pokes(spec)) == {'sphere'}
+    assert 'for another probe pose: not used' in capsys.readouterr().out
 
 
 def test_lateral_share_is_the_unpredicted_force_across_the_push():

@@ -27,8 +27,7 @@ def test_two_calibration_pushes_with_different_tools():
     np.testing.assert_allclose(vectors['rod'][3][:, 2], rod[3])
 
 
-def test_a_calibration_file_made_for_another_probe_pose_is_not_used(tmp_path, monkeypatch,
-                                                                     capsys):
+def test_a_calibration_file_for_another_probe_pose_is_not_used(tmp_path, monkeypatch, capsys):
     spec = load_object('lamb')
     for name in ('demo_calibration_lamb.npz', 'demo_calibration_rod_lamb.npz'):
         with np.load(demo.DATA / name, allow_pickle=False) as z:

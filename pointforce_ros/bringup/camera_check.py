@@ -38,7 +38,7 @@ def _boundary_mesh(hex_mesh) -> np.ndarray:
     return np.concatenate([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
 
 
-def _render(camera, pose, vertices, triangles, occluder=None):
+def render_view(camera, pose, vertices, triangles, occluder=None):
     """Visible object points of one view in ``base``, with an optional occluding mesh.
 
     Returns:
@@ -100,11 +100,12 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
     model = FemModel(hex_mesh, spec.gauss_young(hex_mesh), spec.poisson, support=spec.support)
     tris = _boundary_mesh(hex_mesh)
     probe = point_probe(**POINT_PROBE)
-    views = [_render(camera, p, hex_mesh.nodes, tris) for p in poses]
+    views = [render_view(camera, p, hex_mesh.nodes, tris) for p in poses]
     rest = np.concatenate([v[0] for v in views])
     rest_normals = np.concatenate([v[1] for v in views])
-    view_rest = np.concatenate([views[0][0]] + [_render(camera, poses[0], hex_mesh.nodes, tris)[0]
-                                                for _ in range(int(frames) - 1)])
+    view_rest = np.concatenate(
+        [views[0][0]] + [render_view(camera, poses[0], hex_mesh.nodes, tris)[0]
+                         for _ in range(int(frames) - 1)])
     steps = np.linspace(0.0, depth, 6)[1:]
     states = []  # per push: [(contact point, force on the object, cloud)] per kept depth
     for off, keep in ((identify_offset, (2, 4)), (estimate_offset, (4,))):
@@ -117,8 +118,9 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
             ppose = pose_for_push(q + steps[k] * d, d)
             rot = quaternion_to_matrix(ppose.orientation)
             occluder = Mesh(probe.vertices @ rot.T + ppose.position, probe.triangles)
-            cloud = np.concatenate([_render(camera, poses[0], res.surface[k], tris, occluder)[0]
-                                    for _ in range(int(frames))])
+            cloud = np.concatenate(
+                [render_view(camera, poses[0], res.surface[k], tris, occluder)[0]
+                 for _ in range(int(frames))])
             kept.append((q, -res.force[k], cloud))
         states.append(kept)
     return check_from_views(rest, rest_normals, states[0], states[1][0],

@@ -57,14 +57,14 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', '..')))
 
-from pointforce_ros.bringup.camera_check import _render  # noqa: E402
+from make_deformation_fixtures import push_direction, spec_of  # noqa: E402 - this folder
+from pointforce_ros.bringup.camera_check import render_view  # noqa: E402
 from pointforce_ros.deformation.cell_check import check_from_views  # noqa: E402
 from pointforce_ros.errors import PointforceError  # noqa: E402
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints  # noqa: E402
 from pointforce_ros.sim.fem.live import LiveContact, POINT_PROBE  # noqa: E402
 from pointforce_ros.sim.fem.probes import point_probe, pose_for_push  # noqa: E402
 from pointforce_ros.sim.fem.solver import FemModel  # noqa: E402
-from pointforce_ros.sim.objects import load_object  # noqa: E402
 from pointforce_ros.sim.scenario import load_scenario  # noqa: E402
 from pointforce_ros.types import Mesh  # noqa: E402
 
@@ -90,23 +90,6 @@ IDENTIFY = (0, 1)
 def say(msg):
     """Print a progress line at once."""
     print(msg, flush=True)
-
-
-def spec_of(name):
-    """Object spec: this folder's YAML first, else the cell's object of that name."""
-    local = os.path.join(HERE, f'{name}.yaml')
-    return load_object(local if os.path.isfile(local) else name)
-
-
-def push_direction(normal, tilt_deg, azimuth_deg):
-    """Inward normal ``-normal`` tilted by ``tilt_deg`` towards the azimuth (about +z)."""
-    d = -np.asarray(normal, dtype=float)
-    if tilt_deg == 0:
-        return d
-    az = np.radians(azimuth_deg)
-    axis = np.cross(d, [np.cos(az), np.sin(az), 0.0])
-    axis /= np.linalg.norm(axis)
-    return Rotation.from_rotvec(-np.radians(tilt_deg) * axis).apply(d)
 
 
 def solve_truth(name, path, h, count=None):
@@ -155,10 +138,10 @@ def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2):
     camera = DepthCamera(**kw)
     lo, hi = nodes[:, :2].min(axis=0), nodes[:, :2].max(axis=0)
     poses = ring_viewpoints([*(0.5 * (lo + hi)), 0.0], distance, count=views)
-    scans = [_render(camera, p, nodes, tris) for p in poses]
+    scans = [render_view(camera, p, nodes, tris) for p in poses]
     rest = np.concatenate([s[0] for s in scans])
     normals = np.concatenate([s[1] for s in scans])
-    view_rest = np.concatenate([scans[0][0]] + [_render(camera, poses[0], nodes, tris)[0]
+    view_rest = np.concatenate([scans[0][0]] + [render_view(camera, poses[0], nodes, tris)[0]
                                                 for _ in range(frames - 1)])
     probe = point_probe(**POINT_PROBE)
     for p in pushes:
@@ -168,7 +151,7 @@ def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2):
             rot = Rotation.from_quat(pose.orientation).as_matrix()
             occluder = Mesh(probe.vertices @ rot.T + pose.position, probe.triangles)
             p['clouds'].append(np.concatenate([
-                _render(camera, poses[0], p['surface'][i], tris, occluder)[0]
+                render_view(camera, poses[0], p['surface'][i], tris, occluder)[0]
                 for _ in range(frames)]))
     return rest, normals, view_rest, np.asarray(poses[0])[:3, 3]
 

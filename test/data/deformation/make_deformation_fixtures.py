@@ -50,6 +50,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', '..')))
 
+from pointforce_ros.bringup.camera_check import render_view as render  # noqa: E402
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints  # noqa: E402
 from pointforce_ros.sim.fem.live import POINT_PROBE  # noqa: E402
 from pointforce_ros.sim.fem.probes import point_probe, pose_for_push  # noqa: E402
@@ -95,27 +96,6 @@ def boundary_triangles(mesh):
     """(2 B, 3) triangles of the hex mesh's boundary faces (all but the bottom), outward."""
     f = mesh.boundary_faces
     return np.concatenate([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
-
-
-def render(camera, pose, obj_vertices, obj_tris, extra=None):
-    """Render the object (plus an occluding probe mesh) and return its visible points.
-
-    Returns ``(points (P, 3) base, normals (P, 3) of the hit object triangles)``.
-    """
-    verts, tris = obj_vertices, obj_tris
-    if extra is not None:
-        verts = np.concatenate([obj_vertices, extra.vertices])
-        tris = np.concatenate([obj_tris, extra.triangles + len(obj_vertices)])
-    mesh = Mesh(verts, tris)
-    _, prim, _ = camera.true_depth(mesh, pose)
-    frame = camera.render(mesh, pose, organised=True)
-    keep = frame.valid() & (prim >= 0) & (prim < len(obj_tris))
-    pts = frame.points[keep]
-    rot, trans = pose[:3, :3], pose[:3, 3]
-    c = verts[tris[prim[keep]]]
-    nrm = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    return pts @ rot.T + trans, nrm
 
 
 def push_direction(normal, tilt_deg, azimuth_deg):

@@ -67,6 +67,26 @@ def demo_query_set(spec):
     return queries
 
 
+REGION_RADIUS = 0.012
+"""Radius of the planner's region of interest around each query's tip, metres (across base
++z): about the contact radius of the 20 mm sphere at 4 mm (12.6 mm)."""
+
+
+def planner_region(queries, radius: float = REGION_RADIUS) -> np.ndarray:
+    """Return where the planner will query as the learner's ``suggest_region`` rows (M, 4).
+
+    One ``(x, y, z, radius)`` row (metres, ``base``) per distinct query tip position: the
+    demo's planner tells the learner its region of interest before the pokes, and the
+    suggestions bring the point model's uncertainty down there (``OnlineLearner.suggest``).
+    """
+    rows = []
+    for _, _, pose, _, _ in queries:
+        p = np.asarray(pose.position, dtype=float)
+        if not any(np.linalg.norm(p[:2] - r[:2]) < 1e-6 for r in rows):
+            rows.append(np.r_[p, radius])
+    return np.array(rows)
+
+
 CALIBRATION_OFFSET = (-0.02, -0.012)
 """Where the calibration pushes press, relative to the object's centre (x, y), metres."""
 
@@ -375,8 +395,12 @@ def _ground_truth(spec, queries):
 
 def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lamb',
              scenario: str = 'realistic', pokes: int = 0, camera_check: bool = False,
-             domain: Optional[int] = None) -> int:
+             domain: Optional[int] = None, region: bool = True) -> int:
     """Run the demo; returns a process exit code.
+
+    ``region``: the planner tells the learner where it will query (:func:`planner_region`)
+    before the pokes, so the suggested pokes land there; ``False`` pokes where the model is
+    least sure over the whole surface (the demo before issue 17).
 
     ``camera_check`` adds seed 001's camera-only contact-force estimate against the F/T
     reading (:mod:`pointforce_ros.bringup.camera_check`: two ground-truth FEM solves, minutes).
@@ -388,11 +412,11 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
         print(f'[demo] ROS domain {chosen}'
               + (' (private to this run, localhost only; RViz: ROS_DOMAIN_ID='
                  f'{chosen} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)' if domain is None else ''))
-        return _run_demo(out, quick, object_name, scenario, pokes, camera_check)
+        return _run_demo(out, quick, object_name, scenario, pokes, camera_check, region)
 
 
 def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
-              camera_check: bool) -> int:
+              camera_check: bool, region: bool = True) -> int:
     started = time.monotonic()
     out = Path(out)
     pokes = pokes or (4 if quick else 8)
@@ -417,6 +441,16 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
             site = np.asarray(spec.centre, dtype=float) + CALIBRATION_OFFSET
         else:
             first, site = 'object centre', np.asarray(spec.centre, dtype=float)
+        queries = demo_query_set(spec)
+        if region:
+            # the calibration pushes are answered by the same point model: their sites too
+            calibration = [(None, None, push(spec)[1][0], None, None)
+                           for _, push in CALIBRATIONS.values()]
+            rows = planner_region(queries + calibration)
+            cell.set_parameter('stiffness_learner', 'suggest_region', rows.ravel().tolist())
+            print(f'[demo] region of interest: {len(rows)} discs of {1e3 * REGION_RADIUS:.0f} '
+                  'mm around the planner query tips and the calibration pushes (learner '
+                  'suggest_region): the suggested pokes land where the simulator is asked')
         gap = np.linalg.norm(surface.points[:, :2] - site, axis=1)
         index = int(np.argmin(np.where(surface.normals[:, 2] > 0.7, gap, np.inf)))
         for k in range(pokes):
@@ -447,7 +481,6 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
             else:
                 line += f'; not learned from: {reason}'
             print(line)
-        queries = demo_query_set(spec)
         gt, gt_path = _ground_truth(spec, queries)
         print(f'[demo] planner queries through /contact_wrench/contact_wrench '
               f'(ground truth: {"FEM full solve, " + gt_path.name if gt else "not available"})')

@@ -402,7 +402,8 @@ class OnlineLearner:
         return model_path(self.model_dir, self.status.version)
 
     def suggest(self, count: int = 1, exclude_radius: float = 0.01,
-                max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0), edge_margin: float = 0.008):
+                max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0), edge_margin: float = 0.008,
+                region: Optional[np.ndarray] = None):
         """Next poke locations where the model is least certain.
 
         Only points whose normal is within ``max_tilt_deg`` of ``up``, that lie at least
@@ -411,12 +412,18 @@ class OnlineLearner:
         not near a poke that found no contact, are candidates: the probe pushes along ``-n``,
         and at an edge the camera's point may not be on the object.
 
+        ``region`` is where a planner will ask for wrenches: (M, 4) rows ``(x, y, z, radius)``,
+        metres, ``base``; a row is the disc of ``radius`` around ``(x, y, z)`` measured across
+        ``up`` (rows with radius 0 are ignored). Candidates are then those inside the region,
+        so the model's uncertainty is brought down where the planner queries
+        (:func:`region_candidates`); when no candidate lies inside, the whole surface is used.
+
         Returns:
             (indices (count,), std (count,) in N) into ``surface``.
 
         Raises:
             ModelNotReady: before the first fit.
-            InvalidInput: ``count`` outside 1..50.
+            InvalidInput: ``count`` outside 1..50, a malformed ``region``.
 
         """
         if self.model is None:
@@ -442,9 +449,52 @@ class OnlineLearner:
         if len(candidates) == 0:
             raise InvalidInput(f'no surface point has a normal within {max_tilt_deg} degrees of '
                                f'{up.tolist()} and {edge_margin} m from steeper points')
+        if region is not None:
+            inside = region_candidates(self.surface.points, candidates, region, up)
+            if len(inside):
+                candidates = inside
         with self._lock:
             return suggest_pokes(self.model, self.surface, int(count),
                                  exclude_radius=exclude_radius, candidates=candidates)
+
+
+def check_region(region) -> np.ndarray:
+    """Return a planner's region of interest as (M, 4) ``(x, y, z, radius)`` rows, metres.
+
+    Accepts (M, 4) or a flat sequence of 4 M numbers (a ROS double array); rows with radius 0
+    are dropped, so ``[0, 0, 0, 0]`` (the parameter's default) is no region.
+
+    Raises:
+        InvalidInput: a length that is not a multiple of 4, non-finite values or a negative
+            radius.
+
+    """
+    arr = np.asarray(region, dtype=np.float64)
+    if arr.size % 4 or (arr.ndim == 2 and arr.shape[1] != 4) or arr.ndim > 2:
+        raise InvalidInput(f'region: (x, y, z, radius) rows in metres, got {arr.size} numbers '
+                           f'in shape {arr.shape}')
+    arr = arr.reshape(-1, 4)
+    if not np.all(np.isfinite(arr)) or np.any(arr[:, 3] < 0):
+        raise InvalidInput('region: every value must be finite and every radius >= 0 m')
+    return arr[arr[:, 3] > 0]
+
+
+def region_candidates(points: np.ndarray, candidates: np.ndarray, region,
+                      up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Return the ``candidates`` (surface indices) inside a planner's region of interest.
+
+    ``region``: see :func:`check_region`; a point is inside when its distance across ``up``
+    to some row's centre is at most that row's radius. An empty region keeps every candidate.
+    """
+    rows = check_region(region)
+    candidates = np.asarray(candidates, dtype=np.int64)
+    if len(rows) == 0:
+        return candidates
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    gap = points[candidates][:, None, :] - rows[None, :, :3]
+    gap -= (gap @ up)[..., None] * up
+    inside = np.any(np.linalg.norm(gap, axis=2) <= rows[None, :, 3], axis=1)
+    return candidates[inside]
 
 
 def _on_rim(points: np.ndarray, indices: np.ndarray, radius: float) -> np.ndarray:

@@ -44,7 +44,7 @@ from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import effects_from_dict
 from pointforce_ros.errors import PointforceError
-from pointforce_ros.model.learner import OnlineLearner
+from pointforce_ros.model.learner import check_region, OnlineLearner
 from pointforce_ros.model.files import (load_model, load_shape, load_shape_uncertainty,
                                         load_surface, save_shape, version_of_path)
 from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
@@ -114,6 +114,16 @@ class StiffnessLearnerNode(Node):
         self.max_tilt = declare(self, 'suggest_max_tilt_deg', 35.0,
                                 'Suggestions only where the normal is within this angle of '
                                 'base +z, degrees', bounds=(0.0, 90.0))
+        region = declare(self, 'suggest_region', [0.0, 0.0, 0.0, 0.0],
+                         'Where a planner will ask for wrenches: (x, y, z, radius) rows, m, '
+                         'base, flattened; suggestions then lie within radius (across base +z) '
+                         'of a row, where the model is least sure; radius 0: none')
+        try:
+            self.region = check_region(region)
+        except PointforceError as exc:
+            self.get_logger().error(f'suggest_region refused, suggestions use the whole '
+                                    f'surface: {exc}')
+            self.region = check_region([])
         self.min_peak_force = declare(self, 'min_peak_force', 0.0,
                                       'A poke that never exceeded this force made no contact '
                                       'and is not learned from, N; 0: relative to the data '
@@ -191,6 +201,7 @@ class StiffnessLearnerNode(Node):
                for name in ('shape_cov', 'relative_std', 'lateral_std')},
             'suggest_exclude_radius': lambda v: lambda: setattr(self, 'exclude_radius', v),
             'suggest_max_tilt_deg': lambda v: lambda: setattr(self, 'max_tilt', v),
+            'suggest_region': self._region_applier,
             'marker_depth': lambda v: lambda: self._set_marker('marker_depth', v),
             'marker_suggestions': lambda v: lambda: self._set_marker('marker_suggestions', v)})
 
@@ -400,6 +411,11 @@ class StiffnessLearnerNode(Node):
             suggestion_normals=normals, frame='base',
             stamp=self.get_clock().now().nanoseconds * 1e-9))
 
+    def _region_applier(self, value):
+        """Validate a new ``suggest_region`` (raises with the reason); return its setter."""
+        rows = check_region(value)
+        return lambda: setattr(self, 'region', rows)
+
     def _on_suggest(self, request, response):
         try:
             return self._suggest(request, response)
@@ -413,7 +429,8 @@ class StiffnessLearnerNode(Node):
             return fail(response, 'no equilibrium surface yet')
         try:
             indices, std = learner.suggest(request.count, exclude_radius=self.exclude_radius,
-                                           max_tilt_deg=self.max_tilt)
+                                           max_tilt_deg=self.max_tilt,
+                                           region=self.region if len(self.region) else None)
         except PointforceError as exc:
             return fail(response, str(exc))
         s = learner.surface

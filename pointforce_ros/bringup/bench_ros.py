@@ -21,7 +21,13 @@ pointforce_ros.nodes.contact_wrench``, the console script's ``main``), and so do
 service (on the same kind of executor); the benchmark is the planner's process. All of them use
 a ROS domain of their own.
 * load (issue 16): ``load_clients`` client processes (8) each send ``load_calls`` (500) single
-  queries back to back, started together; failures and p50/p99 over every call.
+  queries back to back, started together; failures and p50/p99 over every call, and the CPU
+  each call costs the service and the clients. Twice: every client on the one service name
+  (``load_*``), and each client on a lane of its own (``load_lanes_*``: the node's
+  ``client_lanes`` services). Every client of a service receives every reply and discards
+  those to other clients' calls (rmw_fastrtps and rmw_cyclonedds alike, ros2/rclcpp#2397);
+  in rclpy each such reply wakes the client's executor, so on the shared name one call costs
+  every other client CPU too (``load_client_cpu_per_call_ms``).
 * the F/T stream of a poke campaign through the real ur_rtde against the emulator: the rate inside
   the recorded pokes against the 250 Hz target (``ft_rate_over_target``), the rate over the whole
   campaign including the time between pokes, and dropped samples (controller-time gaps).
@@ -132,11 +138,12 @@ def _stop(processes) -> None:
             proc.wait()
 
 
-def load_client(calls: int, seed: int) -> None:
-    """One load-test client process: ``calls`` single queries back to back after ``go``.
+def load_client(calls: int, seed: int, service: str = '/contact_wrench/contact_wrench') -> None:
+    """One load-test client process: ``calls`` single queries to ``service`` after ``go``.
 
     Prints ``ready`` once the service is found, waits for a line on stdin, then prints one JSON
-    line: round-trip seconds of the answered calls and the number of failures.
+    line: round-trip seconds of the answered calls, the failures and the CPU seconds the whole
+    process (every thread) used during the calls.
     """
     rclpy.init()
     node = Node(f'bench_load_{seed}')
@@ -146,16 +153,16 @@ def load_client(calls: int, seed: int) -> None:
     from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
     # a reply reader sees the replies to every client: at the default depth of 10 a busy
     # client's own reply can be pushed out of its history by the others'
-    client = node.create_client(ContactWrench, '/contact_wrench/contact_wrench',
-                                qos_profile=REQUESTS)
+    client = node.create_client(ContactWrench, service, qos_profile=REQUESTS)
     if not client.wait_for_service(timeout_sec=60):
-        raise RuntimeError('service /contact_wrench/contact_wrench did not appear in 60 s')
+        raise RuntimeError(f'service {service} did not appear in 60 s')
     vertices, triangles = mesh_to_flat(icosphere(SPHERE_RADIUS, SPHERE_LEVEL))
     flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
     requests = [_single_request(p, flat) for p in _bench_poses(calls, seed=1000 + seed)]
     round_trip(client, requests[0], 30, 'contact_wrench')   # discovery of the reply path
     print('ready', flush=True)
     sys.stdin.readline()
+    cpu_start = time.process_time()
     times, failures = [], []
     for request in requests:
         try:
@@ -167,7 +174,8 @@ def load_client(calls: int, seed: int) -> None:
             times.append(elapsed)
         else:
             failures.append(response.message)
-    print(json.dumps(dict(times=times, failures=failures)), flush=True)
+    print(json.dumps(dict(times=times, failures=failures,
+                          cpu_s=time.process_time() - cpu_start)), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
     os._exit(0)   # the spinning daemon thread would abort the interpreter's exit
@@ -184,30 +192,52 @@ def _peak_rss_mb(pid: int) -> float:
     return float('nan')
 
 
-def _load_test(clients: int, calls: int) -> dict:
-    """``clients`` processes x ``calls`` single queries, started together."""
-    procs = [_start('pointforce_ros.bringup.bench_ros', 'client', str(calls), str(i))
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds process ``pid`` has used (``/proc``); NaN where it has none."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, IndexError, ValueError):
+        return float('nan')
+
+
+def _load_test(clients: int, calls: int, service_pid: int, lanes: bool = False) -> dict:
+    """``clients`` processes x ``calls`` single queries, started together.
+
+    ``lanes``: client ``i`` calls ``/contact_wrench/lane_<i>/contact_wrench`` (the service's
+    ``client_lanes``), else every client calls ``/contact_wrench/contact_wrench``. Keys are
+    prefixed ``load_lanes_`` or ``load_``.
+    """
+    prefix = 'load_lanes_' if lanes else 'load_'
+    procs = [_start('pointforce_ros.bringup.bench_ros', 'client', str(calls), str(i),
+                    f'/contact_wrench/lane_{i}/contact_wrench' if lanes
+                    else '/contact_wrench/contact_wrench')
              for i in range(clients)]
     try:
         for proc in procs:
             line = proc.stdout.readline()
             if line.strip() != 'ready':
                 raise RuntimeError(f'load client did not start (said {line!r})')
+        service_cpu = _cpu_seconds(service_pid)
         start = time.perf_counter()
         for proc in procs:
             proc.stdin.write('go\n')
             proc.stdin.flush()
         results = [json.loads(proc.stdout.readline()) for proc in procs]
         wall = time.perf_counter() - start
+        service_cpu = _cpu_seconds(service_pid) - service_cpu
     finally:
         _stop(procs)
     times = [t for r in results for t in r['times']]
     p50, p99 = _percentiles(times) if times else (float('nan'), float('nan'))
-    return dict(load_clients=clients, load_calls_per_client=calls,
-                load_failures=int(sum(len(r['failures']) for r in results)),
-                load_failure_messages=sorted({m for r in results for m in r['failures']})[:5],
-                load_rtt_p50_ms=p50, load_rtt_p99_ms=p99,
-                load_calls_per_s=len(times) / wall)
+    answered = max(len(times), 1)
+    out = dict(clients=clients, calls_per_client=calls,
+               failures=int(sum(len(r['failures']) for r in results)),
+               failure_messages=sorted({m for r in results for m in r['failures']})[:5],
+               rtt_p50_ms=p50, rtt_p99_ms=p99, calls_per_s=len(times) / wall,
+               service_cpu_per_call_ms=1e3 * service_cpu / answered,
+               client_cpu_per_call_ms=1e3 * sum(r['cpu_s'] for r in results) / answered)
+    return {prefix + key: value for key, value in out.items()}
 
 
 def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3,
@@ -339,13 +369,14 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     core_batch = time.perf_counter() - start
     # the services as deployed, each in its own process; this process is the planner
     services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args', '-p',
-                       f'model_dir:={work / "models"}'),
+                       f'model_dir:={work / "models"}', '-p', f'client_lanes:={load_clients}'),
                 _start('pointforce_ros.bringup.bench_ros', 'trigger')]
     try:
         with InProcessLauncher(threads=2) as planner:
             trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
                                  Vector3, ContactWrenchBatch)
-        out.update(_load_test(load_clients, load_calls))
+        out.update(_load_test(load_clients, load_calls, services[0].pid))
+        out.update(_load_test(load_clients, load_calls, services[0].pid, lanes=True))
         out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
     finally:
         _stop(services)
@@ -431,4 +462,4 @@ if __name__ == '__main__':
     if sys.argv[1] == 'trigger':
         spin_single_threaded(_trigger_node)   # the executor contact_wrench's main() spins
     elif sys.argv[1] == 'client':
-        load_client(int(sys.argv[2]), int(sys.argv[3]))
+        load_client(int(sys.argv[2]), int(sys.argv[3]), *sys.argv[4:5])

@@ -37,6 +37,12 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
     assert out['services'].endswith('each in its own process')
     assert out['load_failures'] == 0 and out['load_clients'] == 2
     assert out['load_rtt_p99_ms'] >= out['load_rtt_p50_ms'] > 0
+    # the same load with each client on a service lane of its own (client_lanes)
+    assert out['load_lanes_failures'] == 0 and out['load_lanes_clients'] == 2
+    assert out['load_lanes_rtt_p99_ms'] >= out['load_lanes_rtt_p50_ms'] > 0
+    for prefix in ('load_', 'load_lanes_'):   # the CPU a call costs, measured per process
+        assert out[prefix + 'service_cpu_per_call_ms'] > 0
+        assert out[prefix + 'client_cpu_per_call_ms'] > 0
     assert 50 < out['service_peak_rss_mb'] < 600    # issue 16: the service stays under 600 MB
     for key in ('single_rtt_p50_ms', 'single_rtt_p99_ms', 'core_query_p50_ms',
                 'ros_overhead_p50_ms', 'trigger_rtt_p50_ms', 'trigger_rtt_p99_ms',
@@ -50,7 +56,8 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
     assert out['single_rtt_p50_ms'] > 0.8 * out['core_query_p50_ms']
     assert out['single_rtt_mt_client_p50_ms'] > 0.8 * out['core_query_p50_ms']
     assert out['single_rtt_p99_ms'] >= out['single_rtt_p50_ms']
-    assert out['small_batch_rtt_p50_ms'] > 0.8 * out['small_batch_core_p50_ms']
+    # no such bound for the batch: the service solves a batch's chunks on its worker threads,
+    # the core figure in one (at load 20: 22 ms round trip against 34 ms core, fastest of each)
     # the wrench's spread takes four more solves; the latency series skip it
     assert out['single_rtt_with_std_p50_ms'] > out['single_rtt_p50_ms']
     assert 'ft_stream_rate_hz' not in out

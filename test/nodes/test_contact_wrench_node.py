@@ -328,3 +328,30 @@ def test_a_model_saved_under_a_bumped_version_is_loaded_from_the_topic(ros_graph
     pub.publish(ModelStatus(version=1, num_pokes=1, model_path=str(bumped)))
     ros_graph.wait_for(lambda: node.server.version == 2, 10, 'the bumped model v2')
     assert node.server.simulator().c == 0.006
+
+
+def test_client_lanes_answer_as_the_shared_service_does(ros_graph, tmp_path):
+    """``client_lanes``: per-planner services that answer exactly as ``~/contact_wrench``.
+
+    Every client of one service name receives the replies to all clients' calls and discards
+    the others' (ros2/rclcpp#2397); a planner on a lane of its own gets only its own.
+    """
+    model = patch_contact_model(spacing=0.003)
+    save_model(model, tmp_path / 'models')
+    ros_graph.add(ContactWrenchNode(
+        context=ros_graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(tmp_path / 'models')),
+                             Parameter('client_lanes', value=2)]))
+    planner = ros_graph.add(Node('lane_planner', context=ros_graph.context))
+    names = ['/contact_wrench/contact_wrench', '/contact_wrench/lane_0/contact_wrench',
+             '/contact_wrench/lane_1/contact_wrench']
+    clients = [planner.create_client(ContactWrench, name) for name in names]
+    assert all(c.wait_for_service(timeout_sec=15.0) for c in clients)
+    served = {name for name, _ in planner.get_service_names_and_types()}
+    assert '/contact_wrench/lane_2/contact_wrench' not in served
+    for depth in (0.002, 0.004):
+        answers = [ros_graph.wait_future(c.call_async(_request(depth)[0]), 10, 'lane')
+                   for c in clients]
+        assert all(a.success for a in answers), [a.message for a in answers]
+        forces = [(a.wrench.force.x, a.wrench.force.y, a.wrench.force.z) for a in answers]
+        assert forces[0][2] > 0.1 and forces[1] == forces[0] and forces[2] == forces[0]

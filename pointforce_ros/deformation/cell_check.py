@@ -33,11 +33,14 @@ alone gave 20 % and a bias-free, noise-free camera 2 %.
 from dataclasses import dataclass
 import time
 from typing import Optional
+
 import numpy as np
+from scipy.optimize import minimize
 
 from pointforce_ros.deformation.force import estimate_force, ForceConfig
 from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
-from pointforce_ros.deformation.mesh import volume_mesh_from_surface
+from pointforce_ros.deformation.fem import CorotationalFem
+from pointforce_ros.deformation.mesh import TetMesh, volume_mesh_from_surface
 from pointforce_ros.deformation.observe import MatchConfig, rest_offsets
 from pointforce_ros.deformation.wide_contacts import FIELD_LENGTH, modulus_field
 from pointforce_ros.errors import InvalidInput
@@ -205,6 +208,216 @@ def direction_std_deg(force, covariance) -> float:
     return float(np.degrees(np.sqrt(max(np.trace(across @ covariance @ across), 0.0) / 2) / n))
 
 
+def depth_fraction(mesh: TetMesh) -> np.ndarray:
+    """(M,) each element's depth below the object's top as a fraction of the column height.
+
+    0 at the top surface, 1 on the table; the column height is the mean top height of the
+    element's nodes' columns (nodes of a column share x-y in the extruded mesh; elsewhere the
+    nearest column's top is used).
+    """
+    key = np.round(mesh.nodes[:, :2] / 1e-6).astype(np.int64)
+    _, column = np.unique(key, axis=0, return_inverse=True)
+    column = np.ravel(column)
+    top = np.full(column.max() + 1, -np.inf)
+    np.maximum.at(top, column, mesh.nodes[:, 2])
+    height = top[column][mesh.tets].mean(axis=1)
+    z = mesh.nodes[mesh.tets][:, :, 2].mean(axis=1)
+    return np.clip(1.0 - z / np.maximum(height, 1e-9), 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class FieldRefinement:
+    """A seeded modulus field refined by the identification's own fit.
+
+    The field is ``seed ** exponent * exp(layer * (depth - mean depth))`` (depth:
+    :func:`depth_fraction`), normalised; ``exponent`` and ``layer`` minimise the mean squared
+    point-to-plane residual of the identification pokes (camera clouds under their F/T
+    forces), E and nu being identified at each trial as usual. ``exponent`` says how much of
+    the seed's contrast the clouds confirm (a learned point model's force map carries the
+    camera bias and the shape function, not the volume's contrast); ``layer`` > 0 makes the
+    deep material stiffer than the surface (a buried stiff core, a bone), < 0 softer.
+
+    Attributes:
+        exponent: the seed's exponent (1 without a seed: no seed term).
+        layer: the depth term's coefficient.
+        residual_rms: the fit's residual at the refined field, metres.
+        start_rms: the residual at the seed as given (exponent 1, layer 0), metres.
+        evaluations: identifications run.
+
+    """
+
+    exponent: float
+    layer: float
+    residual_rms: float
+    start_rms: float
+    evaluations: int
+
+
+def refine_field(mesh: TetMesh, pokes, config: IdentifyConfig, rest_offset=None, seed=None,
+                 fem: Optional[CorotationalFem] = None, bounds=((0.0, 2.0), (-4.0, 4.0)),
+                 max_evaluations: int = 30):
+    """Refine a seeded relative modulus field by the identification's fit (2 parameters).
+
+    Args:
+        mesh: the volume mesh.
+        pokes: identification pokes (:class:`.identify.Poke`).
+        config: identification settings.
+        rest_offset: (N,) rest offsets.
+        seed: (M,) positive relative element modulus (a learned point model's stiffness map
+            smoothed onto the elements), or None (the depth term alone).
+        fem: a model on ``mesh`` to reuse (refactorised at every trial).
+        bounds: ``((exponent lo, hi), (layer lo, hi))``.
+        max_evaluations: identifications at most (Nelder-Mead on the two parameters).
+
+    Returns:
+        ``(field (M,), fit, fem, FieldRefinement)``: the refined field, the identification at
+        it and its model.
+
+    Raises:
+        InvalidInput: as :func:`.identify.identify_elasticity`; a non-positive seed.
+
+    """
+    depth = depth_fraction(mesh)
+    depth = depth - depth.mean()
+    if seed is None:
+        log_seed = np.zeros(len(mesh.tets))
+    else:
+        seed = np.asarray(seed, dtype=float)
+        if seed.shape != (len(mesh.tets),) or not np.all(seed > 0):
+            raise InvalidInput('refine_field: seed must be (M,) positive element moduli')
+        log_seed = np.log(seed) - np.log(seed).mean()
+    lo = np.array([b[0] for b in bounds])
+    hi = np.array([b[1] for b in bounds])
+    cache = {}
+
+    def field_of(theta):
+        a, c = np.clip(theta, lo, hi)
+        if seed is None:
+            a = 1.0
+        return np.exp(a * log_seed + c * depth)
+
+    def run(theta):
+        key = tuple(np.round(np.clip(theta, lo, hi), 4))
+        if key not in cache:
+            cache[key] = identify_elasticity(mesh, pokes, config, rest_offset=rest_offset,
+                                             fem=fem, young_field=field_of(key))
+        return cache[key]
+
+    def objective(theta):
+        try:
+            fit = run(theta)[0]
+        except InvalidInput:
+            return np.inf
+        penalty = float(np.sum(np.clip(lo - theta, 0, None) + np.clip(theta - hi, 0, None)))
+        return fit.residual_rms ** 2 * (1.0 + penalty)
+
+    start = np.array([1.0, 0.0])
+    first = run(start)[0]
+    if seed is None:
+        res = minimize(lambda c: objective(np.array([1.0, c[0]])), [0.0], method='Nelder-Mead',
+                       options=dict(xatol=0.05, fatol=1e-4 * first.residual_rms ** 2,
+                                    maxfev=int(max_evaluations), initial_simplex=[[0.0], [1.0]]))
+        best = np.array([1.0, float(np.clip(res.x[0], lo[1], hi[1]))])
+    else:
+        res = minimize(objective, start, method='Nelder-Mead',
+                       options=dict(xatol=0.05, fatol=1e-4 * first.residual_rms ** 2,
+                                    maxfev=int(max_evaluations),
+                                    initial_simplex=[[1.0, 0.0], [0.5, 0.0], [1.0, 1.0]]))
+        best = np.clip(res.x, lo, hi)
+    fit, model = run(best)
+    if fit.residual_rms > first.residual_rms:   # never worse than the seed as given
+        best, (fit, model) = start, run(start)
+    # the cache's models share ``fem`` when one was given: refactorise at the answer
+    fit, model = identify_elasticity(mesh, pokes, config, rest_offset=rest_offset, fem=fem,
+                                     young_field=field_of(best))
+    info = FieldRefinement(exponent=float(best[0]) if seed is not None else 1.0,
+                           layer=float(best[1]), residual_rms=fit.residual_rms,
+                           start_rms=first.residual_rms, evaluations=len(cache) + 1)
+    return field_of(best), fit, model, info
+
+
+@dataclass(frozen=True)
+class ViewModel:
+    """The model identified from one camera's views, ready for held-out estimates.
+
+    Attributes:
+        mesh: the estimator's mesh (from the merged rest scan).
+        offset: (N,) rest offsets of the residual's reference.
+        fem: the identified model.
+        fit: its identification.
+        rest: (P, 3) the merged rest scan (contact points are moved onto it).
+        camera_origin: (3,) the pushing camera's optical centre.
+        refinement: the field refinement, when one ran.
+
+    """
+
+    mesh: TetMesh
+    offset: np.ndarray
+    fem: CorotationalFem
+    fit: object
+    rest: np.ndarray
+    camera_origin: np.ndarray
+    refinement: Optional[FieldRefinement] = None
+
+
+def identify_from_views(rest, rest_normals, identify_states, camera_origin,
+                        element_size: float = 0.004, view_rest=None, field: bool = False,
+                        field_samples=None, refine: bool = False) -> ViewModel:
+    """Identify (E, nu) (or a field) on some pushes' states; see :func:`check_from_views`.
+
+    With ``refine`` the field (seeded by ``field_samples`` when given, else by nothing: a
+    depth term alone) is refined by :func:`refine_field`.
+
+    Raises:
+        InvalidInput: as :func:`.identify.identify_elasticity`.
+
+    """
+    mesh = volume_mesh_from_surface(rest, rest_normals, element_size=element_size, layers=8,
+                                    grading=1.5)
+    offset = rest_offsets(mesh, rest if view_rest is None else view_rest)
+    config = IdentifyConfig(match=MATCH)
+    pokes = [Poke(contact_on_scan(q, rest, camera_origin), f, c) for q, f, c in identify_states]
+    fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset)
+    refinement = None
+    if refine:
+        seed = None if field_samples is None else seeded_field(mesh, pokes, fit,
+                                                               field_samples)[0]
+        _, fit, fem, refinement = refine_field(mesh, pokes, config, rest_offset=offset,
+                                               seed=seed, fem=fem)
+    elif field or field_samples is not None:
+        young_field, _ = seeded_field(mesh, pokes, fit, field_samples)
+        fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset,
+                                       young_field=young_field)
+    return ViewModel(mesh=mesh, offset=offset, fem=fem, fit=fit, rest=np.asarray(rest),
+                     camera_origin=np.asarray(camera_origin, dtype=float),
+                     refinement=refinement)
+
+
+def estimate_from_views(model: ViewModel, estimate_state, depth: float = float('nan'),
+                        started: float = None) -> CameraForceCheck:
+    """Estimate the held-out push's force from its cloud alone, against its F/T (unused).
+
+    Raises:
+        InvalidInput: as :func:`.force.estimate_force`.
+
+    """
+    t0 = time.perf_counter() if started is None else started
+    q, force, cloud = estimate_state
+    est = estimate_force(model.fem, contact_on_scan(q, model.rest, model.camera_origin), cloud,
+                         ForceConfig(match=MATCH), rest_offset=model.offset)
+    fit = model.fit
+    magnitude = float(np.linalg.norm(est.force))
+    relative = fit.young_std / fit.young
+    model_std = magnitude * relative if np.isfinite(relative) else 0.0
+    return CameraForceCheck(camera_force=est.force,
+                            camera_std=float(np.hypot(est.magnitude_std, model_std)),
+                            ft_force=np.asarray(force, dtype=float),
+                            contact_point=np.asarray(q, dtype=float), depth=float(depth),
+                            young=fit.young, poisson=fit.poisson,
+                            seconds=time.perf_counter() - t0, estimate_seconds=est.seconds,
+                            direction_std_deg=direction_std_deg(est.force, est.covariance))
+
+
 def check_from_views(rest, rest_normals, identify_states, estimate_state, camera_origin,
                      element_size: float = 0.004, depth: float = float('nan'),
                      started: float = None, view_rest=None, field: bool = False,
@@ -235,26 +448,7 @@ def check_from_views(rest, rest_normals, identify_states, estimate_state, camera
 
     """
     t0 = time.perf_counter() if started is None else started
-    mesh = volume_mesh_from_surface(rest, rest_normals, element_size=element_size, layers=8,
-                                    grading=1.5)
-    offset = rest_offsets(mesh, rest if view_rest is None else view_rest)
-    config = IdentifyConfig(match=MATCH)
-    pokes = [Poke(contact_on_scan(q, rest, camera_origin), f, c) for q, f, c in identify_states]
-    fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset)
-    if field or field_samples is not None:
-        young_field, _ = seeded_field(mesh, pokes, fit, field_samples)
-        fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset,
-                                       young_field=young_field)
-    q, force, cloud = estimate_state
-    est = estimate_force(fem, contact_on_scan(q, rest, camera_origin), cloud,
-                         ForceConfig(match=MATCH), rest_offset=offset)
-    magnitude = float(np.linalg.norm(est.force))
-    relative = fit.young_std / fit.young
-    model_std = magnitude * relative if np.isfinite(relative) else 0.0
-    return CameraForceCheck(camera_force=est.force,
-                            camera_std=float(np.hypot(est.magnitude_std, model_std)),
-                            ft_force=np.asarray(force, dtype=float),
-                            contact_point=np.asarray(q, dtype=float), depth=float(depth),
-                            young=fit.young, poisson=fit.poisson,
-                            seconds=time.perf_counter() - t0, estimate_seconds=est.seconds,
-                            direction_std_deg=direction_std_deg(est.force, est.covariance))
+    model = identify_from_views(rest, rest_normals, identify_states, camera_origin,
+                                element_size=element_size, view_rest=view_rest, field=field,
+                                field_samples=field_samples)
+    return estimate_from_views(model, estimate_state, depth=depth, started=t0)

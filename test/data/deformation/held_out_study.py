@@ -59,14 +59,17 @@ sys.path.insert(0, os.path.abspath(os.path.join(os.path.dirname(__file__), '..',
 
 from make_deformation_fixtures import push_direction, spec_of  # noqa: E402 - this folder
 from pointforce_ros.bringup.camera_check import render_view  # noqa: E402
-from pointforce_ros.deformation.cell_check import check_from_views  # noqa: E402
+from pointforce_ros.deformation.cell_check import (estimate_from_views,  # noqa: E402
+                                                   identify_from_views)
+from pointforce_ros.model.fit import fit_contact_model  # noqa: E402
 from pointforce_ros.errors import PointforceError  # noqa: E402
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints  # noqa: E402
 from pointforce_ros.sim.fem.live import LiveContact, POINT_PROBE  # noqa: E402
 from pointforce_ros.sim.fem.probes import point_probe, pose_for_push  # noqa: E402
 from pointforce_ros.sim.fem.solver import FemModel  # noqa: E402
 from pointforce_ros.sim.scenario import load_scenario  # noqa: E402
-from pointforce_ros.types import Mesh  # noqa: E402
+from pointforce_ros.sim.session import fem_object, simulate_campaign  # noqa: E402
+from pointforce_ros.types import Mesh, Surface  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -78,6 +81,8 @@ SITES = {
              (-0.015, 0.010, 20, 0), (0.005, -0.015, 20, 90)],   # the first two over the bone
     'plush': [(0.020, 0.012, 0, 0), (0.008, 0.018, 0, 0), (-0.025, -0.015, 0, 0),
               (-0.010, 0.0, 20, 0), (0.010, -0.015, 20, 90)],   # firm wad, its edge, pocket
+    'vest': [(0.025, 0.010, 0, 0), (-0.025, -0.012, 0, 0), (0.002, 0.015, 0, 0),
+             (-0.012, 0.012, 20, 0), (0.030, -0.015, 20, 90)],  # on the insert, off, its edge
 }
 DEPTHS = np.array([1.5, 3.0, 4.0, 5.0, 6.5, 8.0]) * 1e-3
 """Probe travel steps of the truth solve, metres."""
@@ -168,6 +173,35 @@ def point_samples(name, depth=0.003, spacing=0.004):
     return xy[ok], force[ok]
 
 
+def learned_samples(name, rest, normals, path, pokes=12, seed=3, depth=0.003, voxel=0.002):
+    """``(xy (n, 2), force (n,))``: the LEARNED point model's force at ``depth`` over the top.
+
+    The learner's own training pokes (``pokes`` point pokes at seeded random sites of the
+    object, realistic scenario, commanded on the scanned surface as the product pokes:
+    :func:`pointforce_ros.sim.session.simulate_campaign`) are fitted by the product's learner
+    (:func:`pointforce_ros.model.fit.fit_contact_model`) on the merged rest scan thinned to
+    ``voxel``; its baked force at ``depth`` on the upward-facing points is the map. Cached at
+    ``path`` (the pokes take a minute or two).
+    """
+    if os.path.isfile(path):
+        with np.load(path) as z:
+            return z['xy'], z['force']
+    key = np.unique(np.round(rest / voxel).astype(np.int64), axis=0, return_index=True)[1]
+    surface = Surface(rest[key], normals[key])
+    t0 = time.time()
+    records = simulate_campaign(fem_object(name), load_scenario('realistic'), count=pokes,
+                                seed=seed, surface=surface)
+    model = fit_contact_model(records, surface)
+    top = np.flatnonzero(surface.normals[:, 2] > 0.5)
+    force = model.response.force(top, np.full(len(top), depth))
+    xy = surface.points[top, :2]
+    np.savez_compressed(path, xy=xy, force=force,
+                        poked=np.array([r.point for r in records]))
+    say(f'learned point model on {pokes} pokes ({time.time() - t0:.0f} s): force at '
+        f'{depth * 1e3:.0f} mm {force.min():.2f}-{force.max():.2f} N over {len(top)} points')
+    return xy, force
+
+
 def main(argv=None):
     """Parse the command line, solve or load the truth, score every held-out push."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -178,10 +212,16 @@ def main(argv=None):
     ap.add_argument('--reference', choices=('view', 'merged'), default='view',
                     help="residual reference: the pushing camera's rest frames, or the "
                          'merged multi-view scan (the check before issue 18\'s fix)')
-    ap.add_argument('--field', choices=('none', 'pokes', 'point'), default='none',
+    ap.add_argument('--field', choices=('none', 'pokes', 'point', 'learned'), default='none',
                     help="heterogeneous modulus field seeded by the other sites' own moduli "
-                         "(pokes) or by the cell's point-probe response at 3 mm on a 4 mm grid "
-                         '(point: the live cache, standing in for a learned point model)')
+                         "(pokes), by the cell's point-probe response at 3 mm on a 4 mm grid "
+                         '(point: the live cache, the truth standing in for a learned model) '
+                         "or by the learner's point model fitted on its own pokes (learned)")
+    ap.add_argument('--refine', action='store_true',
+                    help='refine the field (or, with --field none, a depth term alone) by the '
+                         "identification's fit: seed exponent and depth layer")
+    ap.add_argument('--learner-pokes', type=int, default=12,
+                    help='training pokes of the learned point model (--field learned)')
     ap.add_argument('--sites', type=int, help='only the first N sites (default all)')
     ap.add_argument('--seed', type=int, default=7)
     ap.add_argument('--json', help='write the rows and the summary here')
@@ -193,18 +233,36 @@ def main(argv=None):
     nodes, tris, pushes = load_truth(path)
     pushes = pushes[:args.sites]
     rest, normals, view_rest, origin = render_views(nodes, tris, pushes, args.frames, args.seed)
-    samples = point_samples(args.object) if args.field == 'point' else None
+    samples = None
+    if args.field == 'point':
+        samples = point_samples(args.object)
+    elif args.field == 'learned':
+        samples = learned_samples(args.object, rest, normals, os.path.join(
+            args.out, f'learned_{args.object}_{args.learner_pokes}.npz'), args.learner_pokes)
     rows, failed = [], []
     for j, held in enumerate(pushes):
         states = [(p['q'], p['force'][i], p['clouds'][i]) for k, p in enumerate(pushes)
                   if k != j for i in IDENTIFY if i < len(p['depths'])]
+        t0 = time.time()
+        try:
+            model = identify_from_views(
+                rest, normals, states, origin, field=args.field == 'pokes',
+                field_samples=samples, refine=args.refine,
+                view_rest=view_rest if args.reference == 'view' else None)
+        except PointforceError as exc:   # counted, not hidden: the summary says how many
+            model = exc
+        if not isinstance(model, Exception) and model.refinement is not None:
+            r = model.refinement
+            say(f'push {j} held out: field refined in {time.time() - t0:.0f} s, '
+                f'{r.evaluations} identifications: exponent {r.exponent:.2f}, depth layer '
+                f'{r.layer:+.2f}, residual {r.start_rms * 1e6:.1f} -> '
+                f'{r.residual_rms * 1e6:.1f} um')
         for i, depth in enumerate(held['depths']):
             try:
-                c = check_from_views(rest, normals, states,
-                                     (held['q'], held['force'][i], held['clouds'][i]), origin,
-                                     depth=float(depth), field=args.field == 'pokes',
-                                     field_samples=samples,
-                                     view_rest=view_rest if args.reference == 'view' else None)
+                if isinstance(model, Exception):
+                    raise model
+                c = estimate_from_views(model, (held['q'], held['force'][i],
+                                                held['clouds'][i]), depth=float(depth))
             except PointforceError as exc:   # counted, not hidden: the summary says how many
                 failed.append(dict(push=j, depth=float(depth), reason=str(exc)))
                 say(f'push {j} {depth * 1e3:.1f} mm: FAILED ({exc})')
@@ -226,7 +284,7 @@ def main(argv=None):
     mag = np.abs([r['magnitude_error'] for r in rows])
     ang = np.array([r['direction_deg'] for r in rows])
     summary = dict(object=args.object, frames=args.frames, reference=args.reference,
-                   field=args.field, states=len(rows), failed=len(failed),
+                   field=args.field, refine=args.refine, states=len(rows), failed=len(failed),
                    magnitude_mean_pct=100 * float(mag.mean()),
                    magnitude_max_pct=100 * float(mag.max()),
                    direction_mean_deg=float(ang.mean()), direction_max_deg=float(ang.max()),

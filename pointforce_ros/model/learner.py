@@ -36,7 +36,7 @@ from pointforce_ros.model.files import ContactModel, model_path, save_model
 from pointforce_ros.pokes.curves import extract_curve, PokeCurve
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.response.ours import ContactGpModel
-from pointforce_ros.response.suggest import suggest_pokes
+from pointforce_ros.response.suggest import reference_depth, suggest_pokes, Suggestion
 from pointforce_ros.types import Surface
 
 DEFAULT_DEPTHS = np.linspace(-0.004, 0.025, 59)
@@ -403,7 +403,7 @@ class OnlineLearner:
 
     def suggest(self, count: int = 1, exclude_radius: float = 0.01,
                 max_tilt_deg: float = 35.0, up=(0.0, 0.0, 1.0), edge_margin: float = 0.008,
-                region: Optional[np.ndarray] = None):
+                region: Optional[np.ndarray] = None, region_length: float = 0.006):
         """Next poke locations where the model is least certain.
 
         Only points whose normal is within ``max_tilt_deg`` of ``up``, that lie at least
@@ -414,9 +414,12 @@ class OnlineLearner:
 
         ``region`` is where a planner will ask for wrenches: (M, 4) rows ``(x, y, z, radius)``,
         metres, ``base``; a row is the disc of ``radius`` around ``(x, y, z)`` measured across
-        ``up`` (rows with radius 0 are ignored). Candidates are then those inside the region,
-        so the model's uncertainty is brought down where the planner queries
-        (:func:`region_candidates`); when no candidate lies inside, the whole surface is used.
+        ``up`` (rows with radius 0 are ignored). Candidates are then those inside the region
+        (:func:`region_candidates`), ranked by the model's variance in the region around them
+        (:func:`region_scores`, smoothed over ``region_length``, m) rather than by their own:
+        the most uncertain point of a disc is its rim, the poke that lowers the disc's
+        uncertainty most is nearer its middle. When no candidate lies inside, the whole
+        surface is used as without a region.
 
         Returns:
             (indices (count,), std (count,) in N) into ``surface``.
@@ -449,13 +452,23 @@ class OnlineLearner:
         if len(candidates) == 0:
             raise InvalidInput(f'no surface point has a normal within {max_tilt_deg} degrees of '
                                f'{up.tolist()} and {edge_margin} m from steeper points')
-        if region is not None:
-            inside = region_candidates(self.surface.points, candidates, region, up)
-            if len(inside):
-                candidates = inside
+        inside = (np.zeros(0, dtype=np.int64) if region is None else
+                  region_candidates(self.surface.points, candidates, region, up))
         with self._lock:
-            return suggest_pokes(self.model, self.surface, int(count),
-                                 exclude_radius=exclude_radius, candidates=candidates)
+            if len(inside) == 0:
+                return suggest_pokes(self.model, self.surface, int(count),
+                                     exclude_radius=exclude_radius, candidates=candidates)
+            depth = reference_depth(self.model)
+            std = np.asarray(self.model.predict_std(self.surface.features[inside], depth),
+                             dtype=float)
+            done = np.asarray(getattr(self.model, 'poke_points', np.zeros((0, 3))), float)
+            picked = _pick(self.surface.points[inside], inside, std,
+                           region_scores(self.surface.points[inside], std, region_length, up),
+                           done, int(count), exclude_radius)
+            if len(picked.indices) == 0:   # the region is poked out: the whole surface
+                return suggest_pokes(self.model, self.surface, int(count),
+                                     exclude_radius=exclude_radius, candidates=candidates)
+            return picked
 
 
 def check_region(region) -> np.ndarray:
@@ -495,6 +508,47 @@ def region_candidates(points: np.ndarray, candidates: np.ndarray, region,
     gap -= (gap @ up)[..., None] * up
     inside = np.any(np.linalg.norm(gap, axis=2) <= rows[None, :, 3], axis=1)
     return candidates[inside]
+
+
+def region_scores(points: np.ndarray, std: np.ndarray, length: float,
+                  up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Return the model's variance in the region around each of its points, N^2.
+
+    ``points`` (K, 3) are the region's surface points and ``std`` (K,) the model's force std
+    there; the score of point ``i`` is ``sum_j std_j^2 exp(-r_ij^2 / (2 length^2))``, ``r``
+    measured across ``up``: the variance a poke at ``i`` would take away if it informed its
+    neighbours over ``length`` (a squared-exponential proxy of the variance reduction).
+    """
+    if not length > 0:
+        raise InvalidInput(f'region_length: must be > 0 m, got {length}')
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    flat = points - np.outer(points @ up, up)
+    tree = cKDTree(flat)
+    pairs = tree.sparse_distance_matrix(tree, 4.0 * length, output_type='coo_matrix')
+    other = pairs.row != pairs.col    # each point counts itself once, below
+    row, col = pairs.row[other], pairs.col[other]
+    weight = np.exp(-pairs.data[other] ** 2 / (2.0 * length ** 2))
+    var = np.asarray(std, dtype=float) ** 2
+    return var + np.bincount(row, weights=weight * var[col], minlength=len(var))
+
+
+def _pick(points: np.ndarray, indices: np.ndarray, std: np.ndarray, score: np.ndarray,
+          done: np.ndarray, count: int, exclude_radius: float) -> Suggestion:
+    """Greedy picks by ``score`` at least ``exclude_radius`` from each other and earlier pokes."""
+    allowed = np.ones(len(indices), dtype=bool)
+    if exclude_radius > 0:
+        for p in done:
+            allowed &= np.linalg.norm(points - p, axis=1) > exclude_radius
+    picks, stds = [], []
+    for _ in range(count):
+        if not np.any(allowed):
+            break
+        k = int(np.argmax(np.where(allowed, score, -np.inf)))
+        picks.append(int(indices[k]))
+        stds.append(float(std[k]))
+        allowed &= np.linalg.norm(points - points[k], axis=1) > exclude_radius
+        allowed[k] = False
+    return Suggestion(np.array(picks, dtype=np.int64), np.array(stds, dtype=float))
 
 
 def _on_rim(points: np.ndarray, indices: np.ndarray, radius: float) -> np.ndarray:

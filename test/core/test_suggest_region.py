@@ -72,3 +72,15 @@ def test_suggestions_land_in_the_planners_region_and_lower_its_uncertainty(tmp_p
         stds[use_region] = float(np.sqrt(np.mean(np.asarray(std) ** 2)))
     # without the region the most uncertain points are the surface's far corners
     assert stds[True] < 0.7 * stds[False]
+
+
+def test_region_scores_rank_a_uniformly_uncertain_disc_from_its_middle():
+    from pointforce_ros.model.learner import region_scores
+    pts = _surface().points
+    inside = region_candidates(pts, np.arange(len(pts)), REGION)
+    score = region_scores(pts[inside], np.ones(len(inside)), 0.004)
+    best = pts[inside[np.argmax(score)]]
+    rim = np.max(np.hypot(pts[inside, 0] - REGION[0, 0], pts[inside, 1] - REGION[0, 1]))
+    assert np.hypot(*(best[:2] - REGION[0, :2])) < 0.3 * rim
+    # a point's own variance counts: a lone point scores its variance
+    np.testing.assert_allclose(region_scores(pts[:1], np.array([2.0]), 0.004), [4.0])

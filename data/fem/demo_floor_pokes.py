@@ -1,0 +1,120 @@
+#!/usr/bin/env python3
+"""The demo's poke-learn-calibrate-query chain offline: where the pokes land, what it costs.
+
+Replays ``pointforce demo`` without ROS, on the surface a demo run captured
+(``<demo_out>/cell/surface.npz``): the first poke at the calibration site, then each next poke
+from :meth:`OnlineLearner.suggest` (with the planner's region of interest, ``--region``, or
+over the whole surface), each simulated against the object's live FEM table under the
+``realistic`` scenario (:func:`~pointforce_ros.sim.session.simulate_campaign`), learned by the
+:class:`OnlineLearner`; then the point model against the truth at the calibration and query
+sites (:func:`~pointforce_ros.bringup.demo.point_model_check`), ``(c, L)`` from the two
+calibration pushes (:func:`~pointforce_ros.contact.identify.calibrate_shape`) and the 9
+planner queries answered by the simulator against their FEM truth (held out: never fitted).
+Runs under machine load where the live demo's emulator stalls; no interval coverage (that
+needs the contact service).
+
+Usage: python data/fem/demo_floor_pokes.py out/demo [--object lamb] [--seeds 0 1 2]
+"""
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from pointforce_ros.bringup.demo import (_calibration_pokes, _ground_truth, CALIBRATION_OFFSET,
+                                         CALIBRATIONS, demo_query_set, planner_region,
+                                         point_model_check)
+from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID
+from pointforce_ros.model.files import load_surface
+from pointforce_ros.model.learner import OnlineLearner
+from pointforce_ros.model.serving import WrenchServer
+from pointforce_ros.pokes.store import PokeStore
+from pointforce_ros.sim.fem.live import LiveContact
+from pointforce_ros.sim.generate import fem_cell_object
+from pointforce_ros.sim.objects import load_object
+from pointforce_ros.sim.scenario import load_scenario
+from pointforce_ros.sim.session import simulate_campaign
+
+HERE = Path(__file__).resolve().parent
+
+
+def run(spec, live, surface, queries, gt, region: bool, seed: int, pokes: int = 8) -> dict:
+    """One replay; returns the point-model ratios, (c, L) and the query scores."""
+    obj = fem_cell_object(spec, live)
+    scenario = load_scenario('realistic')
+    rows = None
+    if region:
+        calibration = [(None, None, push(spec)[1][0], None, None)
+                       for _, push in CALIBRATIONS.values()]
+        rows = planner_region(queries + calibration)
+    site = np.asarray(spec.centre, dtype=float) + CALIBRATION_OFFSET
+    gap = np.linalg.norm(surface.points[:, :2] - site, axis=1)
+    index = int(np.argmin(np.where(surface.normals[:, 2] > 0.7, gap, np.inf)))
+    with tempfile.TemporaryDirectory() as tmp:
+        store = PokeStore(Path(tmp) / 'pokes')
+        learner = OnlineLearner(Path(tmp) / 'pokes', Path(tmp) / 'models', surface,
+                                shape_constant=0.004)
+        where = []
+        for k in range(pokes):
+            if k > 0:
+                index = int(learner.suggest(1, exclude_radius=0.01, max_tilt_deg=35.0,
+                                            region=rows)[0][0])
+            where.append(surface.points[index].tolist())
+            record = simulate_campaign(obj, scenario, points=[surface.points[index]],
+                                       normals=[surface.normals[index]], surface=surface,
+                                       force_limit=float(spec.force_cap),
+                                       depth_limit=float(spec.max_depth), speed=0.004,
+                                       standoff=0.006, seed=1000 * seed + k,
+                                       id_prefix=f'poke-{k:02d}-')[0]
+            store.add(record)
+            learner.update()
+        ratios = point_model_check(spec, live, surface, learner.contact_model().response)
+        server = WrenchServer()
+        server.load(learner.current_model_path())
+        sim = server.simulator()
+        vectors = _calibration_pokes(spec, vectors=True)
+        cal = calibrate_shape(sim, [vectors['sphere'], vectors['rod']], decays=DECAY_GRID)
+        fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
+        pred = np.array([fitted.query(m, p, a, ctr).wrench.force[2]
+                         for _, m, p, a, ctr in queries])
+    true = gt['force'][:, 2]
+    err = pred - true
+    return {'region': region, 'seed': seed, 'pokes': where, 'ratios': ratios,
+            'c_mm': 1e3 * cal.fit.c, 'L_mm': 1e3 * cal.fit.decay,
+            'rmse_pct': float(100 * np.sqrt(np.mean(err ** 2)) / np.max(np.abs(true))),
+            'below': int(np.sum(err < 0)), 'pred_over_true': (pred / true).round(3).tolist()}
+
+
+def main():
+    """Replay with and without the region for each seed; write the JSON record."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('demo_out', help="a demo's --out folder (its cell/surface.npz)")
+    parser.add_argument('--object', default='lamb')
+    parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2])
+    args = parser.parse_args()
+    spec = load_object(args.object)
+    live = LiveContact.load(spec.name, build=False)
+    surface = load_surface(Path(args.demo_out) / 'cell' / 'surface.npz')
+    queries = demo_query_set(spec)
+    gt, path = _ground_truth(spec, queries)
+    if gt is None:
+        raise SystemExit(f'no ground truth for the demo queries of {spec.name} ({path})')
+    runs = []
+    for seed in args.seeds:
+        for region in (False, True):
+            r = run(spec, live, surface, queries, gt, region, seed)
+            runs.append(r)
+            print(f'seed {seed} region {str(region):5s}: point model '
+                  + ', '.join(f'{k} {v:.2f}' for k, v in r['ratios'].items())
+                  + f'; c {r["c_mm"]:.2f} mm L {r["L_mm"]:.0f} mm; queries RMSE '
+                  f'{r["rmse_pct"]:.1f} %, {r["below"]} of 9 below', flush=True)
+    out = HERE / f'demo_floor_pokes_{spec.name}.json'
+    out.write_text(json.dumps({'object': spec.name, 'surface': args.demo_out, 'runs': runs},
+                              indent=1) + '\n')
+    print(f'wrote {out}')
+
+
+if __name__ == '__main__':
+    main()

@@ -14,7 +14,7 @@ from typing import Dict
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 
-from pointforce_ros.errors import InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.replica.mesh import TetMesh
 from pointforce_ros.replica.scene import deformed_nodes, Material, ReplicaScene, SceneConfig
 
@@ -159,16 +159,18 @@ def section_error(truth: np.ndarray, replica: np.ndarray, centre, samples: int =
             'diameter_max_pct': 100 * float(np.max(np.abs(diam))) / width}
 
 
-def ball_section_error(mesh: TetMesh, material: Material, config: SceneConfig,
-                       compression: float, truth: np.ndarray, hold: float = 0.3) -> Dict:
-    """Hold the plate-on-ball replica at ``compression`` and compare its section with ``truth``.
+def ball_section(mesh: TetMesh, material: Material, config: SceneConfig, compression: float,
+                 hold: float = 0.3):
+    """Hold the plate-on-ball replica at ``compression``; return its loaded section.
 
     The plate pushes at the static speed to ``compression`` past the ball's undeformed top
     (less the collision margin when the replica counts depth from the geometry, as the force
-    is read), holds ``hold`` seconds, and the replica's outline in ``y = 0``
-    (:func:`section_outline`) is compared with ``truth`` (S, 2), ``(x, z)`` metres, table
-    frame, about the deformed centre (the ball's axis, ``(top - compression) / 2`` high)
-    (:func:`section_error`). Also returns the plate's actual compression, metres.
+    is read) and holds ``hold`` seconds.
+
+    Returns:
+        ``(outline (S, 2), centre (2,), compression_m)``: the replica's outline in ``y = 0``
+        (:func:`section_outline`), ``(x, z)`` metres, table frame; the deformed centre (the
+        ball's axis, ``(top - compression) / 2`` high); the plate's actual compression, m.
 
     Raises:
         InvalidInput: see :func:`section_outline`.
@@ -181,7 +183,200 @@ def ball_section_error(mesh: TetMesh, material: Material, config: SceneConfig,
     with ReplicaScene(mesh, material, config) as scene:
         trace = scene.poke(xy, compression - margin, 0.008, hold=hold, retract=False)
         nodes = deformed_nodes(scene)
-    out = section_error(truth, section_outline(mesh, nodes),
-                        (float(xy[0]), 0.5 * (top - compression)))
-    out['compression_m'] = float(trace.depth[-1] + margin)
+    centre = np.array([float(xy[0]), 0.5 * (top - compression)])
+    return section_outline(mesh, nodes), centre, float(trace.depth[-1] + margin)
+
+
+def ball_section_error(mesh: TetMesh, material: Material, config: SceneConfig,
+                       compression: float, truth: np.ndarray, hold: float = 0.3) -> Dict:
+    """Hold the plate-on-ball replica at ``compression`` and compare its section with ``truth``.
+
+    :func:`ball_section`, compared with ``truth`` (S, 2), ``(x, z)`` metres, table frame,
+    about the deformed centre (:func:`section_error`). Also returns the plate's actual
+    compression, metres (``compression_m``).
+
+    Raises:
+        InvalidInput: see :func:`section_outline`.
+        NotConverged: the engine went unstable.
+
+    """
+    outline, centre, actual = ball_section(mesh, material, config, compression, hold)
+    out = section_error(truth, outline, centre)
+    out['compression_m'] = actual
+    return out
+
+
+# -- the camera's section -----------------------------------------------------------------
+
+def _rays(points: np.ndarray, pose: np.ndarray):
+    """Return unit rays (P, 3), ranges (P,), optical-axis cosines (P,) of ``points``."""
+    rel = np.asarray(points, float) - np.asarray(pose, float)[:3, 3]
+    rng = np.linalg.norm(rel, axis=1)
+    unit = rel / rng[:, None]
+    return unit, rng, unit @ np.asarray(pose, float)[:3, 2]
+
+
+def depth_bias_from_rest(points: np.ndarray, pose: np.ndarray, centre, radius: float) -> float:
+    """Estimate a depth camera's constant depth bias from its view of the rest ball, metres.
+
+    The rest shape is known (a ball of ``radius`` m about ``centre`` (3,), ``base``): along
+    each point's ray from the camera (``pose`` (4, 4) ``base <- optical``) the measured range
+    minus the range to the sphere, times the ray's cosine to the optical axis (the bias is
+    on the optical-axis depth), median over the points that hit the sphere. Positive: the
+    camera reads too far. As a cell's camera is checked on a known object before use.
+
+    Raises:
+        InvalidInput: fewer than 20 of ``points`` (P, 3) lie on rays that hit the sphere.
+
+    """
+    unit, rng, cos = _rays(points, pose)
+    oc = np.asarray(pose, float)[:3, 3] - np.asarray(centre, float)
+    b = unit @ oc
+    disc = b ** 2 - (oc @ oc - radius ** 2)
+    hit = disc > 0
+    if np.count_nonzero(hit) < 20:
+        raise InvalidInput(f'depth_bias_from_rest: {int(np.count_nonzero(hit))} camera points '
+                           'on rays through the rest ball (need 20)')
+    t_true = -b[hit] - np.sqrt(disc[hit])
+    return float(np.median((rng[hit] - t_true) * cos[hit]))
+
+
+def remove_depth_bias(points: np.ndarray, pose: np.ndarray, bias: float) -> np.ndarray:
+    """Return ``points`` (P, 3) moved along their rays by the optical-axis depth ``-bias``, m."""
+    unit, rng, cos = _rays(points, pose)
+    return np.asarray(pose, float)[:3, 3] + unit * (rng - bias / cos)[:, None]
+
+
+def camera_section(points: np.ndarray, centre_xy, band: float = 0.003) -> np.ndarray:
+    """Return the section of an upright body of revolution in its plane through the axis.
+
+    The points (P, 3) within ``band`` m of the plane, each at its horizontal distance from
+    the vertical axis through ``centre_xy`` (2,) (the plane ``y = centre_y``), on its own side:
+    ``(x, z)`` (S, 2), metres (a point
+    ``y`` off the plane is ``y^2 / 2 r`` closer to the axis than its ``x`` says).
+    """
+    pts = np.asarray(points, float)
+    rel = pts[:, :2] - np.asarray(centre_xy, float)
+    keep = np.abs(rel[:, 1]) < band
+    x = np.sign(rel[keep, 0]) * np.hypot(rel[keep, 0], rel[keep, 1]) + float(centre_xy[0])
+    return np.column_stack([x, pts[keep, 2]])
+
+
+def camera_section_error(camera_xz: np.ndarray, outline: np.ndarray, centre,
+                         bin_deg: float = 3.0, level: float = 0.002) -> Dict:
+    """Compare an outline (S, 2) ``(x, z)`` with the camera's section points (P, 2) ``(x, z)``.
+
+    Only where the camera sees: the camera's points are binned by angle about ``centre``
+    (2,) (``bin_deg`` wide bins with 3 or more points); per bin the median of the outline's
+    radius minus the camera point's radius (:func:`radius_by_angle`) at each point's angle.
+    The width is the camera's own: its diameter at the level of ``centre`` (median x of the
+    points within ``level`` m of that height, right side minus left side). Diameters by
+    height compare the median x of each side per ``2 level``-high band (both sides seen)
+    with :func:`width_by_height` of the outline.
+
+    Returns:
+        ``{'rms_m', 'max_m', 'width_m', 'error_pct', 'max_pct', 'bias_m', 'diameter_rms_pct',
+        'diameter_max_pct', 'bins', 'points', 'seen_deg'}``: the RMS and largest binned
+        radial gap, the camera's width, both gaps as % of it, the median signed gap
+        (outline minus camera, m), the diameters' RMS and largest difference as % of the
+        width, the bins used, points used, and the angle the bins cover, degrees.
+
+    Raises:
+        InvalidInput: fewer than 3 bins, or the camera sees no side at the centre's height.
+
+    """
+    cam = np.asarray(camera_xz, float)
+    centre = np.asarray(centre, float)
+    rel = cam - centre
+    theta = np.arctan2(rel[:, 1], rel[:, 0])
+    gap = radius_by_angle(outline, centre, theta) - np.linalg.norm(rel, axis=1)
+    edges = np.radians(np.arange(-180.0, 180.0 + bin_deg, bin_deg))
+    which = np.digitize(theta, edges)
+    per_bin = np.array([np.median(gap[which == k]) for k in np.unique(which)
+                        if np.count_nonzero(which == k) >= 3])
+    if len(per_bin) < 3:
+        raise InvalidInput(f'camera_section_error: {len(per_bin)} angle bins with 3 camera '
+                           'points (need 3)')
+    mid = np.abs(rel[:, 1]) < level
+    left, right = mid & (rel[:, 0] < 0), mid & (rel[:, 0] > 0)
+    if not (left.any() and right.any()):
+        raise InvalidInput('camera_section_error: the camera sees no side of the section at '
+                           "its centre's height")
+    width = float(np.median(cam[right, 0]) - np.median(cam[left, 0]))
+    lo, hi = cam[:, 1].min() + level, cam[:, 1].max() - level
+    levels = np.arange(lo, hi + 1e-12, 2 * level)
+    diam = []
+    for z in levels:
+        band = np.abs(cam[:, 1] - z) < level
+        lft, rgt = band & (rel[:, 0] < 0), band & (rel[:, 0] > 0)
+        if np.count_nonzero(lft) >= 3 and np.count_nonzero(rgt) >= 3:
+            seen = float(np.median(cam[rgt, 0]) - np.median(cam[lft, 0]))
+            diam.append(width_by_height(outline, np.array([z]))[0] - seen)
+    diam = np.array(diam)
+    diam = np.where(np.isfinite(diam), diam, width)
+    rms = float(np.sqrt(np.mean(per_bin ** 2)))
+    return {'rms_m': rms, 'max_m': float(np.max(np.abs(per_bin))), 'width_m': width,
+            'error_pct': 100 * rms / width,
+            'max_pct': 100 * float(np.max(np.abs(per_bin))) / width,
+            'bias_m': float(np.median(per_bin)),
+            'diameter_rms_pct': (100 * float(np.sqrt(np.mean(diam ** 2))) / width
+                                 if len(diam) else float('nan')),
+            'diameter_max_pct': (100 * float(np.max(np.abs(diam))) / width
+                                 if len(diam) else float('nan')),
+            'bins': int(len(per_bin)), 'points': int(len(cam)),
+            'seen_deg': float(bin_deg * len(per_bin))}
+
+
+def read_camera_views(path) -> Dict:
+    """Read a camera-views file of the plate-on-ball truth (``make_ball_camera.py``).
+
+    Returns:
+        ``{'pose': (C, 4, 4), 'rest': [(P, 3)] * C, 'loaded': [(Q, 3)] * C, 'compression',
+        'radius', ...}`` (metres, ``base``).
+
+    Raises:
+        DataError: missing or unreadable.
+
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+        out = {k: (v.item() if v.ndim == 0 else v) for k, v in data.items()
+               if not k.endswith(('_points', '_offsets'))}
+        for state in ('rest', 'loaded'):
+            off, pts = data[f'{state}_offsets'], np.asarray(data[f'{state}_points'], float)
+            out[state] = [pts[off[i]:off[i + 1]] for i in range(len(off) - 1)]
+    except (OSError, KeyError, ValueError) as exc:
+        raise DataError(f'{path}: unreadable camera views: {exc}') from exc
+    return out
+
+
+def ball_camera_figures(views: Dict, outline: np.ndarray, truth: np.ndarray, centre,
+                        band: float = 0.003) -> Dict:
+    """Section of a loaded ball against the camera's: a replica's and the truth's (floor).
+
+    ``views`` (:func:`read_camera_views`); ``outline`` (S, 2) the replica's loaded section,
+    ``truth`` (T, 2) the truth's (``section_xz``), ``centre`` (2,) the deformed centre
+    ``(x, z)``; the ball's axis is at ``y = 0``. Two readings of the camera: ``raw`` (its
+    points as they come: the scenario's depth bias included) and ``rest_corrected`` (each
+    camera's depth bias estimated on its rest frames of the known rest ball,
+    :func:`depth_bias_from_rest`, and removed). Per reading: ``replica`` (the replica's
+    section against the camera's, :func:`camera_section_error`), ``truth`` (the truth's
+    against the camera's: the camera's own floor) and the bias estimates, metres.
+    """
+    centre = np.asarray(centre, float)
+    radius = float(views['radius'])
+    rest_centre = np.array([centre[0], 0.0, radius])
+    raw = np.concatenate(views['loaded'])
+    biases = [depth_bias_from_rest(r, p, rest_centre, radius)
+              for r, p in zip(views['rest'], views['pose'])]
+    corrected = np.concatenate([remove_depth_bias(pts, p, b) for pts, p, b in
+                                zip(views['loaded'], views['pose'], biases)])
+    out = {'band_m': band, 'compression_m': float(views['compression']),
+           'nominal_bias_m': float(views.get('depth_bias', float('nan')))}
+    for name, pts in (('raw', raw), ('rest_corrected', corrected)):
+        cam = camera_section(pts, (centre[0], 0.0), band)
+        out[name] = {'replica': camera_section_error(cam, outline, centre),
+                     'truth': camera_section_error(cam, truth, centre)}
+    out['rest_corrected']['bias_estimates_m'] = biases
     return out

@@ -16,6 +16,13 @@ Prints one JSON object (also written to ``DIR/evaluation.json``):
   poke at the replica's mesh and at ``--h-fine`` (how far a replica moves with resolution);
 * ``contour``: with ``--clouds`` (push files that hold the camera cloud under load), the
   replica's top along the section through the probe against the camera's, % of the width;
+* ``camera_section``: where ``<data stem>_camera.npz`` lies beside the data (or ``--camera``:
+  the cell's camera's views of the loaded truth, ``test/data/replica/make_ball_camera.py``),
+  the replica's section against the camera's and the truth's against the camera's (the
+  camera's own floor), raw and with each camera's depth bias removed on its rest frames
+  (:func:`pointforce_ros.replica.contour.ball_camera_figures`);
+* ``residual_map`` (with ``--map``): the held-out residual by depth, time, site and section
+  angle (:mod:`pointforce_ros.replica.residual_map`), drawn into ``DIR/residual_map.png``;
 * ``section``: where the data file holds the truth's deformed section (``section_xz`` of the
   plate-on-ball fixture), the replica's section at the same compression against it, % of
   the section's width (:func:`pointforce_ros.replica.contour.ball_section_error`).
@@ -27,16 +34,21 @@ import json
 from pathlib import Path
 import sys
 import time
+from typing import Optional
 
 import numpy as np
 
 from pointforce_ros.replica.build import replica_body
 from pointforce_ros.replica.calibrate import (evaluate, force_at, force_time_summary,
                                               simulate_loading, simulate_series, summary)
-from pointforce_ros.replica.contour import ball_section_error, contour_error
+from pointforce_ros.replica.contour import (ball_camera_figures, ball_section,
+                                            ball_section_error, camera_section, contour_error,
+                                            read_camera_views, remove_depth_bias,
+                                            section_error)
 from pointforce_ros.replica.data import load_pokes, subset
 from pointforce_ros.replica.mesh import read_vtk
 from pointforce_ros.replica.replica import read_description
+from pointforce_ros.replica.residual_map import plot_residual_map, residual_map
 from pointforce_ros.replica.scene import Material, SceneConfig
 
 
@@ -106,12 +118,25 @@ def truth_section(data):
         return float(z['section_depth']), np.asarray(z['section_xz'], float)
 
 
+def camera_views_file(data) -> Optional[Path]:
+    """Return ``<data stem>_camera.npz`` beside a plate-on-ball data file, or None."""
+    path = Path(str(data))
+    if path.suffix != '.npz':
+        return None
+    views = path.with_name(f'{path.stem}_camera.npz')
+    return views if views.is_file() else None
+
+
 def main(argv=None) -> int:
     """Run the evaluation; print and write the JSON."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('replica', help='replica directory')
     ap.add_argument('--h-fine', type=float, default=0.0075, help='refined mesh, m (0: skip)')
     ap.add_argument('--clouds', default=None, help='glob of push files with camera clouds')
+    ap.add_argument('--camera', default=None, help='camera views of the loaded ball '
+                    '(make_ball_camera.py; default: <data>_camera.npz beside the data)')
+    ap.add_argument('--map', action='store_true', help='residual map of the held-out pokes '
+                    '(DIR/residual_map.png and residual_map in the JSON)')
     ap.add_argument('--phases', action='store_true',
                     help='force-time residual by phase (push, hold) on held-out series')
     args = ap.parse_args(argv)
@@ -160,9 +185,29 @@ def main(argv=None) -> int:
         result['contour'] = {'pokes': rows, 'median_error_pct':
                              float(np.median([r['error_pct'] for r in rows])) if rows else None}
     section = truth_section(figures['data'])
+    camera_file = Path(args.camera) if args.camera else camera_views_file(figures['data'])
+    map_section = None
     if section is not None:
-        result['section'] = dict(ball_section_error(mesh, material, config, section[0],
-                                                    section[1]), compression_truth_m=section[0])
+        outline, centre, actual = ball_section(mesh, material, config, section[0])
+        result['section'] = dict(section_error(section[1], outline, centre),
+                                 compression_m=actual, compression_truth_m=section[0])
+        map_section = {'outline': outline, 'centre': centre, 'truth': section[1],
+                       'camera': None}
+        if camera_file is not None and camera_file.is_file():
+            views = read_camera_views(camera_file)
+            result['camera_section'] = dict(
+                ball_camera_figures(views, outline, section[1], centre), file=str(camera_file))
+            biases = result['camera_section']['rest_corrected']['bias_estimates_m']
+            map_section['camera'] = camera_section(np.concatenate(
+                [remove_depth_bias(pts, pose, b) for pts, pose, b in
+                 zip(views['loaded'], views['pose'], biases)]), (centre[0], 0.0))
+    if args.map:
+        rmap = residual_map(mesh, material, config, held, map_section)
+        result['residual_map'] = rmap['numbers']
+        plot_residual_map(rmap, root / 'residual_map.png',
+                          f'{root.name}: held-out residual of one homogeneous replica '
+                          f'(E {desc["young_Pa"] / 1e3:.1f} kPa, nu {desc["poisson"]:.2f})')
+        result['residual_map']['png'] = str(root / 'residual_map.png')
     result['seconds'] = time.monotonic() - started
     text = json.dumps(result, indent=1, default=float)
     (root / 'evaluation.json').write_text(text)

@@ -87,3 +87,21 @@ def test_static_pushes_of_the_deformation_fixtures_keep_their_roles():
     assert abs(data.surface_points[:, 2].max() - 0.04) < 0.002
     with pytest.raises(InvalidInput, match='no push files'):
         load_pokes(str(PUSHES / 'push_nothing_*.npz'))
+
+
+def test_the_command_answers_bad_input_with_one_line(tmp_path, capsys):
+    from pointforce_ros.bringup.cli import main  # the ``pointforce`` command itself
+    np.savez(tmp_path / 'nosurf.npz', curve_ids=np.array(['a']))
+    (tmp_path / 'junk.npz').write_text('not a zip')
+    store = tmp_path / 'store'
+    store.mkdir()
+    (store / 'index.json').write_text(json.dumps({'pokes': []}))
+    cases = {'no pokes': store, 'without a surface': tmp_path / 'nosurf.npz',
+             'unreadable': tmp_path / 'junk.npz', 'no such': tmp_path / 'missing'}
+    for expected, data in cases.items():
+        rc = main(['replica', '--engine', 'pybullet', '--data', str(data),
+                   '--out', str(tmp_path / 'rep')])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and expected in err, (expected, err)
+        assert len(err.splitlines()) == 1 and err.startswith('pointforce replica: error:')
+    assert not (tmp_path / 'rep').exists()  # nothing written on bad input

@@ -59,6 +59,7 @@ def test_refinement_recovers_the_seed_exponent_and_the_depth_layer(mesh):
     refined, fit, fem, info = refine_field(mesh, pokes, config, seed=seed, max_evaluations=20)
     # measured: exponent 0.50, layer 1.57; residual 18.2 (one E) and 16.3 (the seed as given)
     # -> 13.6 um, over a camera noise of 10 um
+    assert info.accepted
     assert info.exponent == pytest.approx(a_true, abs=0.15)
     assert info.layer == pytest.approx(c_true, abs=0.4)
     assert fit.residual_rms == pytest.approx(info.residual_rms)
@@ -81,5 +82,18 @@ def test_a_depth_layer_alone_and_a_bad_seed(mesh):
     _, _, _, info = refine_field(mesh, pokes, IdentifyConfig(), max_evaluations=12)
     # measured: layer -1.06 (a soft core under a stiffer top)
     assert info.layer == pytest.approx(-1.0, abs=0.4) and info.exponent == 1.0
+    assert info.accepted and info.best == (1.0, info.layer)
     with pytest.raises(InvalidInput, match='seed'):
         refine_field(mesh, pokes, IdentifyConfig(), seed=-np.ones(len(mesh.tets)))
+
+
+def test_a_gain_within_the_noise_is_not_taken(mesh):
+    """A homogeneous object: whatever depth layer the noise prefers, the field stays as seeded."""
+    truth = CorotationalFem(mesh, 1e5, 0.35)
+    top = SIZE[2]
+    pokes = _pokes(truth, [[0.49, -0.008, top], [0.51, 0.01, top]],
+                   [[0.0, 0.0, -0.6], [0.0, 0.0, -0.8]], 3)
+    field, fit, _, info = refine_field(mesh, pokes, IdentifyConfig(), max_evaluations=8)
+    assert not info.accepted and info.layer == 0.0 and info.exponent == 1.0
+    assert info.best_rms <= info.start_rms and fit.residual_rms == pytest.approx(info.start_rms)
+    np.testing.assert_allclose(field, 1.0)

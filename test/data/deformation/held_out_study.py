@@ -253,10 +253,11 @@ def main(argv=None):
             model = exc
         if not isinstance(model, Exception) and model.refinement is not None:
             r = model.refinement
-            say(f'push {j} held out: field refined in {time.time() - t0:.0f} s, '
-                f'{r.evaluations} identifications: exponent {r.exponent:.2f}, depth layer '
-                f'{r.layer:+.2f}, residual {r.start_rms * 1e6:.1f} -> '
-                f'{r.residual_rms * 1e6:.1f} um')
+            say(f'push {j} held out: field refinement in {time.time() - t0:.0f} s, '
+                f'{r.evaluations} identifications: optimum exponent {r.best[0]:.2f}, depth '
+                f'layer {r.best[1]:+.2f}, residual {r.start_rms * 1e6:.1f} -> '
+                f'{r.best_rms * 1e6:.1f} um: ' + ('taken' if r.accepted else 'NOT taken (gain '
+                                                  'below the noise floor; the seed as given)'))
         for i, depth in enumerate(held['depths']):
             try:
                 if isinstance(model, Exception):

@@ -32,7 +32,7 @@ from pointforce_ros.sim.objects import load_object
 HERE = Path(__file__).resolve().parent
 C_GRID = (0.001, 0.0015, 0.002, 0.003, 0.004, 0.006, 0.01)
 L_GRID = (np.inf, 0.04, 0.02, 0.012, 0.008, 0.005)
-BETAS = (-0.5, -0.25, 0.0, 0.25, 0.5, 1.0)
+BETAS = (-1.0, -0.5, -0.25, 0.0, 0.25, 0.5, 1.0)
 
 
 def force_z(sim, mesh, pose, approach, centre, c, decay, scale):
@@ -69,6 +69,9 @@ def main():
     parser.add_argument('demo_out')
     parser.add_argument('--object', default='lamb')
     parser.add_argument('--response', default='true', choices=('true', 'learned'))
+    parser.add_argument('--property', default='stiffness', choices=('stiffness', 'stiffening'),
+                        help='k_i: the point force at 3 mm, or its growth from 3 to 8 mm '
+                        '(F(8 mm) / F(3 mm): a stiff layer below the surface)')
     args = parser.parse_args()
     spec = load_object(args.object)
     live = LiveContact.load(spec.name, build=False)
@@ -88,7 +91,11 @@ def main():
     else:
         response = learned
     sim = ContactSimulator(surface, response, c=0.002)
-    k = np.asarray(response.force(np.arange(len(surface)), np.full(len(surface), 0.003)))
+    every = np.arange(len(surface))
+    k = np.asarray(response.force(every, np.full(len(surface), 0.003)))
+    if args.property == 'stiffening':
+        k = np.asarray(response.force(every, np.full(len(surface), 0.008))) / np.maximum(
+            k, 1e-3)
     kref = float(np.median(k[k > 0]))
     kk = np.maximum(k, 0.05 * kref) / kref
     cal = _calibration_pokes(spec)
@@ -111,7 +118,8 @@ def main():
                              cal_rel=cal_rel, rmse_pct=float(100 * np.sqrt(np.mean(err ** 2))
                                                              / peak),
                              below=int(np.sum(err < 0)), ratios=(pred / true).round(3).tolist()))
-    print(f'{spec.name}, {args.response} response; k_ref {kref:.2f} N at 3 mm')
+    print(f'{spec.name}, {args.response} response, {args.property}; k_ref {kref:.2f}; '
+          f'k/k_ref 5-95 %: {np.percentile(kk, 5):.2f}-{np.percentile(kk, 95):.2f}')
     for beta in BETAS:
         mine = [r for r in rows if r['beta'] == beta]
         by_cal = min(mine, key=lambda r: r['cal_rel'])
@@ -120,7 +128,7 @@ def main():
             print(f'beta {beta:+.2f} {label:22s}: c {r["c_mm"]:.1f} mm L {r["L_mm"]} mm, '
                   f'calibration {100 * r["cal_rel"]:.1f} %, queries {r["rmse_pct"]:.1f} %, '
                   f'{r["below"]} below; ' + ' '.join(f'{v:.2f}' for v in r['ratios']))
-    out = HERE / f'demo_floor_local_{spec.name}_{args.response}.json'
+    out = HERE / f'demo_floor_local_{spec.name}_{args.response}_{args.property}.json'
     out.write_text(json.dumps({'object': spec.name, 'model': str(model_path), 'k_ref': kref,
                                'rows': rows}, indent=1) + '\n')
     print(f'wrote {out}')

@@ -42,9 +42,8 @@ from pointforce_ros.replica.build import replica_body
 from pointforce_ros.replica.calibrate import (evaluate, force_at, force_time_summary,
                                               simulate_loading, simulate_series, summary)
 from pointforce_ros.replica.contour import (ball_camera_figures, ball_section,
-                                            ball_section_error, camera_section, contour_error,
-                                            read_camera_views, remove_depth_bias,
-                                            section_error)
+                                            camera_section, contour_error, read_camera_views,
+                                            remove_depth_bias, section_error)
 from pointforce_ros.replica.data import load_pokes, subset
 from pointforce_ros.replica.mesh import read_vtk
 from pointforce_ros.replica.replica import read_description
@@ -52,14 +51,17 @@ from pointforce_ros.replica.residual_map import plot_residual_map, residual_map
 from pointforce_ros.replica.scene import Material, SceneConfig
 
 
-def held_out_figures(mesh, material, config, data, section=None) -> dict:
+def held_out_figures(mesh, material, config, data, section=None, camera=None) -> dict:
     """Figures of a replica on the held-out trials of ``data`` (a :class:`PokeSet`).
 
     The static force errors at the largest compression and over the curve on every held-out
     poke, and, where the pokes carry a ramp-and-hold ``series``, the force-time error of the
     fastest held-out one (the shortest simulation). Percent, newtons. With ``section``
     (``(compression, section_xz)`` of :func:`truth_section`) also the section's errors
-    (:func:`pointforce_ros.replica.contour.ball_section_error`) as ``section_<key>``.
+    against the truth's (:func:`pointforce_ros.replica.contour.section_error`) as
+    ``section_<key>``, and with ``camera`` (:func:`pointforce_ros.replica.contour.
+    read_camera_views`) against the camera's, its depth bias removed on the rest frames, as
+    ``camera_<key>`` (:func:`pointforce_ros.replica.contour.ball_camera_figures`).
     """
     _, held = data.split()
     out = summary(evaluate(mesh, material, held, config))
@@ -69,8 +71,12 @@ def held_out_figures(mesh, material, config, data, section=None) -> dict:
         out.update(force_time_summary(mesh, material, [fastest], config))
         out['force_time_poke'] = fastest.poke_id
     if section is not None:
-        errors = ball_section_error(mesh, material, config, section[0], section[1])
+        outline, centre, actual = ball_section(mesh, material, config, section[0])
+        errors = dict(section_error(section[1], outline, centre), compression_m=actual)
         out.update({f'section_{k}': v for k, v in errors.items()})
+        if camera is not None:
+            cam = ball_camera_figures(camera, outline, section[1], centre)
+            out.update({f'camera_{k}': v for k, v in cam['rest_corrected']['replica'].items()})
     return out
 
 

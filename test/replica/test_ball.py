@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pointforce_ros.errors import InvalidInput
+from pointforce_ros.replica.contour import read_camera_views
 from pointforce_ros.replica.data import load_pokes
 from pointforce_ros.replica.evaluate import held_out_figures, truth_section
 from pointforce_ros.replica.replica import load_replica
@@ -48,7 +49,8 @@ def test_saved_ball_replica_reloads_and_reproduces_its_reported_figures():
     assert desc['config']['pusher'] == 'plate'
     again = held_out_figures(mesh, Material(**desc['material']), SceneConfig(**desc['config']),
                              load_pokes(DATA / 'ball_plate.npz'),
-                             section=truth_section(DATA / 'ball_plate.npz'))
+                             section=truth_section(DATA / 'ball_plate.npz'),
+                             camera=read_camera_views(DATA / 'ball_plate_camera.npz'))
     for key, value in desc['figures'].items():
         if isinstance(value, float):
             assert again[key] == pytest.approx(value, rel=1e-3, abs=1e-6), key
@@ -56,3 +58,4 @@ def test_saved_ball_replica_reloads_and_reproduces_its_reported_figures():
     # the section is compared at the truth's compression, and the ball stays upright
     assert again['section_compression_m'] == pytest.approx(0.030, abs=0.001)
     assert again['section_error_pct'] < 3.0
+    assert again['camera_error_pct'] < 3.0 and again['camera_bins'] > 20  # the camera's view

@@ -6,7 +6,9 @@ The material is the one ``pointforce replica`` calibrated on ``ball_plate.npz`` 
 errors on ``ball_plate.npz``: the static force error at the largest compression and over the
 curve (one static simulation serves every held-out trial: they share the ball and the depth),
 the force-time error of the fastest held-out trial, and the section at the largest
-compression against the FEM's (``section_*``). Regenerate (about a minute)::
+compression against the FEM's (``section_*``) and against the cell camera's view of the FEM's
+(``camera_*``, ``ball_plate_camera.npz``, its depth bias removed on the rest frames).
+Regenerate (about a minute)::
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 .venv/bin/python test/data/replica/make_ball_replica.py
 """
@@ -17,6 +19,7 @@ import sys
 
 from pointforce_ros.replica.build import PLATE_CONFIG
 from pointforce_ros.replica.data import load_pokes
+from pointforce_ros.replica.contour import read_camera_views
 from pointforce_ros.replica.evaluate import held_out_figures, truth_section
 from pointforce_ros.replica.mesh import ball_tet_mesh, read_vtk
 from pointforce_ros.replica.replica import write_replica
@@ -39,7 +42,8 @@ def main() -> int:
     write_replica(out, mesh, material, PLATE_CONFIG)
     mesh = read_vtk(out / 'body.vtk', H_COARSE)
     figs = held_out_figures(mesh, material, PLATE_CONFIG, data,
-                            section=truth_section(HERE / 'ball_plate.npz'))
+                            section=truth_section(HERE / 'ball_plate.npz'),
+                            camera=read_camera_views(HERE / 'ball_plate_camera.npz'))
     figs['data'] = 'test/data/replica/ball_plate.npz'
     write_replica(out, mesh, material, PLATE_CONFIG, figures=figs)
     print(json.dumps(figs, indent=1))

@@ -40,14 +40,19 @@ from pointforce_ros.sim.session import simulate_campaign
 HERE = Path(__file__).resolve().parent
 
 
-def run(spec, live, surface, queries, gt, region: bool, seed: int, pokes: int = 8) -> dict:
-    """One replay; returns the point-model ratios, (c, L) and the query scores."""
+def run(spec, live, surface, queries, gt, region: bool, seed: int, pokes: int = 8,
+        calibration_region: bool = True) -> dict:
+    """One replay; returns the point-model ratios, (c, L) and the query scores.
+
+    ``calibration_region``: the region holds the calibration pushes' sites beside the query
+    tips (as the demo does); ``False``: the query tips only.
+    """
     obj = fem_cell_object(spec, live)
     scenario = load_scenario('realistic')
     rows = None
     if region:
         calibration = [(None, None, push(spec)[1][0], None, None)
-                       for _, push in CALIBRATIONS.values()]
+                       for _, push in CALIBRATIONS.values()] if calibration_region else []
         rows = planner_region(queries + calibration)
     site = np.asarray(spec.centre, dtype=float) + CALIBRATION_OFFSET
     gap = np.linalg.norm(surface.points[:, :2] - site, axis=1)
@@ -81,7 +86,8 @@ def run(spec, live, surface, queries, gt, region: bool, seed: int, pokes: int = 
                          for _, m, p, a, ctr in queries])
     true = gt['force'][:, 2]
     err = pred - true
-    return {'region': region, 'seed': seed, 'pokes': where, 'ratios': ratios,
+    return {'region': region, 'calibration_region': region and calibration_region,
+            'seed': seed, 'pokes': where, 'ratios': ratios,
             'c_mm': 1e3 * cal.fit.c, 'L_mm': 1e3 * cal.fit.decay,
             'rmse_pct': float(100 * np.sqrt(np.mean(err ** 2)) / np.max(np.abs(true))),
             'below': int(np.sum(err < 0)), 'pred_over_true': (pred / true).round(3).tolist()}
@@ -93,6 +99,11 @@ def main():
     parser.add_argument('demo_out', help="a demo's --out folder (its cell/surface.npz)")
     parser.add_argument('--object', default='lamb')
     parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2])
+    parser.add_argument('--modes', nargs='+', default=['none', 'all'],
+                        choices=('none', 'all', 'queries'),
+                        help='none: suggestions over the whole surface; all: region of the '
+                        'query tips and calibration sites (the demo); queries: query tips only')
+    parser.add_argument('--tag', default='', help='suffix of the JSON record')
     args = parser.parse_args()
     spec = load_object(args.object)
     live = LiveContact.load(spec.name, build=False)
@@ -103,14 +114,15 @@ def main():
         raise SystemExit(f'no ground truth for the demo queries of {spec.name} ({path})')
     runs = []
     for seed in args.seeds:
-        for region in (False, True):
-            r = run(spec, live, surface, queries, gt, region, seed)
+        for mode in args.modes:
+            r = run(spec, live, surface, queries, gt, mode != 'none', seed,
+                    calibration_region=mode == 'all')
             runs.append(r)
-            print(f'seed {seed} region {str(region):5s}: point model '
+            print(f'seed {seed} region {mode:7s}: point model '
                   + ', '.join(f'{k} {v:.2f}' for k, v in r['ratios'].items())
                   + f'; c {r["c_mm"]:.2f} mm L {r["L_mm"]:.0f} mm; queries RMSE '
                   f'{r["rmse_pct"]:.1f} %, {r["below"]} of 9 below', flush=True)
-    out = HERE / f'demo_floor_pokes_{spec.name}.json'
+    out = HERE / f'demo_floor_pokes_{spec.name}{args.tag}.json'
     out.write_text(json.dumps({'object': spec.name, 'surface': args.demo_out, 'runs': runs},
                               indent=1) + '\n')
     print(f'wrote {out}')

@@ -41,19 +41,22 @@ HERE = Path(__file__).resolve().parent
 
 
 def run(spec, live, surface, queries, gt, region: bool, seed: int, pokes: int = 8,
-        calibration_region: bool = True) -> dict:
+        calibration_region: bool = True, footprint: bool = False) -> dict:
     """One replay; returns the point-model ratios, (c, L) and the query scores.
 
     ``calibration_region``: the region holds the calibration pushes' sites beside the query
-    tips (as the demo does); ``False``: the query tips only.
+    tips (as the demo does); ``False``: the query tips only. ``footprint``: the region is the
+    pushes' contact footprints, else 12 mm discs round their tips (the demo).
     """
     obj = fem_cell_object(spec, live)
     scenario = load_scenario('realistic')
     rows = None
     if region:
-        calibration = [(None, None, push(spec)[1][0], None, None)
-                       for _, push in CALIBRATIONS.values()] if calibration_region else []
-        rows = planner_region(queries + calibration)
+        calibration = [(None, push(spec)[0], pose, None, None)
+                       for _, push in CALIBRATIONS.values()
+                       for pose in push(spec)[1][-1:]] if calibration_region else []
+        rows = planner_region(queries + calibration,
+                              surface=surface if footprint else None)
     site = np.asarray(spec.centre, dtype=float) + CALIBRATION_OFFSET
     gap = np.linalg.norm(surface.points[:, :2] - site, axis=1)
     index = int(np.argmin(np.where(surface.normals[:, 2] > 0.7, gap, np.inf)))
@@ -87,6 +90,7 @@ def run(spec, live, surface, queries, gt, region: bool, seed: int, pokes: int = 
     true = gt['force'][:, 2]
     err = pred - true
     return {'region': region, 'calibration_region': region and calibration_region,
+            'footprint': region and footprint,
             'seed': seed, 'pokes': where, 'ratios': ratios,
             'c_mm': 1e3 * cal.fit.c, 'L_mm': 1e3 * cal.fit.decay,
             'rmse_pct': float(100 * np.sqrt(np.mean(err ** 2)) / np.max(np.abs(true))),
@@ -100,9 +104,10 @@ def main():
     parser.add_argument('--object', default='lamb')
     parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2])
     parser.add_argument('--modes', nargs='+', default=['none', 'all'],
-                        choices=('none', 'all', 'queries'),
-                        help='none: suggestions over the whole surface; all: region of the '
-                        'query tips and calibration sites (the demo); queries: query tips only')
+                        choices=('none', 'all', 'queries', 'footprint'),
+                        help='none: suggestions over the whole surface; all: 12 mm discs round '
+                        'the query and calibration tips (the demo); queries: round the query '
+                        'tips only; footprint: the query and calibration contact footprints')
     parser.add_argument('--tag', default='', help='suffix of the JSON record')
     args = parser.parse_args()
     spec = load_object(args.object)
@@ -116,7 +121,8 @@ def main():
     for seed in args.seeds:
         for mode in args.modes:
             r = run(spec, live, surface, queries, gt, mode != 'none', seed,
-                    calibration_region=mode == 'all')
+                    calibration_region=mode in ('all', 'footprint'),
+                    footprint=mode == 'footprint')
             runs.append(r)
             print(f'seed {seed} region {mode:7s}: point model '
                   + ', '.join(f'{k} {v:.2f}' for k, v in r['ratios'].items())

@@ -69,22 +69,47 @@ def demo_query_set(spec):
 
 REGION_RADIUS = 0.012
 """Radius of the planner's region of interest around each query's tip, metres (across base
-+z): about the contact radius of the 20 mm sphere at 4 mm (12.6 mm)."""
++z): about the contact radius of the 20 mm sphere at 4 mm (12.6 mm); used without a surface."""
+
+FOOTPRINT_SPACING = 0.004
+"""Sampling step of the queries' contact footprints in the region of interest, metres."""
 
 
-def planner_region(queries, radius: float = REGION_RADIUS) -> np.ndarray:
+def planner_region(queries, radius: float = REGION_RADIUS, surface=None,
+                   spacing: float = FOOTPRINT_SPACING) -> np.ndarray:
     """Return where the planner will query as the learner's ``suggest_region`` rows (M, 4).
 
-    One ``(x, y, z, radius)`` row (metres, ``base``) per distinct query tip position: the
-    demo's planner tells the learner its region of interest before the pokes, and the
-    suggestions bring the point model's uncertainty down there (``OnlineLearner.suggest``).
+    ``(x, y, z, radius)`` rows (metres, ``base``): the demo's planner tells the learner its
+    region of interest before the pokes, and the suggestions bring the point model's
+    uncertainty down there (``OnlineLearner.suggest``). Without ``surface``, one disc of
+    ``radius`` per distinct query tip; with the captured ``surface``, the queries' contact
+    footprints: every rigid-mesh sample (``spacing`` apart) that lies below the surface
+    point under it, thinned to one per ``spacing`` cell, each a disc of ``spacing`` (a 60 mm
+    rod is then a strip, not the disc round its middle). The demo uses the discs: with the
+    footprints its offline replay scored lamb's queries worse (14.7-15.4 % against 11.1-12.5 %
+    on seeds 0-1, ``data/fem/demo_floor_pokes.py --modes footprint``).
     """
     rows = []
-    for _, _, pose, _, _ in queries:
-        p = np.asarray(pose.position, dtype=float)
-        if not any(np.linalg.norm(p[:2] - r[:2]) < 1e-6 for r in rows):
-            rows.append(np.r_[p, radius])
-    return np.array(rows)
+    if surface is None:
+        for _, _, pose, _, _ in queries:
+            p = np.asarray(pose.position, dtype=float)
+            if not any(np.linalg.norm(p[:2] - r[:2]) < 1e-6 for r in rows):
+                rows.append(np.r_[p, radius])
+        return np.array(rows)
+    from scipy.spatial import cKDTree
+    from pointforce_ros.contact.sampling import sample_mesh_surface
+    tree = cKDTree(surface.points[:, :2])
+    inside = []
+    for _, mesh, pose, _, _ in queries:
+        local, _ = sample_mesh_surface(mesh, spacing)
+        world = local @ pose.rotation().T + pose.position
+        _, near = tree.query(world[:, :2])
+        inside.append(world[world[:, 2] < surface.points[near, 2]])
+    pts = np.concatenate(inside) if inside else np.zeros((0, 3))
+    _, first = np.unique(np.floor(pts[:, :2] / spacing).astype(np.int64), axis=0,
+                         return_index=True)
+    pts = pts[np.sort(first)]
+    return np.column_stack([pts, np.full(len(pts), spacing)])
 
 
 CALIBRATION_OFFSET = (-0.02, -0.012)
@@ -366,7 +391,8 @@ def point_model_check(spec, live, surface, response, depth: float = 0.003,
 
     """
     cx, cy = spec.centre
-    sites = {'calibration': (cx + CALIBRATION_OFFSET[0], cy + CALIBRATION_OFFSET[1])}
+    sites = {'calibration': (cx + CALIBRATION_OFFSET[0], cy + CALIBRATION_OFFSET[1]),
+             'rod site': (cx + ROD_SITE[0], cy + ROD_SITE[1])}
     for k, (dx, dy) in enumerate(QUERY_OFFSETS):
         sites[f'query site #{k + 1}'] = (cx + dx, cy + dy)
     out = {}
@@ -444,8 +470,8 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
         queries = demo_query_set(spec)
         if region:
             # the calibration pushes are answered by the same point model: their sites too
-            calibration = [(None, None, push(spec)[1][0], None, None)
-                           for _, push in CALIBRATIONS.values()]
+            calibration = [(None, push(spec)[0], pose, None, None)
+                           for _, push in CALIBRATIONS.values() for pose in push(spec)[1][-1:]]
             rows = planner_region(queries + calibration)
             cell.set_parameter('stiffness_learner', 'suggest_region', rows.ravel().tolist())
             print(f'[demo] region of interest: {len(rows)} discs of {1e3 * REGION_RADIUS:.0f} '

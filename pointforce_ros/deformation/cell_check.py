@@ -379,11 +379,13 @@ class ViewModel:
 
 def identify_from_views(rest, rest_normals, identify_states, camera_origin,
                         element_size: float = 0.004, view_rest=None, field: bool = False,
-                        field_samples=None, refine: bool = False) -> ViewModel:
+                        field_samples=None, refine: bool = False,
+                        refine_evaluations: int = 20) -> ViewModel:
     """Identify (E, nu) (or a field) on some pushes' states; see :func:`check_from_views`.
 
     With ``refine`` the field (seeded by ``field_samples`` when given, else by nothing: a
-    depth term alone) is refined by :func:`refine_field`.
+    depth term alone) is refined by :func:`refine_field` (at most ``refine_evaluations``
+    identifications).
 
     Raises:
         InvalidInput: as :func:`.identify.identify_elasticity`.
@@ -400,7 +402,8 @@ def identify_from_views(rest, rest_normals, identify_states, camera_origin,
         seed = None if field_samples is None else seeded_field(mesh, pokes, fit,
                                                                field_samples)[0]
         _, fit, fem, refinement = refine_field(mesh, pokes, config, rest_offset=offset,
-                                               seed=seed, fem=fem)
+                                               seed=seed, fem=fem,
+                                               max_evaluations=refine_evaluations)
     elif field or field_samples is not None:
         young_field, _ = seeded_field(mesh, pokes, fit, field_samples)
         fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset,

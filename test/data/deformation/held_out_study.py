@@ -220,6 +220,8 @@ def main(argv=None):
     ap.add_argument('--refine', action='store_true',
                     help='refine the field (or, with --field none, a depth term alone) by the '
                          "identification's fit: seed exponent and depth layer")
+    ap.add_argument('--refine-evaluations', type=int, default=20,
+                    help='identifications at most per refinement (Nelder-Mead)')
     ap.add_argument('--learner-pokes', type=int, default=12,
                     help='training pokes of the learned point model (--field learned)')
     ap.add_argument('--sites', type=int, help='only the first N sites (default all)')
@@ -248,6 +250,7 @@ def main(argv=None):
             model = identify_from_views(
                 rest, normals, states, origin, field=args.field == 'pokes',
                 field_samples=samples, refine=args.refine,
+                refine_evaluations=args.refine_evaluations,
                 view_rest=view_rest if args.reference == 'view' else None)
         except PointforceError as exc:   # counted, not hidden: the summary says how many
             model = exc

@@ -99,7 +99,12 @@ def _trigger_node(context=None):
         response.success = True
         return response
     node = Node('bench_trigger', context=context)
-    node.create_service(Trigger, '~/trigger', answer, callback_group=ReentrantCallbackGroup())
+    group = ReentrantCallbackGroup()
+    node.create_service(Trigger, '~/trigger', answer, callback_group=group)
+    # the multi-threaded client's own name: a client's executor wakes for every reply of its
+    # service, its own or another client's (see load_client), so two series on one name would
+    # each pay for the other's replies
+    node.create_service(Trigger, '~/trigger_mt', answer, callback_group=group)
     return node
 
 
@@ -247,7 +252,9 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     The planner's client node spins on a ``SingleThreadedExecutor`` of its own, as a planner
     calling ``spin_until_future_complete`` does; a second client node on the launcher's
     ``MultiThreadedExecutor`` times the single query and the Trigger again (``*_mt``), so the
-    cost of the client's executor choice is in the same run.
+    cost of the client's executor choice is in the same run. The second node calls its own
+    service names (the contact service's lane 0, the Trigger node's ``~/trigger_mt``), so
+    neither series receives the other's replies.
     """
     from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
     client_node = planner.add(Node('bench_client', context=planner.context), isolated=True,
@@ -256,8 +263,8 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
     batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
     trigger = client_node.create_client(Trigger, '/bench_trigger/trigger')
-    single_mt = mt_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
-    trigger_mt = mt_node.create_client(Trigger, '/bench_trigger/trigger')
+    single_mt = mt_node.create_client(ContactWrench, '/contact_wrench/lane_0/contact_wrench')
+    trigger_mt = mt_node.create_client(Trigger, '/bench_trigger/trigger_mt')
     for client in (single, batch, trigger, single_mt, trigger_mt):
         if not client.wait_for_service(timeout_sec=60):
             raise RuntimeError(f'service {client.srv_name} did not appear within 60 s')
@@ -368,8 +375,9 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     server.answer_batch(query(poses))
     core_batch = time.perf_counter() - start
     # the services as deployed, each in its own process; this process is the planner
-    services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args', '-p',
-                       f'model_dir:={work / "models"}', '-p', f'client_lanes:={load_clients}'),
+    services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args',
+                       '-p', f'model_dir:={work / "models"}',
+                       '-p', f'client_lanes:={max(load_clients, 1)}'),
                 _start('pointforce_ros.bringup.bench_ros', 'trigger')]
     try:
         with InProcessLauncher(threads=2) as planner:

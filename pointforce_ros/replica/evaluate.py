@@ -143,6 +143,8 @@ def main(argv=None) -> int:
                     '(make_ball_camera.py; default: <data>_camera.npz beside the data)')
     ap.add_argument('--map', action='store_true', help='residual map of the held-out pokes '
                     '(DIR/residual_map.png and residual_map in the JSON)')
+    ap.add_argument('--map-pokes', type=int, default=0, help='map this many pokes not used '
+                    'in training (the held-out ones first; default: the held-out ones)')
     ap.add_argument('--phases', action='store_true',
                     help='force-time residual by phase (push, hold) on held-out series')
     args = ap.parse_args(argv)
@@ -208,7 +210,14 @@ def main(argv=None) -> int:
                 [remove_depth_bias(pts, pose, b) for pts, pose, b in
                  zip(views['loaded'], views['pose'], biases)]), (centre[0], 0.0))
     if args.map:
-        rmap = residual_map(mesh, material, config, held, map_section)
+        mapped = held
+        if args.map_pokes > len(held):  # more sites: the first pokes outside the training set
+            extra = [p for p in data.pokes if p.poke_id not in figures['train']
+                     and p.poke_id not in figures['held_out']]
+            mapped = held + subset(extra[:args.map_pokes - len(held)], 5)
+        rmap = residual_map(mesh, material, config, mapped, map_section)
+        rmap['curves']['surface'] = data.surface_points
+        result['residual_map_pokes'] = [p.poke_id for p in mapped]
         result['residual_map'] = rmap['numbers']
         plot_residual_map(rmap, root / 'residual_map.png',
                           f'{root.name}: held-out residual of one homogeneous replica '

@@ -151,6 +151,9 @@ def plot_residual_map(result: Dict, path, title: str = '') -> None:
                      ylabel='replica - truth radius, % of width', title='section residual '
                      'by position')
     else:
+        if curves.get('surface') is not None:
+            surf = np.asarray(curves['surface'])
+            ax[1, 0].plot(1e3 * surf[:, 0], 1e3 * surf[:, 1], ',', color='0.8')
         xy = np.array([c['xy'] for c in curves['pokes']])
         val = np.array([c['at_max_pct'] for c in curves['pokes']])
         lim = max(float(np.max(np.abs(val))), 1e-6)
@@ -166,7 +169,8 @@ def plot_residual_map(result: Dict, path, title: str = '') -> None:
             ax[1, 1].plot(['shallow', 'middle', 'deep'], row, 'o-', label=c['poke'])
         ax[1, 1].axhline(0, color='k', lw=0.5)
         ax[1, 1].set(ylabel='mean residual, % of peak', title='by depth third, per site')
-        ax[1, 1].legend(fontsize=7)
+        if len(curves['pokes']) <= 10:
+            ax[1, 1].legend(fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=90)

@@ -105,3 +105,16 @@ def test_the_command_answers_bad_input_with_one_line(tmp_path, capsys):
         assert rc == 2 and expected in err, (expected, err)
         assert len(err.splitlines()) == 1 and err.startswith('pointforce replica: error:')
     assert not (tmp_path / 'rep').exists()  # nothing written on bad input
+
+
+def test_load_replica_is_one_import_away_and_the_command_does_not_load_pybullet():
+    import subprocess
+    import sys
+    code = ('import sys; import pointforce_ros.replica.cli; '
+            'assert "pybullet" not in sys.modules; '
+            'from pointforce_ros.replica import load_replica, LoadedReplica; '
+            'assert callable(load_replica) and "pybullet" in sys.modules')
+    assert subprocess.run([sys.executable, '-c', code]).returncode == 0
+    import pointforce_ros.replica as package
+    with pytest.raises(AttributeError):
+        package.not_there

@@ -14,6 +14,6 @@ __all__ = ['load_replica', 'LoadedReplica']
 def __getattr__(name):
     """Load :func:`load_replica` and :class:`LoadedReplica` on first use (PEP 562)."""
     if name in __all__:
-        from pointforce_ros.replica import replica
+        from pointforce_ros.replica import replica  # loads pybullet: only when asked for
         return getattr(replica, name)
     raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

@@ -363,7 +363,12 @@ def _stream_loading(poke_id, t, d, speed, min_samples, speed_band, smooth_time):
     if not np.any(inband):
         raise InvalidInput(f'poke {poke_id}: no loading phase: the probe never moves inwards at '
                            f'about {speed * 1e3:.3g} mm/s')
-    # The loading phase: the longest in-band run, extended to the deepest point after it.
+    # The loading phase: the longest in-band run, extended to the deepest point after it, and
+    # back over the earlier runs of the same push. A push that slowed on its way in (a loaded
+    # controller, a speed hiccup) leaves several runs; the longest alone started mid-contact,
+    # and its in-contact "baseline" was subtracted as bias (a re-poke learned at 0.45 of its
+    # force). Runs join while the probe never backs out between them; the slow samples
+    # between runs are left out (a pause lets a viscoelastic object relax).
     starts, stops = _runs(inband)
     lengths = stops - starts
     k = int(np.argmax(lengths))
@@ -372,10 +377,23 @@ def _stream_loading(poke_id, t, d, speed, min_samples, speed_band, smooth_time):
     while tail_end < n and d[tail_end] >= d[tail_end - 1]:
         tail_end += 1
     deepest = first + int(np.argmax(d[first:tail_end]))
-    if deepest + 1 - first < min_samples:
-        raise InvalidInput(f'poke {poke_id}: loading phase has {deepest + 1 - first} samples, '
+    tolerance = max(1e-5, 2.0 * speed * dt)     # m a probe may seem to back out (noise)
+    gaps = []
+    while k > 0:
+        between = d[stops[k - 1] - 1:starts[k] + 1]
+        if np.max(np.maximum.accumulate(between) - between) > tolerance:
+            break                               # it backed out: an earlier push
+        gaps.append((int(stops[k - 1]), int(starts[k])))
+        k -= 1
+        first = int(starts[k])
+    keep = np.ones(deepest + 1 - first, dtype=bool)
+    for gap_start, gap_stop in gaps:
+        keep[gap_start - first:gap_stop - first] = False
+    seg = first + np.flatnonzero(keep)
+    if len(seg) < min_samples:
+        raise InvalidInput(f'poke {poke_id}: loading phase has {len(seg)} samples, '
                            f'need at least {min_samples}')
-    return np.arange(first, deepest + 1), first, deepest, speed
+    return seg, first, deepest, speed
 
 
 def _runs(mask: np.ndarray):

@@ -107,6 +107,49 @@ def test_fast_approach_is_not_part_of_the_loading_phase():
     assert abs(curve.onset_d) < 1.5e-4
 
 
+def _hiccup_push(pauses, back_out=None, seed=7, bias=0.2, onset=-0.001):
+    """A 4 mm/s push from -6 to +8 mm at 250 Hz that stops for 12 samples at each depth of
+    ``pauses`` (a loaded controller); ``back_out``: (depth, to) backs out once on the way."""
+    rng = np.random.default_rng(seed)
+    step = 0.004 / RATE
+    d = list(np.full(25, -0.006))
+    depth = -0.006
+    while depth < 0.008:
+        depth += step
+        d.append(depth)
+        if any(abs(depth - p) < step / 2 for p in pauses):
+            d.extend([depth] * 12)
+        if back_out is not None and abs(depth - back_out[0]) < step / 2:
+            d.extend(np.arange(depth, back_out[1], -step))
+            d.extend(np.arange(back_out[1], depth, step))
+    d = np.array(d + [d[-1]] * 25)
+    t = np.arange(len(d)) / RATE
+    f = 3e4 * np.maximum(d - onset, 0.0) ** 1.5     # N: 14 N at 6 mm past the onset
+    return t, d, f + bias + rng.normal(0.0, 0.01, len(d)), f, bias
+
+
+def test_a_push_that_slowed_on_its_way_in_is_one_loading_phase():
+    """Issue 16/17: under load the arm stopped twice mid-push; the longest constant-speed run
+    alone began in contact (2.7 mm), its in-contact baseline was taken as the F/T bias and the
+    re-poke was learned at 0.45 of its force."""
+    t, d, f, true_f, bias = _hiccup_push(pauses=(-0.0013, 0.0025))
+    curve = curve_from_series('hiccup', [0, 0, 0], [0, 0, 1], t, d, f, speed=0.004)
+    assert curve.d[0] < -0.0055                       # from the stand-off, not mid-contact
+    assert abs(curve.meta['bias'] - bias) < 0.02
+    assert abs(curve.onset_d - (-0.001)) < 2e-4
+    at5 = np.interp(0.005, curve.d, curve.f)
+    assert abs(at5 - np.interp(0.005, d, true_f)) < 0.03 * at5
+    # the stops themselves are left out: every kept sample moves inwards
+    assert np.all(np.diff(curve.d) > 0)
+
+
+def test_a_push_that_backed_out_starts_after_the_back_out():
+    t, d, f, _, _ = _hiccup_push(pauses=(), back_out=(0.001, -0.002))
+    curve = curve_from_series('reseat', [0, 0, 0], [0, 0, 1], t, d, f, speed=0.004)
+    assert curve.d[0] > -0.0025                       # the second approach only
+    assert np.all(np.diff(curve.d) > 0)
+
+
 def test_power_fit_recovers_exact_parameters():
     d = np.linspace(-0.004, 0.009, 600)
     f = 0.2 + 8000.0 * np.maximum(d - 0.0013, 0.0) ** 1.7

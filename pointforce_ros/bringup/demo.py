@@ -21,17 +21,20 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
+from scipy.spatial import cKDTree
+
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup import plots
 from pointforce_ros.bringup.camera_check import camera_force_check
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.bringup.domain import private_domain
+from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.contact.identify import (calibrate_shape, DECAY_GRID,
                                              identify_shape_constant_from_probe)
 from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
-from pointforce_ros.errors import PointforceError
+from pointforce_ros.errors import DeviceFault, ModelNotReady, PointforceError
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.fem.probes import cylinder_probe, paddle_probe, pose_for_push, sphere_probe
@@ -96,8 +99,6 @@ def planner_region(queries, radius: float = REGION_RADIUS, surface=None,
             if not any(np.linalg.norm(p[:2] - r[:2]) < 1e-6 for r in rows):
                 rows.append(np.r_[p, radius])
         return np.array(rows)
-    from scipy.spatial import cKDTree
-    from pointforce_ros.contact.sampling import sample_mesh_surface
     tree = cKDTree(surface.points[:, :2])
     inside = []
     for _, mesh, pose, _, _ in queries:
@@ -305,7 +306,7 @@ def _ask(cell, queries, gt, verbose: bool):
             torque_centre=to_point(tc), return_displacements=(i == 0))
         answer = cell.call(cell.wrench_client, request, 60, 'contact_wrench')
         if not answer.success:
-            raise RuntimeError(f'contact_wrench refused {name}: {answer.message}')
+            raise DeviceFault(f'contact_wrench refused {name}: {answer.message}')
         f = np.array([answer.wrench.force.x, answer.wrench.force.y, answer.wrench.force.z])
         m = np.array([answer.wrench.torque.x, answer.wrench.torque.y, answer.wrench.torque.z])
         s = answer.wrench_std
@@ -487,7 +488,7 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
             elif k > 0:
                 suggestion = cell.suggest(1)
                 if not suggestion.success:
-                    raise RuntimeError(f'suggest_poke failed: {suggestion.message}')
+                    raise DeviceFault(f'suggest_poke failed: {suggestion.message}')
                 index = int(suggestion.surface_indices[0])
                 why = f'suggested (model std {suggestion.uncertainty[0]:.2f} N)'
             else:
@@ -507,6 +508,11 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
             else:
                 line += f'; not learned from: {reason}'
             print(line)
+        if not cell.models:
+            raise ModelNotReady(
+                f'none of the {pokes} pokes could be learned from (the last: {reason}); a '
+                'machine too loaded for the simulated controller stalls its stream ("aborted: '
+                'stall"): run the demo again when the load is lower, or with --pokes larger')
         gt, gt_path = _ground_truth(spec, queries)
         print(f'[demo] planner queries through /contact_wrench/contact_wrench '
               f'(ground truth: {"FEM full solve, " + gt_path.name if gt else "not available"})')

@@ -93,7 +93,8 @@ class StiffnessLearnerNode(Node):
         relative_std = declare(self, 'relative_std', 0.0,
                                'Share of the wrench the contact model does not explain (the '
                                "calibration fit's relative residual), added to its standard "
-                               'deviation', bounds=(0.0, 1.0))
+                               'deviation (over 1: the calibration explained less than the '
+                               'residual it left)', bounds=(0.0, 10.0))
         lateral_std = declare(self, 'lateral_std', 0.0,
                               'Share of the normal force taken as the standard deviation of '
                               'the force across the approach (no friction in the model)',

@@ -357,11 +357,11 @@ class DeformationForceNode(Node):
         if contact is not None and self._fem is not None:
             self._publish_estimate(contact, points, ft, stamp)
 
-    def _reference(self, mesh, fallback):
+    def _reference(self, mesh, fallback, fallback_name):
         """``(rest offsets (N,), what they are)`` on ``mesh``: the rest frames, else fallback."""
         offset = self._rest_frames.offsets(mesh)
         if offset is None:
-            return fallback, 'merged rest surface'
+            return fallback, fallback_name
         return offset, f'{self._rest_frames.frozen} rest frame(s) of this camera'
 
     def _publish_estimate(self, contact, points, ft, stamp):
@@ -370,7 +370,8 @@ class DeformationForceNode(Node):
                                   hardware_id='ft_sensor')
         try:
             model = self._model
-            offset, reference = self._reference(model.mesh, model.rest_offset)
+            offset, reference = self._reference(model.mesh, model.rest_offset,
+                                                "the model's stored reference")
             est = estimate_force(self._fem, contact, points,
                                  ForceConfig(load_radius=model.load_radius), rest_offset=offset)
             out = WrenchStamped()
@@ -447,7 +448,7 @@ class DeformationForceNode(Node):
             else:
                 raise InvalidInput('no rest surface: set surface_file or publish '
                                    'cloud_capture/surface')
-            offset, reference = self._reference(mesh, offset)
+            offset, reference = self._reference(mesh, offset, 'merged rest surface')
             config = IdentifyConfig()
             warm = scanned is not None and scanned.mesh is mesh
             fit, fem = identify_elasticity(mesh, [held[n] for n in names], config,
@@ -486,7 +487,8 @@ class DeformationForceNode(Node):
                                    'deformation-v*.npz in model_dir')
             points = self._latest_cloud()
             model = self._model
-            offset, reference = self._reference(model.mesh, model.rest_offset)
+            offset, reference = self._reference(model.mesh, model.rest_offset,
+                                                "the model's stored reference")
             est = estimate_force(self._fem, vec(request.contact_point), points,
                                  ForceConfig(load_radius=model.load_radius), rest_offset=offset)
             response.success = True

@@ -22,6 +22,7 @@ centre; only the camera's noise draws differ from a demo run)::
 Measured that way (issue 18, realistic scenario, 4 frames, one 5 mm push held out): foam block
 5.9 % magnitude and 4.8 deg direction error (E 49.4 kPa for 50), lamb 35.5 % and 7.6 deg (one
 E; the bone, see ``test/data/deformation/held_out_study.py``), both inside the reported 2 sigma.
+In ``pointforce demo --quick --object foam_block --camera-check``: 5.2 % and 2.1 deg.
 """
 
 import argparse

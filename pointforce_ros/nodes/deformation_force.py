@@ -334,8 +334,15 @@ class DeformationForceNode(Node):
         return points
 
     def _on_cloud(self, msg: PointCloud2):
+        try:
+            self._take_cloud(msg)
+        finally:
+            # counted once taken: the F/T and TCP callbacks run on other threads, so a count
+            # raised on arrival let a caller end the poke before this cloud saw its contact
+            self.clouds_received += 1
+
+    def _take_cloud(self, msg: PointCloud2):
         stamp = stamp_to_sec(msg.header.stamp)
-        self.clouds_received += 1
         try:
             points = self._cloud_in_base(msg)
         except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
@@ -343,7 +350,13 @@ class DeformationForceNode(Node):
                 self._cloud = f'latest cloud refused: {_reason(exc)}'
             return
         with self._lock:
+            # the same frame delivered again (a republishing driver, a best-effort resend)
+            # is not a new rest frame nor a new observation
+            repeat = (isinstance(self._cloud, tuple) and stamp > 0.0
+                      and self._cloud[1] == stamp and len(self._cloud[0]) == len(points))
             self._cloud = (points, stamp)
+            if repeat:
+                return
             contact, ft = self._contact, self._ft
             if contact is None:
                 self._rest_frames.add(points)

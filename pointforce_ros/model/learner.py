@@ -36,7 +36,8 @@ from pointforce_ros.model.files import ContactModel, model_path, save_model
 from pointforce_ros.pokes.curves import extract_curve, PokeCurve
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.response.ours import ContactGpModel
-from pointforce_ros.response.suggest import reference_depth, suggest_pokes, Suggestion
+from pointforce_ros.response.suggest import (greedy_picks, reference_depth, suggest_pokes,
+                                             Suggestion)
 from pointforce_ros.types import Surface
 
 DEFAULT_DEPTHS = np.linspace(-0.004, 0.025, 59)
@@ -539,16 +540,7 @@ def _pick(points: np.ndarray, indices: np.ndarray, std: np.ndarray, score: np.nd
     if exclude_radius > 0:
         for p in done:
             allowed &= np.linalg.norm(points - p, axis=1) > exclude_radius
-    picks, stds = [], []
-    for _ in range(count):
-        if not np.any(allowed):
-            break
-        k = int(np.argmax(np.where(allowed, score, -np.inf)))
-        picks.append(int(indices[k]))
-        stds.append(float(std[k]))
-        allowed &= np.linalg.norm(points - points[k], axis=1) > exclude_radius
-        allowed[k] = False
-    return Suggestion(np.array(picks, dtype=np.int64), np.array(stds, dtype=float))
+    return greedy_picks(points, indices, score, std, allowed, count, exclude_radius)
 
 
 def _on_rim(points: np.ndarray, indices: np.ndarray, radius: float) -> np.ndarray:

@@ -90,14 +90,22 @@ def suggest_pokes(model, surface: Surface, count: int, exclude_radius: float, *,
             nearest = np.minimum(nearest, np.linalg.norm(pts - p, axis=1))
     allowed = nearest > exclude_radius if exclude_radius > 0 else np.ones(len(cand), bool)
     finite_near = np.where(np.isfinite(nearest), nearest, 0.0)
-    order_key = score + 1e-12 * finite_near
+    return greedy_picks(pts, cand, score + 1e-12 * finite_near, score, allowed, int(count),
+                        exclude_radius)
+
+
+def greedy_picks(points: np.ndarray, indices: np.ndarray, order: np.ndarray, std: np.ndarray,
+                 allowed: np.ndarray, count: int, exclude_radius: float) -> Suggestion:
+    """Up to ``count`` picks by descending ``order`` among ``allowed``, each at least
+    ``exclude_radius`` from the picks before it; ``indices``/``std`` are reported per pick."""
+    allowed = allowed.copy()
     picks, stds = [], []
-    for _ in range(int(count)):
+    for _ in range(count):
         if not np.any(allowed):
             break
-        k = int(np.argmax(np.where(allowed, order_key, -np.inf)))
-        picks.append(int(cand[k]))
-        stds.append(float(score[k]))
-        allowed &= np.linalg.norm(pts - pts[k], axis=1) > exclude_radius
+        k = int(np.argmax(np.where(allowed, order, -np.inf)))
+        picks.append(int(indices[k]))
+        stds.append(float(std[k]))
+        allowed &= np.linalg.norm(points - points[k], axis=1) > exclude_radius
         allowed[k] = False
     return Suggestion(np.array(picks, dtype=np.int64), np.array(stds, dtype=float))

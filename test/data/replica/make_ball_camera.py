@@ -35,7 +35,6 @@ Regenerate (about 2 minutes of CPU per ball)::
 """
 
 import argparse
-from dataclasses import replace
 from pathlib import Path
 import sys
 import time
@@ -45,14 +44,11 @@ import numpy as np
 from pointforce_ros.bringup.camera_check import render_view
 from pointforce_ros.replica.contour import section_error
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints
-from pointforce_ros.sim.fem.probes import box_probe, pose_for_push
-from pointforce_ros.sim.fem.solver import FemModel
 from pointforce_ros.sim.scenario import load_scenario
 from pointforce_ros.types import Mesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from make_ball_plate import (hemisphere_mesh, MAX_COMPRESSION, POISSON, RADIUS,  # noqa: E402
-                             YOUNG)
+from make_ball_plate import indent_ball, MAX_COMPRESSION, RADIUS  # noqa: E402
 
 SCENARIO = 'realistic'
 """The cell's scenario whose camera bias and noise the views carry."""
@@ -85,16 +81,7 @@ def deformed_ball(core_young: float, core_radius: float, n: int = 16, steps: int
         triangles), and its loaded outline in y = 0 (``make_ball_plate``'s ``section_xz``).
 
     """
-    mesh = hemisphere_mesh(RADIUS, n, n // 2)
-    young = np.full(len(mesh.elements), YOUNG)
-    if core_young > 0:
-        young[np.linalg.norm(mesh.centroids(), axis=1) < core_radius] = core_young
-    everything = replace(mesh, top_nodes=np.arange(mesh.n_nodes)[:, None])
-    model = FemModel(everything, young, POISSON, support='sliding')
-    plate = box_probe((0.15, 0.15, 0.02), edge_radius=0.004)
-    half = np.linspace(0.5, steps, steps) / steps * (MAX_COMPRESSION / 2)
-    res = model.indent(plate, pose_for_push([0.0, 0.0, RADIUS], [0.0, 0.0, -1.0]),
-                       [0.0, 0.0, -1.0], half)
+    mesh, res = indent_ball(n, n // 2, steps, core_young, core_radius)
     quads = mesh.boundary_faces
     upper = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     tris = np.concatenate([upper, upper[:, ::-1] + mesh.n_nodes])  # mirror: reversed winding

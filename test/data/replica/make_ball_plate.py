@@ -83,6 +83,27 @@ def hemisphere_mesh(radius: float, n: int, layers: int):
     return replace_nodes(cube, radius * np.column_stack([x, y, z]))
 
 
+def indent_ball(n: int, layers: int, steps: int, core_young: float = 0.0,
+                core_radius: float = 0.0):
+    """Press the plate into the hemisphere to ``MAX_COMPRESSION``; return ``(mesh, result)``.
+
+    ``core_young`` > 0: the elements whose centroid lies within ``core_radius`` (m) of the
+    centre have that Young's modulus (Pa). Every node is reported at every step.
+    """
+    mesh = hemisphere_mesh(RADIUS, n, layers)
+    young = np.full(len(mesh.elements), YOUNG)
+    if core_young > 0:
+        young[np.linalg.norm(mesh.centroids(), axis=1) < core_radius] = core_young
+    # every node reported at every step (the solver reports ``top_nodes``; nothing else
+    # reads them), so that the section can be taken from the sides as well as the cap
+    everything = replace(mesh, top_nodes=np.arange(mesh.n_nodes)[:, None])
+    model = FemModel(everything, young, POISSON, support='sliding')
+    plate = box_probe((0.15, 0.15, 0.02), edge_radius=0.004)
+    half = np.linspace(0.5, steps, steps) / steps * (MAX_COMPRESSION / 2)
+    start = pose_for_push([0.0, 0.0, RADIUS], [0.0, 0.0, -1.0])
+    return mesh, model.indent(plate, start, [0.0, 0.0, -1.0], half)
+
+
 def relaxed_curve(n: int, layers: int, steps: int = 30, core_young: float = 0.0,
                   core_radius: float = 0.0):
     """Return the FEM's plate travel (K,) m and relaxed force (K,) N (whole ball), and section.
@@ -96,18 +117,7 @@ def relaxed_curve(n: int, layers: int, steps: int = 30, core_young: float = 0.0,
     the ball's centre have that Young's modulus (Pa): a heterogeneous ball, stiff or soft
     inside.
     """
-    mesh = hemisphere_mesh(RADIUS, n, layers)
-    young = np.full(len(mesh.elements), YOUNG)
-    if core_young > 0:
-        young[np.linalg.norm(mesh.centroids(), axis=1) < core_radius] = core_young
-    # every node reported at every step (the solver reports ``top_nodes``; nothing else
-    # reads them), so that the section can be taken from the sides as well as the cap
-    everything = replace(mesh, top_nodes=np.arange(mesh.n_nodes)[:, None])
-    model = FemModel(everything, young, POISSON, support='sliding')
-    plate = box_probe((0.15, 0.15, 0.02), edge_radius=0.004)
-    half = np.linspace(0.5, steps, steps) / steps * (MAX_COMPRESSION / 2)
-    start = pose_for_push([0.0, 0.0, RADIUS], [0.0, 0.0, -1.0])
-    res = model.indent(plate, start, [0.0, 0.0, -1.0], half)
+    mesh, res = indent_ball(n, layers, steps, core_young, core_radius)
     rest = mesh.nodes
     on_plane = (np.abs(rest[:, 1]) < 1e-9) & (np.abs(np.linalg.norm(rest, axis=1) - RADIUS)
                                               < 1e-9)

@@ -96,8 +96,11 @@ def suggest_pokes(model, surface: Surface, count: int, exclude_radius: float, *,
 
 def greedy_picks(points: np.ndarray, indices: np.ndarray, order: np.ndarray, std: np.ndarray,
                  allowed: np.ndarray, count: int, exclude_radius: float) -> Suggestion:
-    """Up to ``count`` picks by descending ``order`` among ``allowed``, each at least
-    ``exclude_radius`` from the picks before it; ``indices``/``std`` are reported per pick."""
+    """Pick up to ``count`` candidates by descending ``order`` among ``allowed``.
+
+    Each pick lies at least ``exclude_radius`` from the picks before it; ``indices`` and
+    ``std`` are reported per pick.
+    """
     allowed = allowed.copy()
     picks, stds = [], []
     for _ in range(count):

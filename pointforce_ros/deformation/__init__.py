@@ -20,4 +20,7 @@ truth):
 - :mod:`.cell_check`: the estimator's side of the demo's camera-only force check, and a
   heterogeneous modulus field seeded by a point model's force map and refined by the
   identification's fit (:func:`.cell_check.refine_field`).
+- :mod:`.fused`: the camera force's magnitude fused with the learner's point model at the
+  probe's measured indentation (inverse variance, the FEM's direction): issue 18's
+  heterogeneous objects, where a buried stiff part fools the FEM's magnitude.
 """

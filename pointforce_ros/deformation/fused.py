@@ -216,11 +216,13 @@ def depth_calibration(response: BakedResponse, depths, forces, sites) -> DepthCa
 
     """
     forces = np.asarray(forces, dtype=float).ravel()
-    _, site = np.unique(np.asarray(sites).reshape(len(forces), -1), axis=0, return_inverse=True)
+    sites = np.asarray(sites)
+    if len(depths) != len(forces) or len(sites) != len(forces) or not np.all(forces > 0):
+        raise InvalidInput(f'depth_calibration: need one positive force and one site per '
+                           f'depth; got {len(forces)} forces and {len(sites)} sites for '
+                           f'{len(depths)} depths')
+    _, site = np.unique(sites.reshape(len(forces), -1), axis=0, return_inverse=True)
     site = np.ravel(site)
-    if len(depths) != len(forces) or not np.all(forces > 0):
-        raise InvalidInput(f'depth_calibration: need one positive force per depth; got '
-                           f'{len(forces)} forces for {len(depths)} depths')
     if site.max(initial=-1) < 1:
         raise InvalidInput('depth_calibration: need pushes at two sites or more (one site '
                            'says nothing of how far the offset varies)')

@@ -175,7 +175,9 @@ def test_depth_calibration_recovers_the_point_models_onset_error():
     with pytest.raises(InvalidInput, match='two sites'):
         point_calibration(model, states[:2])
     with pytest.raises(InvalidInput, match='positive force'):
-        depth_calibration(model.response, [None], [0.0, 1.0], [0, 1])
+        depth_calibration(model.response, [None, None], [0.0, 1.0], [0, 1])
+    with pytest.raises(InvalidInput, match='one site per depth'):
+        depth_calibration(model.response, [None, None], [1.0, 1.0], [0, 1, 2])
 
 
 def test_small_sample_factor_is_the_t_interval_over_the_normal_one():

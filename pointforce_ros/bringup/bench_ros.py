@@ -33,6 +33,7 @@ a ROS domain of their own.
   campaign including the time between pokes, and dropped samples (controller-time gaps).
 """
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -58,7 +59,9 @@ from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.nodes.contact_wrench import REQUESTS, spin_single_threaded
+from pointforce_ros.nodes.direct_client import DirectClient, ServiceTimeout
 from pointforce_ros.nodes.poke_server import PokeServerNode
+from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.sim.rtde.process import start_emulator
@@ -93,19 +96,39 @@ def round_trip(client, request, timeout: float, what: str):
     return elapsed, future.result()
 
 
+class _TriggerNode(Node):
+    """Trivial std_srvs/Trigger services, the round trip's baselines.
+
+    ``~/trigger`` and ``~/trigger_mt`` on the node's executor (what rclpy's stock path costs
+    for nothing), ``~/trigger_direct`` on a :class:`ServiceLoop` (the floor of the path the
+    contact service takes).
+    """
+
+    def __init__(self, context=None):
+        super().__init__('bench_trigger', context=context)
+        group = ReentrantCallbackGroup()
+        self.create_service(Trigger, '~/trigger', _answer_trigger, callback_group=group)
+        # the multi-threaded client's own name: a client's executor wakes for every reply of
+        # its service, its own or another client's (see load_client), so two series on one
+        # name would each pay for the other's replies
+        self.create_service(Trigger, '~/trigger_mt', _answer_trigger, callback_group=group)
+        self._loop = ServiceLoop(self)
+        self._loop.add(Trigger, '~/trigger_direct', _answer_trigger, REQUESTS)
+        self._loop.start()
+
+    def destroy_node(self):
+        self._loop.stop()
+        return super().destroy_node()
+
+
+def _answer_trigger(request, response):
+    response.success = True
+    return response
+
+
 def _trigger_node(context=None):
-    """Return a node with a trivial std_srvs/Trigger service, the round trip's baseline."""
-    def answer(request, response):
-        response.success = True
-        return response
-    node = Node('bench_trigger', context=context)
-    group = ReentrantCallbackGroup()
-    node.create_service(Trigger, '~/trigger', answer, callback_group=group)
-    # the multi-threaded client's own name: a client's executor wakes for every reply of its
-    # service, its own or another client's (see load_client), so two series on one name would
-    # each pay for the other's replies
-    node.create_service(Trigger, '~/trigger_mt', answer, callback_group=group)
-    return node
+    """Return the node of the trivial Trigger services (:class:`_TriggerNode`)."""
+    return _TriggerNode(context=context)
 
 
 def _bench_poses(n: int, seed: int = 0):
@@ -143,35 +166,54 @@ def _stop(processes) -> None:
             proc.wait()
 
 
-def load_client(calls: int, seed: int, service: str = '/contact_wrench/contact_wrench') -> None:
+def load_client(calls: int, seed: int, service: str = '/contact_wrench/contact_wrench',
+                direct: bool = False) -> None:
     """One load-test client process: ``calls`` single queries to ``service`` after ``go``.
 
+    ``direct``: call through :class:`DirectClient` (no executor), else through rclpy's client
+    spun by a ``SingleThreadedExecutor`` thread, the done callback setting an Event.
     Prints ``ready`` once the service is found, waits for a line on stdin, then prints one JSON
     line: round-trip seconds of the answered calls, the failures and the CPU seconds the whole
     process (every thread) used during the calls.
     """
     rclpy.init()
     node = Node(f'bench_load_{seed}')
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    threading.Thread(target=executor.spin, daemon=True).start()
     from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
-    # a reply reader sees the replies to every client: at the default depth of 10 a busy
-    # client's own reply can be pushed out of its history by the others'
-    client = node.create_client(ContactWrench, service, qos_profile=REQUESTS)
-    if not client.wait_for_service(timeout_sec=60):
-        raise RuntimeError(f'service {service} did not appear in 60 s')
+    if direct:
+        direct_client = DirectClient(node, ContactWrench, service, REQUESTS)
+        if not direct_client.wait_for_service(timeout_sec=60):
+            raise RuntimeError(f'service {service} did not appear in 60 s')
+
+        def call(request):
+            start = time.perf_counter()
+            try:
+                response = direct_client.call(request, 30)
+            except ServiceTimeout as exc:
+                raise RuntimeError(str(exc)) from None
+            return time.perf_counter() - start, response
+    else:
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        threading.Thread(target=executor.spin, daemon=True).start()
+        # a reply reader sees the replies to every client: at the default depth of 10 a busy
+        # client's own reply can be pushed out of its history by the others'
+        client = node.create_client(ContactWrench, service, qos_profile=REQUESTS)
+        if not client.wait_for_service(timeout_sec=60):
+            raise RuntimeError(f'service {service} did not appear in 60 s')
+
+        def call(request):
+            return round_trip(client, request, 30, 'contact_wrench')
     vertices, triangles = mesh_to_flat(icosphere(SPHERE_RADIUS, SPHERE_LEVEL))
     flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
     requests = [_single_request(p, flat) for p in _bench_poses(calls, seed=1000 + seed)]
-    round_trip(client, requests[0], 30, 'contact_wrench')   # discovery of the reply path
+    call(requests[0])   # discovery of the reply path
     print('ready', flush=True)
     sys.stdin.readline()
     cpu_start = time.process_time()
     times, failures = [], []
     for request in requests:
         try:
-            elapsed, response = round_trip(client, request, 30, 'contact_wrench')
+            elapsed, response = call(request)
         except RuntimeError as exc:
             failures.append(str(exc))
             continue
@@ -206,17 +248,19 @@ def _cpu_seconds(pid: int) -> float:
         return float('nan')
 
 
-def _load_test(clients: int, calls: int, service_pid: int, lanes: bool = False) -> dict:
+def _load_test(clients: int, calls: int, service_pid: int, lanes: bool = False,
+               direct: bool = False) -> dict:
     """``clients`` processes x ``calls`` single queries, started together.
 
     ``lanes``: client ``i`` calls ``/contact_wrench/lane_<i>/contact_wrench`` (the service's
-    ``client_lanes``), else every client calls ``/contact_wrench/contact_wrench``. Keys are
-    prefixed ``load_lanes_`` or ``load_``.
+    ``client_lanes``), else every client calls ``/contact_wrench/contact_wrench``. ``direct``:
+    the clients call through :class:`DirectClient`. Keys are prefixed ``load_``,
+    ``load_lanes_`` or ``load_direct_`` (lanes and direct clients).
     """
-    prefix = 'load_lanes_' if lanes else 'load_'
+    prefix = 'load_direct_' if direct else 'load_lanes_' if lanes else 'load_'
     procs = [_start('pointforce_ros.bringup.bench_ros', 'client', str(calls), str(i),
                     f'/contact_wrench/lane_{i}/contact_wrench' if lanes
-                    else '/contact_wrench/contact_wrench')
+                    else '/contact_wrench/contact_wrench', *(['direct'] if direct else []))
              for i in range(clients)]
     try:
         for proc in procs:
@@ -254,7 +298,9 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     ``MultiThreadedExecutor`` times the single query and the Trigger again (``*_mt``), so the
     cost of the client's executor choice is in the same run. The second node calls its own
     service names (the contact service's lane 0, the Trigger node's ``~/trigger_mt``), so
-    neither series receives the other's replies.
+    neither series receives the other's replies. A third pair of series calls through the
+    package's :class:`DirectClient` (no executor; lane 1 and ``~/trigger_direct``, the latter
+    served on a :class:`ServiceLoop` as the contact service is).
     """
     from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
     client_node = planner.add(Node('bench_client', context=planner.context), isolated=True,
@@ -265,7 +311,34 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     trigger = client_node.create_client(Trigger, '/bench_trigger/trigger')
     single_mt = mt_node.create_client(ContactWrench, '/contact_wrench/lane_0/contact_wrench')
     trigger_mt = mt_node.create_client(Trigger, '/bench_trigger/trigger_mt')
-    for client in (single, batch, trigger, single_mt, trigger_mt):
+    with _direct_clients(planner) as (single_direct, trigger_direct):
+        return _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_direct,
+                                  trigger_direct, sphere, poses, n_single, n_small,
+                                  small_batch, Vector3, ContactWrenchBatch)
+
+
+@contextlib.contextmanager
+def _direct_clients(planner):
+    """Yield the package's executor-free clients (names of their own: lane 1, trigger_direct)."""
+    from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
+    node = Node('bench_client_direct', context=planner.context)
+    clients = (DirectClient(node, ContactWrench, '/contact_wrench/lane_1/contact_wrench',
+                            REQUESTS),
+               DirectClient(node, Trigger, '/bench_trigger/trigger_direct', REQUESTS))
+    try:
+        yield clients
+    finally:
+        for client in clients:
+            client.destroy()
+        node.destroy_node()
+
+
+def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_direct,
+                       trigger_direct, sphere, poses, n_single, n_small, small_batch, Vector3,
+                       ContactWrenchBatch):
+    """Time the series of :func:`_round_trips` (seconds), given its clients."""
+    for client in (single, batch, trigger, single_mt, trigger_mt, single_direct,
+                   trigger_direct):
         if not client.wait_for_service(timeout_sec=60):
             raise RuntimeError(f'service {client.srv_name} did not appear within 60 s')
     vertices, triangles = mesh_to_flat(sphere)
@@ -277,12 +350,20 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
         return ContactWrenchBatch.Request(poses=[pose_to_msg(p) for p in chosen],
                                           approach=approach, torque_centre=to_point(CENTRE),
                                           skip_uncertainty=True, **flat)
+
+    def direct_trip(client, request):
+        start = time.perf_counter()
+        response = client.call(request, 30)
+        return time.perf_counter() - start, response
     for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
         for client in (single, single_mt):
             round_trip(client, _single_request(pose, flat), 30, 'contact_wrench')
         for client in (trigger, trigger_mt):
             round_trip(client, Trigger.Request(), 30, 'trigger')
+        direct_trip(single_direct, _single_request(pose, flat))
+        direct_trip(trigger_direct, Trigger.Request())
     rtt, msg_rtt, trigger_rtt, mt_rtt, mt_trigger_rtt = [], [], [], [], []
+    direct_rtt, direct_trigger_rtt = [], []
     for pose in poses[:n_single]:   # interleaved: all see the same machine load
         for client, mesh, times in ((single, flat, rtt), (single, as_msg, msg_rtt),
                                     (single_mt, flat, mt_rtt)):
@@ -291,8 +372,13 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
             if not resp.success:
                 raise RuntimeError(f'contact_wrench refused: {resp.message}')
             times.append(elapsed)
+        elapsed, resp = direct_trip(single_direct, _single_request(pose, flat))
+        if not resp.success:
+            raise RuntimeError(f'contact_wrench refused: {resp.message}')
+        direct_rtt.append(elapsed)
         trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
         mt_trigger_rtt.append(round_trip(trigger_mt, Trigger.Request(), 30, 'trigger')[0])
+        direct_trigger_rtt.append(direct_trip(trigger_direct, Trigger.Request())[0])
     std_rtt = []
     for pose in poses[:max(n_single // 5, 20)]:   # with the wrench's standard deviation
         elapsed, resp = round_trip(single, _single_request(pose, flat, False), 30,
@@ -313,7 +399,8 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
         raise RuntimeError(f'batch refused: {resp.message}')
     return dict(rtt=rtt, msg_rtt=msg_rtt, trigger_rtt=trigger_rtt, small_rtt=small_rtt,
                 ros_batch=ros_batch, std_rtt=std_rtt, mt_rtt=mt_rtt,
-                mt_trigger_rtt=mt_trigger_rtt)
+                mt_trigger_rtt=mt_trigger_rtt, direct_rtt=direct_rtt,
+                direct_trigger_rtt=direct_trigger_rtt)
 
 
 def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
@@ -377,7 +464,7 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     # the services as deployed, each in its own process; this process is the planner
     services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args',
                        '-p', f'model_dir:={work / "models"}',
-                       '-p', f'client_lanes:={max(load_clients, 1)}'),
+                       '-p', f'client_lanes:={max(load_clients, 2)}'),
                 _start('pointforce_ros.bringup.bench_ros', 'trigger')]
     try:
         with InProcessLauncher(threads=2) as planner:
@@ -385,6 +472,8 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
                                  Vector3, ContactWrenchBatch)
         out.update(_load_test(load_clients, load_calls, services[0].pid))
         out.update(_load_test(load_clients, load_calls, services[0].pid, lanes=True))
+        out.update(_load_test(load_clients, load_calls, services[0].pid, lanes=True,
+                              direct=True))
         out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
     finally:
         _stop(services)
@@ -398,6 +487,8 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     mt50, mt99 = _percentiles(trips['mt_rtt'])
     mtt50, mtt99 = _percentiles(trips['mt_trigger_rtt'])
     bc50, bc99 = _percentiles(core_small)
+    d50, d99 = _percentiles(trips['direct_rtt'])
+    dt50, dt99 = _percentiles(trips['direct_trigger_rtt'])
     out.update(single_rtt_p50_ms=p50, single_rtt_p99_ms=p99, core_query_p50_ms=c50,
                core_query_p99_ms=c99, ros_rtt_over_core=p50 / c50,
                ros_overhead_p50_ms=p50 - c50, trigger_rtt_p50_ms=t50, trigger_rtt_p99_ms=t99,
@@ -405,8 +496,12 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
                single_rtt_with_std_p50_ms=s50, single_rtt_with_std_p99_ms=s99,
                single_rtt_mt_client_p50_ms=mt50, single_rtt_mt_client_p99_ms=mt99,
                trigger_rtt_mt_client_p50_ms=mtt50, trigger_rtt_mt_client_p99_ms=mtt99,
+               single_rtt_direct_client_p50_ms=d50, single_rtt_direct_client_p99_ms=d99,
+               ros_overhead_direct_client_p50_ms=d50 - c50,
+               trigger_rtt_direct_p50_ms=dt50, trigger_rtt_direct_p99_ms=dt99,
                client_executor='SingleThreadedExecutor (the *_mt_client series: a '
-                               '2-thread MultiThreadedExecutor)',
+                               '2-thread MultiThreadedExecutor; *_direct_client and '
+                               'trigger_rtt_direct: DirectClient, no executor)',
                single_queries=n_single, small_batch_poses=small_batch,
                small_batch_rtt_p50_ms=b50, small_batch_rtt_p99_ms=b99,
                small_batch_core_p50_ms=bc50, small_batch_core_p99_ms=bc99,
@@ -470,4 +565,5 @@ if __name__ == '__main__':
     if sys.argv[1] == 'trigger':
         spin_single_threaded(_trigger_node)   # the executor contact_wrench's main() spins
     elif sys.argv[1] == 'client':
-        load_client(int(sys.argv[2]), int(sys.argv[3]), *sys.argv[4:5])
+        load_client(int(sys.argv[2]), int(sys.argv[3]), *sys.argv[4:5],
+                    direct=sys.argv[5:6] == ['direct'])

@@ -44,7 +44,7 @@ from pointforce_ros.effects.library import (BASE_PARAMS, derived_values, hystere
                                             prony_terms, STICK_VELOCITY)
 from pointforce_ros.effects.relaxation import hereditary
 from pointforce_ros.errors import InvalidInput, NotConverged
-from pointforce_ros.response.common import single_threaded_blas
+from pointforce_ros.response.blas import single_threaded_blas
 
 S_REF = 0.003
 """Reference depth of the per-poke amplitude, metres."""

@@ -31,13 +31,14 @@ import numpy as np
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
 from pointforce_ros.contact.simulator import (BatchContactResult, normalise_approach,
-                                              poses_as_arrays, single_threaded_blas)
+                                              poses_as_arrays)
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, wrench_uncertainty
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.model.files import ContactModel, load_latest_model, load_model
 from pointforce_ros.rotations import quaternion_to_matrix
 from pointforce_ros.types import as_array, ContactQuery, Mesh, Pose
+from pointforce_ros.response.blas import single_threaded_blas
 
 BYTES_PER_SAMPLE_POSE = 256
 """Working memory of one rigid sample at one pose in the simulator's first pass, bytes.
@@ -572,6 +573,10 @@ class WrenchServer:
                 self._facing.clear()
             self._facing[id(proj)] = hit
         _, deepest, lo2, hi2 = hit
+        if not np.any(flagged) and (float(np.max(positions @ a)) + radius - deepest
+                                    <= self.limits.max_depth):
+            return   # no vertex (within radius of its pose) can reach max_depth: a planner's
+            # usual query, answered without the per-vertex pass (a tenth of a query's time)
         verts = mesh.vertices
         frame = np.column_stack([a, proj.basis])
         step = max(1, 1_000_000 // len(verts))

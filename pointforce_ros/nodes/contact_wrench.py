@@ -29,7 +29,7 @@ import numpy as np
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
 import rclpy
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -43,7 +43,9 @@ from pointforce_ros.dds import use_package_dds_profile
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import declare, live
+from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
+from pointforce_ros.response.blas import limit_blas_for_process
 
 REQUESTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
@@ -133,14 +135,15 @@ class ContactWrenchNode(Node):
         self._last = None       # (result, version) of the last answered single query
         self._shown = None
         self._try_load_dir()
-        group = ReentrantCallbackGroup()
-        self.create_service(ContactWrench, '~/contact_wrench', self._on_single,
-                            qos_profile=REQUESTS, callback_group=group)
-        self.create_service(ContactWrenchBatch, '~/contact_wrench_batch', self._on_batch,
-                            qos_profile=REQUESTS, callback_group=group)
+        # answered on a wait loop of their own: the executor's per-request cost (about 1 ms of
+        # CPU here) was as large as the query's solve
+        self._service_loop = ServiceLoop(self)
+        self._service_loop.add(ContactWrench, '~/contact_wrench', self._on_single, REQUESTS)
+        self._service_loop.add(ContactWrenchBatch, '~/contact_wrench_batch', self._on_batch,
+                               REQUESTS)
         for lane in range(lanes):
-            self.create_service(ContactWrench, f'~/lane_{lane}/contact_wrench', self._on_single,
-                                qos_profile=REQUESTS, callback_group=group)
+            self._service_loop.add(ContactWrench, f'~/lane_{lane}/contact_wrench',
+                                   self._on_single, REQUESTS)
         loader = MutuallyExclusiveCallbackGroup()
         self.create_subscription(ModelStatus, 'stiffness_learner/model', self._on_model, LATCHED,
                                  callback_group=loader)
@@ -159,7 +162,13 @@ class ContactWrenchNode(Node):
                     'poll_period': self._new_poll_period,
                     'marker_rate': lambda v: lambda: self._set_marker_rate(v),
                     'marker_force_scale': lambda v: lambda: setattr(self, 'marker_scale', v)})
+        self._service_loop.start()
         self.get_logger().info(f'serving contact wrenches (model version {self.server.version})')
+
+    def destroy_node(self):
+        """Stop the service loop (its services first), then destroy the node."""
+        self._service_loop.stop()
+        return super().destroy_node()
 
     def _configure(self, **settings):
         """Applier: the server takes ``settings`` from the next request (checked here)."""
@@ -330,6 +339,7 @@ def spin_single_threaded(node_factory, args=None) -> None:
 
 def main(args=None):
     """Console entry point: ``contact_wrench --ros-args -p model_dir:=...``."""
+    limit_blas_for_process()   # small solves one after another: BLAS threads only cost
     spin_single_threaded(ContactWrenchNode, args=args)
 
 

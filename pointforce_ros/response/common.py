@@ -1,10 +1,8 @@
-"""Input checks, feature look-ups and BLAS threading shared by the force-response models."""
+"""Input checks and feature look-ups shared by the force-response models."""
 
-import contextlib
 from typing import Sequence, Tuple
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
@@ -12,25 +10,6 @@ from pointforce_ros.types import Surface
 
 DEFAULT_MAX_SURFACE_DISTANCE = 0.01
 """Farthest a poked point may lie from its nearest surface point, metres."""
-
-_CONTROLLER = None
-
-
-def single_threaded_blas():
-    """Context manager: BLAS on one thread inside (and the previous setting restored after).
-
-    The models multiply small matrices (tens of pokes) against long ones (surface points);
-    OpenBLAS's threads cost more than they save there (measured: a 40 000-point bake takes
-    2x the CPU time with threads on a busy 2-core machine) and starve a concurrent ROS
-    executor. Falls back to a no-op when threadpoolctl cannot see the BLAS.
-    """
-    global _CONTROLLER
-    try:
-        if _CONTROLLER is None:
-            _CONTROLLER = ThreadpoolController()
-        return _CONTROLLER.limit(limits=1, user_api='blas')
-    except Exception:  # noqa: BLE001 - threading is an optimisation, never a failure
-        return contextlib.nullcontext()
 
 
 def check_curves(curves: Sequence[PokeCurve], surface: Surface) -> Tuple[PokeCurve, ...]:

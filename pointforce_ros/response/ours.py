@@ -90,9 +90,9 @@ from scipy.optimize import least_squares
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.pokes.curves import fit_power_onset, PokeCurve
 from pointforce_ros.response.baked import BakedResponse
+from pointforce_ros.response.blas import single_threaded_blas
 from pointforce_ros.response.common import (check_curves, check_depths, check_query,
-                                            curve_features, DEFAULT_MAX_SURFACE_DISTANCE,
-                                            single_threaded_blas)
+                                            curve_features, DEFAULT_MAX_SURFACE_DISTANCE)
 from pointforce_ros.response.gp import BASES, FeatureFrame, FeatureGp, GpGrid, GpState
 from pointforce_ros.response.scoring import CONTACT_MARGIN
 from pointforce_ros.types import Surface

@@ -28,9 +28,9 @@ from sklearn.isotonic import IsotonicRegression
 
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.pokes.curves import PokeCurve
+from pointforce_ros.response.blas import single_threaded_blas
 from pointforce_ros.response.common import (check_curves, check_query, curve_features,
-                                            DEFAULT_MAX_SURFACE_DISTANCE,
-                                            single_threaded_blas)
+                                            DEFAULT_MAX_SURFACE_DISTANCE)
 from pointforce_ros.response.gp import FeatureFrame, FeatureGp, GpGrid, GpState
 from pointforce_ros.types import Surface
 

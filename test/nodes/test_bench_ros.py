@@ -40,7 +40,10 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
     # the same load with each client on a service lane of its own (client_lanes)
     assert out['load_lanes_failures'] == 0 and out['load_lanes_clients'] == 2
     assert out['load_lanes_rtt_p99_ms'] >= out['load_lanes_rtt_p50_ms'] > 0
-    for prefix in ('load_', 'load_lanes_'):   # the CPU a call costs, measured per process
+    # and with the package's executor-free client
+    assert out['load_direct_failures'] == 0 and out['load_direct_clients'] == 2
+    assert out['load_direct_rtt_p99_ms'] >= out['load_direct_rtt_p50_ms'] > 0
+    for prefix in ('load_', 'load_lanes_', 'load_direct_'):   # CPU a call costs, per process
         assert out[prefix + 'service_cpu_per_call_ms'] > 0
         assert out[prefix + 'client_cpu_per_call_ms'] > 0
     assert 50 < out['service_peak_rss_mb'] < 600    # issue 16: the service stays under 600 MB
@@ -49,12 +52,14 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
                 'small_batch_rtt_p50_ms', 'small_batch_rtt_p99_ms', 'small_batch_core_p50_ms',
                 'single_rtt_mesh_msg_p50_ms', 'single_rtt_with_std_p50_ms',
                 'single_rtt_mt_client_p50_ms', 'trigger_rtt_mt_client_p50_ms',
+                'single_rtt_direct_client_p50_ms', 'trigger_rtt_direct_p50_ms',
                 'batch_ros_poses_per_s'):
         assert out[key] > 0, key
     # a round trip holds the core's work, but the two are timed in separate loops on a shared
     # machine (a 100-pose batch: 71 ms round trip against 64 ms core), so allow their noise
     assert out['single_rtt_p50_ms'] > 0.8 * out['core_query_p50_ms']
     assert out['single_rtt_mt_client_p50_ms'] > 0.8 * out['core_query_p50_ms']
+    assert out['single_rtt_direct_client_p50_ms'] > 0.8 * out['core_query_p50_ms']
     assert out['single_rtt_p99_ms'] >= out['single_rtt_p50_ms']
     # no such bound for the batch: the service solves a batch's chunks on its worker threads,
     # the core figure in one (at load 20: 22 ms round trip against 34 ms core, fastest of each)

@@ -1,0 +1,112 @@
+"""ServiceLoop (services off the executor) and DirectClient (calls without one), over real DDS."""
+
+import threading
+import time
+
+import pytest
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from pointforce_ros.nodes.contact_wrench import REQUESTS
+from pointforce_ros.nodes.direct_client import DirectClient, ServiceTimeout
+from pointforce_ros.nodes.service_loop import ServiceLoop
+
+pytestmark = pytest.mark.ros
+
+
+class _Served(Node):
+    """A node with one Trigger service on a ServiceLoop and one on its executor.
+
+    ``answers`` (a list of callables, one per call) decides each answer of the loop's service;
+    a call past the list answers ``success=True``. The executor's ``blocked`` Event, once set
+    by a timer callback, holds the executor for ``hold`` seconds.
+    """
+
+    def __init__(self, context, answers=(), hold: float = 0.0):
+        super().__init__('loop_test', context=context)
+        self.answers = list(answers)
+        self.calls = 0
+        self.loop = ServiceLoop(self)
+        self.loop.add(Trigger, '~/on_loop', self._answer, REQUESTS)
+        self.create_service(Trigger, '~/on_executor', self._answer_plainly)
+        self.blocked = threading.Event()
+        self._hold = hold
+        self._timer = self.create_timer(0.05, self._block) if hold > 0 else None
+        self.loop.start()
+
+    def _answer(self, request, response):
+        self.calls += 1
+        step = self.answers.pop(0) if self.answers else None
+        if step is not None:
+            step()
+        response.success = True
+        response.message = f'call {self.calls}'
+        return response
+
+    def _answer_plainly(self, request, response):
+        response.success = True
+        return response
+
+    def _block(self):
+        self.destroy_timer(self._timer)
+        self.blocked.set()
+        time.sleep(self._hold)   # an executor callback busy for a while (a model load)
+
+    def destroy_node(self):
+        self.loop.stop()
+        return super().destroy_node()
+
+
+def _client(graph, name):
+    node = Node(f'loop_test_client_{name}', context=graph.context)
+    client = DirectClient(node, Trigger, f'/loop_test/{name}', REQUESTS)
+    assert client.wait_for_service(timeout_sec=15.0)
+    graph.nodes.append(node)   # destroyed with the graph
+    return client
+
+
+def test_loop_services_answer_while_the_node_executor_is_busy(ros_graph):
+    node = ros_graph.add(_Served(ros_graph.context, hold=3.0), isolated=True, threads=1)
+    on_loop = _client(ros_graph, 'on_loop')
+    assert node.blocked.wait(10.0)
+    start = time.monotonic()
+    assert on_loop.call(Trigger.Request(), timeout_sec=1.0).success
+    assert time.monotonic() - start < 1.0
+    # the same call to a service on the executor waits until the executor is free
+    on_executor = _client(ros_graph, 'on_executor')
+    with pytest.raises(ServiceTimeout, match='on_executor'):
+        on_executor.call(Trigger.Request(), timeout_sec=0.3)
+
+
+def test_a_callback_that_raises_is_answered_with_a_refusal_and_the_loop_serves_on(ros_graph):
+    def fail():
+        raise ValueError('a bug in the callback')
+    node = ros_graph.add(_Served(ros_graph.context, answers=[fail]))
+    client = _client(ros_graph, 'on_loop')
+    first = client.call(Trigger.Request(), timeout_sec=5.0)
+    assert not first.success and 'ValueError: a bug in the callback' in first.message
+    second = client.call(Trigger.Request(), timeout_sec=5.0)
+    assert second.success and second.message == 'call 2'
+    assert node.loop.faults == 1 and node.loop.requests_taken == 2
+
+
+def test_a_timed_out_call_does_not_take_a_later_calls_answer(ros_graph):
+    node = ros_graph.add(_Served(ros_graph.context, answers=[lambda: time.sleep(0.6)]))
+    client = _client(ros_graph, 'on_loop')
+    with pytest.raises(ServiceTimeout, match='no response within 0.2 s'):
+        client.call(Trigger.Request(), timeout_sec=0.2)
+    time.sleep(0.8)   # the late answer to call 1 arrives meanwhile
+    answer = client.call(Trigger.Request(), timeout_sec=5.0)
+    assert answer.message == 'call 2', answer.message
+    assert node.calls == 2
+
+
+def test_stop_ends_the_loop_thread_and_its_services(ros_graph):
+    node = ros_graph.add(_Served(ros_graph.context))
+    client = _client(ros_graph, 'on_loop')
+    assert client.call(Trigger.Request(), timeout_sec=5.0).success
+    thread = node.loop._thread
+    node.loop.stop()
+    assert not thread.is_alive()
+    assert node.loop.services == []
+    ros_graph.wait_for(lambda: not client.service_is_ready(), 10.0, 'the service to go away')

@@ -42,9 +42,10 @@ held-out push +66..+85 %), so it is only taken when the gain is 5 % or more.
 A buried stiff part shields the far field without stiffening the contact, so the FEM's
 magnitude there is up to 2x off while its direction holds: :func:`fused_from_views` averages
 it with the learner's point model at the tip's measured depth (:mod:`.fused`), the FEM's std
-widened by the identification sites' modulus spread. Held out as above
-(``--fuse --calibrate-point``): lamb 57.9 -> 19.4 %, vest 47.3 -> 18.6 %, plush 12.0 -> 12.5 %,
-foam block 7.1 -> 5.7 % (the study's docstring has the table).
+widened by the identification sites' modulus spread or by its own error cross-validated over
+them (:func:`cross_site_error`). Held out as above (``--fuse --calibrate-point --fem-std
+cross``): lamb 57.9 -> 14.7 %, vest 47.3 -> 17.4 %, plush 12.0 -> 12.6 %, foam block 7.1 ->
+5.6 % (the study's docstring has the table).
 """
 
 from dataclasses import dataclass, replace
@@ -464,6 +465,46 @@ def estimate_from_views(model: ViewModel, estimate_state, depth: float = float('
                             direction_std_deg=direction_std_deg(est.force, est.covariance))
 
 
+def cross_site_error(rest, rest_normals, identify_states, camera_origin, **identify_kwargs
+                     ) -> Tuple[float, np.ndarray]:
+    """How far the FEM's magnitude is off at a site it was not identified on (cross-validated).
+
+    Each site of ``identify_states`` (pushes at one contact point) is left out in turn: (E,
+    nu) (or the field) are identified on the other sites (:func:`identify_from_views`) and the
+    left-out site's states are estimated from their clouds (:func:`estimate_from_views`) and
+    compared with their F/T. Only the identification pushes' own F/T enters: what the held-out
+    push's estimate may be off by, read where the truth is known.
+
+    Args:
+        rest, rest_normals, identify_states, camera_origin: as :func:`identify_from_views`.
+        **identify_kwargs: further :func:`identify_from_views` options (``view_rest``,
+            ``field_samples``, ...), as the held-out push's model was identified.
+
+    Returns:
+        ``(rms, errors)``: the root mean square of ``log(|camera| / |F/T|)`` over the left-out
+        states, and those errors ``(n,)``.
+
+    Raises:
+        InvalidInput: fewer than two sites; an identification or estimate that is refused.
+
+    """
+    keys = np.round([np.asarray(q, dtype=float)[:2] for q, _, _ in identify_states], 4)
+    sites, site = np.unique(keys, axis=0, return_inverse=True)
+    site = np.ravel(site)
+    if len(sites) < 2:
+        raise InvalidInput('cross_site_error: need identification pushes at two sites or more')
+    errors = []
+    for k in range(len(sites)):
+        model = identify_from_views(rest, rest_normals, [s for s, i in zip(identify_states, site)
+                                                         if i != k], camera_origin,
+                                    **identify_kwargs)
+        for state in (s for s, i in zip(identify_states, site) if i == k):
+            c = estimate_from_views(model, state)
+            errors.append(np.log(np.linalg.norm(c.camera_force) / np.linalg.norm(c.ft_force)))
+    errors = np.asarray(errors)
+    return float(np.sqrt(np.mean(errors ** 2))), errors
+
+
 def point_calibration(point_model, states, radius: float = 0.005) -> DepthCalibration:
     """Read the point model's depth offset at identification pushes (their F/T).
 
@@ -500,7 +541,8 @@ def fused_from_views(check: CameraForceCheck, young_spread: float, tip, point_mo
 
     Args:
         check: the FEM camera estimate (:func:`estimate_from_views`).
-        young_spread: :attr:`ViewModel.young_spread`.
+        young_spread: relative std of the FEM's magnitude at a new site:
+            :attr:`ViewModel.young_spread`, or :func:`cross_site_error`'s rms.
         tip: (3,) the probe tip at the held state (the arm's TCP), metres, ``base``.
         point_model: the learner's model (``surface`` with points and normals, ``response``
             a :class:`~pointforce_ros.response.baked.BakedResponse` with std), baked on a scan

@@ -5,8 +5,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from pointforce_ros.deformation.cell_check import (CameraForceCheck, fused_from_views,
-                                                   point_calibration)
+from pointforce_ros.deformation import cell_check
+from pointforce_ros.deformation.cell_check import (CameraForceCheck, cross_site_error,
+                                                   fused_from_views, point_calibration)
 from pointforce_ros.deformation.fused import (between_site_spread, depth_calibration,
                                               fuse_force, indentation_depth, point_model_force,
                                               small_sample_factor)
@@ -186,3 +187,30 @@ def test_small_sample_factor_is_the_t_interval_over_the_normal_one():
     assert 1.0 < small_sample_factor(200) < 1.01
     with pytest.raises(InvalidInput, match='>= 2 sites'):
         small_sample_factor(1)
+
+
+def test_cross_site_error_leaves_each_site_out(monkeypatch):
+    # a stand-in FEM that reads forces 2x high at x = 0.51 when identified without it and
+    # exact elsewhere: the error of each left-out site is read by a model that never saw it
+    seen = []
+
+    def identify(rest, normals, states, origin, **kwargs):
+        seen.append(sorted({round(float(q[0]), 3) for q, _, _ in states}))
+        assert kwargs == {'view_rest': 'frames'}
+        return seen[-1]
+
+    def estimate(model, state):
+        q, force, _ = state
+        gain = 2.0 if (round(float(q[0]), 3) == 0.51 and 0.51 not in model) else 1.0
+        return SimpleNamespace(camera_force=gain * np.asarray(force), ft_force=force)
+
+    monkeypatch.setattr(cell_check, 'identify_from_views', identify)
+    monkeypatch.setattr(cell_check, 'estimate_from_views', estimate)
+    states = [(np.array([x, 0.0, 0.04]), np.array([0.0, 0.0, -f]), None)
+              for x in (0.49, 0.51, 0.53) for f in (1.0, 2.0)]
+    rms, errors = cross_site_error(None, None, states, None, view_rest='frames')
+    assert seen == [[0.51, 0.53], [0.49, 0.53], [0.49, 0.51]]
+    np.testing.assert_allclose(errors, [0, 0, np.log(2), np.log(2), 0, 0], atol=1e-12)
+    assert rms == pytest.approx(np.log(2) / np.sqrt(3))
+    with pytest.raises(InvalidInput, match='two sites'):
+        cross_site_error(None, None, states[:2], None)

@@ -22,12 +22,15 @@ service (on the same kind of executor); the benchmark is the planner's process. 
 a ROS domain of their own.
 * load (issue 16): ``load_clients`` client processes (8) each send ``load_calls`` (500) single
   queries back to back, started together; failures and p50/p99 over every call, and the CPU
-  each call costs the service and the clients. Twice: every client on the one service name
-  (``load_*``), and each client on a lane of its own (``load_lanes_*``: the node's
-  ``client_lanes`` services). Every client of a service receives every reply and discards
-  those to other clients' calls (rmw_fastrtps and rmw_cyclonedds alike, ros2/rclcpp#2397);
-  in rclpy each such reply wakes the client's executor, so on the shared name one call costs
-  every other client CPU too (``load_client_cpu_per_call_ms``).
+  each call costs the service and the clients. Four times: every client on the one service
+  name (``load_*``); each client on a lane of its own (``load_lanes_*``: the node's
+  ``client_lanes`` services); the same through :class:`DirectClient` (``load_direct_*``);
+  and that with a second worker process of the service, half the clients on each
+  (``load_procs_*``: ``contact_wrench_1``, the same node under another name). Every client of
+  a service receives every reply and discards those to other clients' calls (rmw_fastrtps and
+  rmw_cyclonedds alike, ros2/rclcpp#2397); in rclpy each such reply wakes the client's
+  executor, so on the shared name one call costs every other client CPU too
+  (``load_client_cpu_per_call_ms``).
 * the F/T stream of a poke campaign through the real ur_rtde against the emulator: the rate inside
   the recorded pokes against the 250 Hz target (``ft_rate_over_target``), the rate over the whole
   campaign including the time between pokes, and dropped samples (controller-time gaps).
@@ -248,18 +251,22 @@ def _cpu_seconds(pid: int) -> float:
         return float('nan')
 
 
-def _load_test(clients: int, calls: int, service_pid: int, lanes: bool = False,
-               direct: bool = False) -> dict:
+def _load_test(clients: int, calls: int, service_pids, lanes: bool = False,
+               direct: bool = False, nodes=('contact_wrench',)) -> dict:
     """``clients`` processes x ``calls`` single queries, started together.
 
-    ``lanes``: client ``i`` calls ``/contact_wrench/lane_<i>/contact_wrench`` (the service's
+    ``lanes``: client ``i`` calls ``/<node>/lane_<i>/contact_wrench`` (the service's
     ``client_lanes``), else every client calls ``/contact_wrench/contact_wrench``. ``direct``:
-    the clients call through :class:`DirectClient`. Keys are prefixed ``load_``,
-    ``load_lanes_`` or ``load_direct_`` (lanes and direct clients).
+    the clients call through :class:`DirectClient`. ``nodes``: the contact service processes'
+    node names, client ``i`` on ``nodes[i % len(nodes)]`` (worker processes; their
+    ``service_pids`` are summed for the service's CPU). Keys are prefixed ``load_``,
+    ``load_lanes_``, ``load_direct_`` (lanes and direct clients) or ``load_procs_`` (lanes,
+    direct clients and more than one service process).
     """
-    prefix = 'load_direct_' if direct else 'load_lanes_' if lanes else 'load_'
+    prefix = ('load_procs_' if len(nodes) > 1 else 'load_direct_' if direct
+              else 'load_lanes_' if lanes else 'load_')
     procs = [_start('pointforce_ros.bringup.bench_ros', 'client', str(calls), str(i),
-                    f'/contact_wrench/lane_{i}/contact_wrench' if lanes
+                    f'/{nodes[i % len(nodes)]}/lane_{i}/contact_wrench' if lanes
                     else '/contact_wrench/contact_wrench', *(['direct'] if direct else []))
              for i in range(clients)]
     try:
@@ -267,14 +274,14 @@ def _load_test(clients: int, calls: int, service_pid: int, lanes: bool = False,
             line = proc.stdout.readline()
             if line.strip() != 'ready':
                 raise RuntimeError(f'load client did not start (said {line!r})')
-        service_cpu = _cpu_seconds(service_pid)
+        service_cpu = sum(_cpu_seconds(pid) for pid in service_pids)
         start = time.perf_counter()
         for proc in procs:
             proc.stdin.write('go\n')
             proc.stdin.flush()
         results = [json.loads(proc.stdout.readline()) for proc in procs]
         wall = time.perf_counter() - start
-        service_cpu = _cpu_seconds(service_pid) - service_cpu
+        service_cpu = sum(_cpu_seconds(pid) for pid in service_pids) - service_cpu
     finally:
         _stop(procs)
     times = [t for r in results for t in r['times']]
@@ -470,11 +477,20 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
         with InProcessLauncher(threads=2) as planner:
             trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
                                  Vector3, ContactWrenchBatch)
-        out.update(_load_test(load_clients, load_calls, services[0].pid))
-        out.update(_load_test(load_clients, load_calls, services[0].pid, lanes=True))
-        out.update(_load_test(load_clients, load_calls, services[0].pid, lanes=True,
-                              direct=True))
+        pids = [services[0].pid]
+        out.update(_load_test(load_clients, load_calls, pids))
+        out.update(_load_test(load_clients, load_calls, pids, lanes=True))
+        out.update(_load_test(load_clients, load_calls, pids, lanes=True, direct=True))
         out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
+        # a second worker process of the service (a node of its own name, the same model):
+        # half the clients on each
+        services.append(_start('pointforce_ros.nodes.contact_wrench', '--ros-args',
+                               '-r', '__node:=contact_wrench_1',
+                               '-p', f'model_dir:={work / "models"}',
+                               '-p', f'client_lanes:={max(load_clients, 2)}'))
+        out.update(_load_test(load_clients, load_calls, [s.pid for s in services[::2]],
+                              lanes=True, direct=True,
+                              nodes=('contact_wrench', 'contact_wrench_1')))
     finally:
         _stop(services)
     ros_batch = trips['ros_batch']

@@ -40,10 +40,11 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
     # the same load with each client on a service lane of its own (client_lanes)
     assert out['load_lanes_failures'] == 0 and out['load_lanes_clients'] == 2
     assert out['load_lanes_rtt_p99_ms'] >= out['load_lanes_rtt_p50_ms'] > 0
-    # and with the package's executor-free client
-    assert out['load_direct_failures'] == 0 and out['load_direct_clients'] == 2
-    assert out['load_direct_rtt_p99_ms'] >= out['load_direct_rtt_p50_ms'] > 0
-    for prefix in ('load_', 'load_lanes_', 'load_direct_'):   # CPU a call costs, per process
+    # and with the package's executor-free client, on one and on two service processes
+    for prefix in ('load_direct_', 'load_procs_'):
+        assert out[prefix + 'failures'] == 0 and out[prefix + 'clients'] == 2
+        assert out[prefix + 'rtt_p99_ms'] >= out[prefix + 'rtt_p50_ms'] > 0
+    for prefix in ('load_', 'load_lanes_', 'load_direct_', 'load_procs_'):   # CPU per call
         assert out[prefix + 'service_cpu_per_call_ms'] > 0
         assert out[prefix + 'client_cpu_per_call_ms'] > 0
     assert 50 < out['service_peak_rss_mb'] < 600    # issue 16: the service stays under 600 MB

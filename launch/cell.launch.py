@@ -11,10 +11,16 @@ reads ``params_file`` (``config/nodes.yaml`` by default: every parameter of the 
 launch arguments ``robot_ip`` and ``cloud_topic`` (for cloud_capture and deformation_force, which
 both read the camera), when given, override the file. Cross-node
 names are relative, so ``namespace:=cell1`` keeps the cell together next to another one.
+
+``contact_workers:=N`` (default 1) starts N-1 more contact_wrench processes, named
+``contact_wrench_1`` ... ``contact_wrench_<N-1>``, with the file's contact_wrench parameters:
+one process answers one query at a time, so more busy planners than one core can serve get a
+worker each (8 planners on two processes: ``pointforce bench ros``'s ``load_procs_*``).
 """
 
 import os
 
+import yaml
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
@@ -44,7 +50,20 @@ def _nodes(context, *args, **kwargs):
         nodes.append(Node(package='pointforce_ros', executable=executable, name=executable,
                           namespace=namespace, parameters=parameters, output='screen',
                           emulate_tty=True))
+    workers = int(LaunchConfiguration('contact_workers').perform(context))
+    for k in range(1, workers):
+        nodes.append(Node(package='pointforce_ros', executable='contact_wrench',
+                          name=f'contact_wrench_{k}', namespace=namespace,
+                          parameters=[_contact_parameters(params_file)], output='screen',
+                          emulate_tty=True))
     return nodes
+
+
+def _contact_parameters(params_file):
+    """Return the file's contact_wrench parameters (a worker's name does not match its key)."""
+    with open(params_file) as f:
+        content = yaml.safe_load(f) or {}
+    return dict(content.get('/**/contact_wrench', {}).get('ros__parameters', {}))
 
 
 def generate_launch_description():
@@ -61,5 +80,8 @@ def generate_launch_description():
         DeclareLaunchArgument('cloud_topic', default_value='',
                               description='PointCloud2 topic of the depth camera; empty: the '
                               'file\'s cloud_topic'),
+        DeclareLaunchArgument('contact_workers', default_value='1',
+                              description='contact_wrench processes (more: contact_wrench_<k>, '
+                              'for more busy planners than one process serves)'),
         OpaqueFunction(function=_nodes),
     ])

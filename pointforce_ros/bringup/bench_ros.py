@@ -71,6 +71,8 @@ from pointforce_ros.sim.rtde.process import start_emulator
 from pointforce_ros.types import ContactQuery, PokeGoal, Pose
 
 CENTRE = np.array([0.5, 0.0, 0.06])
+WORKER_NODES = ('contact_wrench', 'contact_wrench_1')
+"""Node names of the contact service's worker processes (the first serves every series)."""
 SPHERE_RADIUS, SPHERE_LEVEL = 0.02, 2
 
 
@@ -469,28 +471,26 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     server.answer_batch(query(poses))
     core_batch = time.perf_counter() - start
     # the services as deployed, each in its own process; this process is the planner
-    services = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args',
-                       '-p', f'model_dir:={work / "models"}',
-                       '-p', f'client_lanes:={max(load_clients, 2)}'),
-                _start('pointforce_ros.bringup.bench_ros', 'trigger')]
+    # (and a second worker process of the contact service for the last load run: the same
+    # node under another name, up as long as the first)
+    contact = [_start('pointforce_ros.nodes.contact_wrench', '--ros-args',
+                      *(['-r', f'__node:={name}'] if name != 'contact_wrench' else []),
+                      '-p', f'model_dir:={work / "models"}',
+                      '-p', f'client_lanes:={max(load_clients, 2)}')
+               for name in WORKER_NODES]
+    services = [*contact, _start('pointforce_ros.bringup.bench_ros', 'trigger')]
     try:
         with InProcessLauncher(threads=2) as planner:
             trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
                                  Vector3, ContactWrenchBatch)
-        pids = [services[0].pid]
+        pids = [contact[0].pid]
         out.update(_load_test(load_clients, load_calls, pids))
         out.update(_load_test(load_clients, load_calls, pids, lanes=True))
         out.update(_load_test(load_clients, load_calls, pids, lanes=True, direct=True))
-        out.update(service_peak_rss_mb=_peak_rss_mb(services[0].pid))
-        # a second worker process of the service (a node of its own name, the same model):
-        # half the clients on each
-        services.append(_start('pointforce_ros.nodes.contact_wrench', '--ros-args',
-                               '-r', '__node:=contact_wrench_1',
-                               '-p', f'model_dir:={work / "models"}',
-                               '-p', f'client_lanes:={max(load_clients, 2)}'))
-        out.update(_load_test(load_clients, load_calls, [s.pid for s in services[::2]],
-                              lanes=True, direct=True,
-                              nodes=('contact_wrench', 'contact_wrench_1')))
+        out.update(service_peak_rss_mb=_peak_rss_mb(contact[0].pid))
+        # both worker processes, half the clients on each
+        out.update(_load_test(load_clients, load_calls, [proc.pid for proc in contact],
+                              lanes=True, direct=True, nodes=WORKER_NODES))
     finally:
         _stop(services)
     ros_batch = trips['ros_batch']

@@ -120,8 +120,25 @@ def test_the_launch_file_starts_the_five_nodes_with_the_parameter_file():
     launch_args = {call.args[0].value for call in ast.walk(tree)
                    if isinstance(call, ast.Call) and getattr(call.func, 'id', '') ==
                    'DeclareLaunchArgument'}
-    assert launch_args == {'params_file', 'namespace', 'robot_ip', 'cloud_topic'}
+    assert launch_args == {'params_file', 'namespace', 'robot_ip', 'cloud_topic',
+                           'contact_workers'}
     node_calls = [call for call in ast.walk(tree) if isinstance(call, ast.Call)
                   and getattr(call.func, 'id', '') == 'Node']
     assert node_calls and {'package', 'executable', 'namespace', 'parameters'} <= {
         k.arg for k in node_calls[0].keywords}
+
+
+def test_a_launched_contact_worker_gets_the_files_contact_wrench_parameters(context):
+    tree = ast.parse(LAUNCH.read_text(), filename=str(LAUNCH))
+    function, = [f for f in tree.body if isinstance(f, ast.FunctionDef)
+                 and f.name == '_contact_parameters']
+    namespace = {'yaml': yaml}
+    exec(compile(ast.Module(body=[function], type_ignores=[]), str(LAUNCH), 'exec'), namespace)
+    values = namespace['_contact_parameters'](str(PARAMS))
+    assert values == _file_params()['contact_wrench'] and 'client_lanes' in values
+    worker = ContactWrenchNode(context=context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in values.items()])
+    try:   # every value is one the node takes (a bad one raises here)
+        assert worker.get_parameter('client_lanes').value == values['client_lanes']
+    finally:
+        worker.destroy_node()

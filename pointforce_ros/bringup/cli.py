@@ -5,8 +5,10 @@ sub-commands run without a ROS graph.
 """
 
 import argparse
+import contextlib
 import importlib
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Callable, Dict, List, Optional
@@ -41,11 +43,30 @@ def _load(target: str) -> Callable:
         raise PointforceError(f'{target} is not available in this build: {exc}') from exc
 
 
+@contextlib.contextmanager
+def _stdout_to_stderr():
+    """Send everything written to file descriptor 1 to 2 inside (libraries' prints too).
+
+    ``--json`` promises one JSON object per line on stdout; ur_rtde's C++ prints
+    ("Reconnecting...") and rclpy's would otherwise land between them.
+    """
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def _cmd_bench(args) -> int:
     names = list(BENCHMARKS) if args.name == 'all' else [args.name]
     for name in names:
         kwargs = QUICK.get(name, {'quick': True}) if args.quick else {}
-        result = _load(BENCHMARKS[name])(**kwargs)
+        with _stdout_to_stderr() if args.json else contextlib.nullcontext():
+            result = _load(BENCHMARKS[name])(**kwargs)
         result = {'benchmark': name, **result}
         if args.json:
             print(json.dumps(result, sort_keys=True))

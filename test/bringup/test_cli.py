@@ -1,6 +1,10 @@
 """The ``pointforce`` command line: every benchmark it names exists and takes its arguments."""
 
 import inspect
+import json
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
@@ -18,3 +22,28 @@ def test_every_benchmark_resolves_and_accepts_its_quick_arguments(name):
 def test_unknown_target_is_a_clear_error():
     with pytest.raises(cli.PointforceError, match='not available in this build'):
         cli._load('pointforce_ros.no_such_module:bench')
+
+
+def test_bench_json_keeps_stdout_to_the_json_lines_when_a_library_prints():
+    # a benchmark whose library writes to file descriptor 1 itself (ur_rtde's C++ prints
+    # "Reconnecting..." there), run as `pointforce bench NAME --json` would run it
+    code = textwrap.dedent('''
+        import os
+        from pointforce_ros.bringup import cli
+
+        def noisy(quick=False):
+            os.write(1, b'Reconnecting...\\n')
+            print('and a Python print')
+            return {'value': 1.5}
+
+        cli.BENCHMARKS['noisy'] = '__main__:noisy'
+        args = cli.build_parser().parse_args(['bench', 'contact', '--json'])
+        args.name = 'noisy'
+        raise SystemExit(cli._cmd_bench(args))
+    ''')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert [json.loads(line) for line in out.stdout.splitlines()] == [
+        {'benchmark': 'noisy', 'value': 1.5}]
+    assert 'Reconnecting...' in out.stderr and 'and a Python print' in out.stderr

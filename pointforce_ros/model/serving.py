@@ -36,9 +36,9 @@ from pointforce_ros.contact.uncertainty import SOURCE_KEYS, wrench_uncertainty
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
 from pointforce_ros.errors import InvalidInput, ModelNotReady
 from pointforce_ros.model.files import ContactModel, load_latest_model, load_model
+from pointforce_ros.response.blas import single_threaded_blas
 from pointforce_ros.rotations import quaternion_to_matrix
 from pointforce_ros.types import as_array, ContactQuery, Mesh, Pose
-from pointforce_ros.response.blas import single_threaded_blas
 
 BYTES_PER_SAMPLE_POSE = 256
 """Working memory of one rigid sample at one pose in the simulator's first pass, bytes.

@@ -316,10 +316,11 @@ class ContactWrenchNode(Node):
 def spin_single_threaded(node_factory, args=None) -> None:
     """Spin one node on a SingleThreadedExecutor, the Jazzy way (ros2/demos).
 
-    The contact service's executor: rclpy's MultiThreadedExecutor hands every callback to a
-    thread pool, which cost 1.8 ms more per round trip on this machine (loaded: 4.7 against
-    2.9 ms p50; the p99 of 8 load clients 82 against 52 ms). A batch's chunks still run on the
-    server's worker threads; while one batch is solved, single queries wait for it.
+    The contact node's executor runs its parameters, timers and model topic; its services are
+    answered on the node's own :class:`ServiceLoop` (rclpy's MultiThreadedExecutor, which hands
+    every callback to a thread pool, cost 1.8 ms more per round trip here when it answered
+    them). A batch's chunks run on the server's worker threads; while one batch is solved,
+    single queries wait for it.
     """
     use_package_dds_profile()   # before the first rclpy.init of the process
     rclpy.init(args=args)

@@ -6,6 +6,7 @@ Arrays are validated and made read-only on construction, so a record can be shar
 threads (the learner and the contact service) without copies.
 """
 
+import math
 from dataclasses import dataclass, field
 from typing import Mapping, Optional, Tuple
 
@@ -38,7 +39,10 @@ def as_array(value, name: str, shape: Tuple[Optional[int], ...], *, finite: bool
         if want is not None and want != got:
             raise InvalidInput(f'{name}: expected shape {_shape_text(shape)}, '
                                f'got {arr.shape} (axis {axis})')
-    if finite and arr.dtype.kind == 'f' and arr.size and not np.all(np.isfinite(arr)):
+    # a finite sum means every entry is finite (inf or NaN would carry through); only a sum
+    # that is not (a non-finite entry, or finite ones overflowing) pays for the full check
+    if (finite and arr.dtype.kind == 'f' and arr.size and not math.isfinite(arr.sum())
+            and not np.isfinite(arr).all()):
         bad = int(np.count_nonzero(~np.isfinite(arr)))
         raise InvalidInput(f'{name}: {bad} non-finite value(s) (NaN or inf)')
     arr.setflags(write=False)
@@ -157,7 +161,7 @@ class Pose:
     def __post_init__(self):
         position = as_array(self.position, 'Pose.position', (3,))
         quat = as_array(self.orientation, 'Pose.orientation', (4,))
-        norm = float(np.linalg.norm(quat))
+        norm = math.sqrt(float(quat @ quat))    # as np.linalg.norm computes it, less its overhead
         if abs(norm - 1.0) > 1e-3:
             raise InvalidInput(f'Pose.orientation: quaternion must be unit length, '
                                f'|q| = {norm:.4g}')

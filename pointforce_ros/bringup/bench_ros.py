@@ -11,6 +11,11 @@ Figures, each against a baseline measured in the same run:
 * small batches (``small_batch`` poses, p50 and p99) against the core's batch call, and the
   throughput of one large batch over ROS (poses/s) against the core (``batch_ros_over_core``);
 
+Single-query series are timed in bursts (``BURST`` calls back to back, as a planner scoring
+candidates sends them; the series' bursts alternate so all see the same load), and once more
+with the service idle for ``IDLE_S`` before each call (``single_rtt_after_idle_*``: a
+planner's occasional query; on this VM an idle virtual CPU takes up to a millisecond to come
+back).
 Round trips are timed by an event-driven client: the future's done callback sets a
 ``threading.Event`` the benchmark waits on (with a deadline), so no poll period is in the figure.
 The client spins on a ``SingleThreadedExecutor`` (as ``spin_until_future_complete`` does); the
@@ -74,6 +79,10 @@ CENTRE = np.array([0.5, 0.0, 0.06])
 WORKER_NODES = ('contact_wrench', 'contact_wrench_1')
 """Node names of the contact service's worker processes (the first serves every series)."""
 SPHERE_RADIUS, SPHERE_LEVEL = 0.02, 2
+BURST = 25
+"""Single queries each latency series sends back to back before the next series' turn."""
+IDLE_S = 0.01
+"""Idle time before each call of the ``single_rtt_after_idle`` series, seconds."""
 
 
 def _percentiles(values):
@@ -372,22 +381,33 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
         direct_trip(single_direct, _single_request(pose, flat))
         direct_trip(trigger_direct, Trigger.Request())
     rtt, msg_rtt, trigger_rtt, mt_rtt, mt_trigger_rtt = [], [], [], [], []
-    direct_rtt, direct_trigger_rtt = [], []
-    for pose in poses[:n_single]:   # interleaved: all see the same machine load
-        for client, mesh, times in ((single, flat, rtt), (single, as_msg, msg_rtt),
-                                    (single_mt, flat, mt_rtt)):
-            elapsed, resp = round_trip(client, _single_request(pose, mesh), 30,
-                                       'contact_wrench')
-            if not resp.success:
-                raise RuntimeError(f'contact_wrench refused: {resp.message}')
-            times.append(elapsed)
-        elapsed, resp = direct_trip(single_direct, _single_request(pose, flat))
+    direct_rtt, direct_trigger_rtt, idle_rtt = [], [], []
+
+    def contact(client, request):
+        elapsed, resp = (direct_trip(client, request) if client is single_direct
+                         else round_trip(client, request, 30, 'contact_wrench'))
         if not resp.success:
             raise RuntimeError(f'contact_wrench refused: {resp.message}')
-        direct_rtt.append(elapsed)
-        trigger_rtt.append(round_trip(trigger, Trigger.Request(), 30, 'trigger')[0])
-        mt_trigger_rtt.append(round_trip(trigger_mt, Trigger.Request(), 30, 'trigger')[0])
-        direct_trigger_rtt.append(direct_trip(trigger_direct, Trigger.Request())[0])
+        return elapsed
+    # Each series calls back to back within a block of BURST poses, as a planner scoring
+    # candidates does; the blocks of the series alternate, so all see the same machine load.
+    for s in range(0, n_single, BURST):
+        block = poses[s:min(s + BURST, n_single)]
+        for client, mesh, times in ((single, flat, rtt), (single, as_msg, msg_rtt),
+                                    (single_mt, flat, mt_rtt), (single_direct, flat, direct_rtt)):
+            requests = [_single_request(pose, mesh) for pose in block]
+            times.extend(contact(client, request) for request in requests)
+        for client, times in ((trigger, trigger_rtt), (trigger_mt, mt_trigger_rtt)):
+            times.extend(round_trip(client, Trigger.Request(), 30, 'trigger')[0]
+                         for _ in block)
+        direct_trigger_rtt.extend(direct_trip(trigger_direct, Trigger.Request())[0]
+                                  for _ in block)
+    # a planner's occasional query: the service idle for IDLE_S before each call (on a VM an
+    # idle virtual CPU takes its time to come back; the sleep is outside the timed call)
+    for pose in poses[:max(n_single // 5, 20)]:
+        request = _single_request(pose, flat)
+        time.sleep(IDLE_S)
+        idle_rtt.append(contact(single_direct, request))
     std_rtt = []
     for pose in poses[:max(n_single // 5, 20)]:   # with the wrench's standard deviation
         elapsed, resp = round_trip(single, _single_request(pose, flat, False), 30,
@@ -409,7 +429,7 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
     return dict(rtt=rtt, msg_rtt=msg_rtt, trigger_rtt=trigger_rtt, small_rtt=small_rtt,
                 ros_batch=ros_batch, std_rtt=std_rtt, mt_rtt=mt_rtt,
                 mt_trigger_rtt=mt_trigger_rtt, direct_rtt=direct_rtt,
-                direct_trigger_rtt=direct_trigger_rtt)
+                direct_trigger_rtt=direct_trigger_rtt, idle_rtt=idle_rtt)
 
 
 def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
@@ -505,6 +525,7 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     bc50, bc99 = _percentiles(core_small)
     d50, d99 = _percentiles(trips['direct_rtt'])
     dt50, dt99 = _percentiles(trips['direct_trigger_rtt'])
+    i50, i99 = _percentiles(trips['idle_rtt'])
     out.update(single_rtt_p50_ms=p50, single_rtt_p99_ms=p99, core_query_p50_ms=c50,
                core_query_p99_ms=c99, ros_rtt_over_core=p50 / c50,
                ros_overhead_p50_ms=p50 - c50, trigger_rtt_p50_ms=t50, trigger_rtt_p99_ms=t99,
@@ -515,6 +536,8 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
                single_rtt_direct_client_p50_ms=d50, single_rtt_direct_client_p99_ms=d99,
                ros_overhead_direct_client_p50_ms=d50 - c50,
                trigger_rtt_direct_p50_ms=dt50, trigger_rtt_direct_p99_ms=dt99,
+               single_rtt_after_idle_p50_ms=i50, single_rtt_after_idle_p99_ms=i99,
+               idle_before_call_ms=1e3 * IDLE_S, burst_calls=BURST,
                client_executor='SingleThreadedExecutor (the *_mt_client series: a '
                                '2-thread MultiThreadedExecutor; *_direct_client and '
                                'trigger_rtt_direct: DirectClient, no executor)',

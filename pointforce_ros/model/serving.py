@@ -324,15 +324,16 @@ class WrenchServer:
         known = self._known_mesh(query.mesh)
         chunk = self._admit(query.mesh, query.approach, query.torque_centre, simulator, bounds,
                             pose.position[None], pose.rotation()[None], known)
-        if known[2] is not None and known[2] is not query.mesh:
-            query = dataclasses.replace(query, mesh=known[2])   # its samples are cached
+        mesh = query.mesh if known[2] is None else known[2]   # its samples are cached
         if terms.compliance > 0:
-            shift = self._retreat(simulator, terms, query, query.poses[:1], chunk,
+            shift = self._retreat(simulator, terms,
+                                  _Batch(mesh, query.approach, query.torque_centre),
+                                  query.poses[:1], chunk,
                                   time.monotonic() + self.limits.max_seconds)[0]
             pose = Pose(position=pose.position - shift * normalise_approach(query.approach),
                         orientation=pose.orientation, frame=pose.frame)
         try:
-            result = simulator.query(query.mesh, pose, query.approach, query.torque_centre,
+            result = simulator.query(mesh, pose, query.approach, query.torque_centre,
                                      return_displacements=query.return_displacements)
         except InvalidInput as exc:
             if not str(exc).startswith('Wrench'):
@@ -477,21 +478,23 @@ class WrenchServer:
                                f'{per_pose / _MIB:.0f} MiB, above the service limit of '
                                f'{limits.max_memory / _MIB:.0f} MiB; send a smaller mesh')
         chunk = int(max(1, min(limits.chunk, limits.max_memory // (per_pose * self._workers))))
-        far = _box_distance(positions, bounds.lo, bounds.hi)
-        worst = int(np.argmax(far))
+        centre = np.asarray(torque_centre, dtype=np.float64)
+        # the poses' and the torque centre's distances from the object, in one pass
+        far = _box_distance(np.concatenate([positions, centre[None]]), bounds.lo, bounds.hi)
+        off = float(far[-1])
+        far = far[:-1]
+        worst = int(far.argmax())
         if not far[worst] <= limits.max_distance:
             raise InvalidInput(f'{_where(count, worst)}: position '
                                f'{np.array2string(positions[worst], precision=4)} m is '
                                f'{far[worst]:.3g} m from the object (limit '
                                f'{limits.max_distance:g} m); check the frame and units')
-        centre = np.asarray(torque_centre, dtype=np.float64)
-        off = float(_box_distance(centre[None], bounds.lo, bounds.hi)[0])
         if not off <= limits.max_distance:
             raise InvalidInput(f'torque_centre: {off:.3g} m from the object (limit '
                                f'{limits.max_distance:g} m); check the frame and units')
         with np.errstate(over='ignore'):
             arm = np.linalg.norm(positions - centre, axis=1)
-        worst = int(np.argmax(arm))
+        worst = int(arm.argmax())
         if not arm[worst] <= limits.max_torque_arm:
             raise InvalidInput(f'torque_centre: {arm[worst]:.3g} m from '
                                f'{_where(count, worst)} (limit {limits.max_torque_arm:g} m); '
@@ -573,8 +576,8 @@ class WrenchServer:
                 self._facing.clear()
             self._facing[id(proj)] = hit
         _, deepest, lo2, hi2 = hit
-        if not np.any(flagged) and (float(np.max(positions @ a)) + radius - deepest
-                                    <= self.limits.max_depth):
+        if not flagged.any() and (float((positions @ a).max()) + radius - deepest
+                                  <= self.limits.max_depth):
             return   # no vertex (within radius of its pose) can reach max_depth: a planner's
             # usual query, answered without the per-vertex pass (a tenth of a query's time)
         verts = mesh.vertices
@@ -616,8 +619,8 @@ class WrenchServer:
 
         """
         count = len(wrenches)
-        finite = np.all(np.isfinite(wrenches), axis=1) & np.isfinite(displacement)
-        if not np.all(finite):
+        finite = np.isfinite(wrenches).all(axis=1) & np.isfinite(displacement)
+        if not finite.all():
             i = int(np.flatnonzero(~finite)[0])
             raise InvalidInput(_NO_ANSWER.format(where=_where(count, i),
                                                  bad=int(np.sum(~finite)), count=count))
@@ -626,7 +629,7 @@ class WrenchServer:
         force = np.linalg.norm(wrenches[:, :3], axis=1)
         torque = np.linalg.norm(wrenches[:, 3:], axis=1)
         deep = np.asarray(displacement, dtype=np.float64) > self.limits.max_depth
-        if np.any(deep):
+        if deep.any():
             i = int(np.flatnonzero(deep)[0])
             raise InvalidInput(
                 f'{_where(count, i)}: the mesh presses the surface in by '
@@ -634,7 +637,7 @@ class WrenchServer:
                 'be inside the object; check the pose and the mesh')
         bad = (force > force_cap * (1 + 1e-6) + 1e-9) | (
             torque > force_cap * reach * (1 + 1e-6) + 1e-9)
-        if np.any(bad):
+        if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise InvalidInput(
                 f'{_where(count, i)}: the model cannot give this answer ({force[i]:.3g} N, '

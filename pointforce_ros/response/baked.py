@@ -104,14 +104,17 @@ class BakedResponse:
         indices = np.asarray(indices, dtype=np.int64)
         d = np.asarray(d, dtype=np.float64)
         grid = self.depths
-        k = np.clip(np.searchsorted(grid, d, side='right') - 1, 0, len(grid) - 2)
+        # ufuncs rather than np.clip / np.any: their wrappers cost more than the work on the
+        # tens of points of one planner query
+        k = np.minimum(np.maximum(np.searchsorted(grid, d, side='right') - 1, 0),
+                       len(grid) - 2)
         lo, hi = grid[k], grid[k + 1]
-        w = np.clip((d - lo) / (hi - lo), 0.0, 1.0)
+        w = np.minimum(np.maximum((d - lo) / (hi - lo), 0.0), 1.0)
         f0 = self.forces[indices, k]
         f1 = self.forces[indices, k + 1]
         out = f0 + w * (f1 - f0)
         above = d > grid[-1]
-        if np.any(above):
+        if above.any():
             out = np.where(above, self.forces[indices, -1]
                            + self.slopes[indices] * (d - grid[-1]), out)
         return out

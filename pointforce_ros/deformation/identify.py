@@ -45,6 +45,9 @@ class Poke:
         contact_point: (3,) contact point on the rest surface, metres, ``base``.
         force: (3,) measured force on the object (the F/T reading), newtons, ``base``.
         cloud: (P, 3) depth points of the object at that equilibrium, metres, ``base``.
+        tip: (3,) the probe tip (the arm's TCP) at that equilibrium, metres, ``base``, or
+            None (not needed by the identification; the fused force's point calibration
+            reads the point model at it, :mod:`.fusion`).
 
     Raises:
         InvalidInput: wrong shapes or non-finite values.
@@ -54,12 +57,15 @@ class Poke:
     contact_point: np.ndarray
     force: np.ndarray
     cloud: np.ndarray
+    tip: Optional[np.ndarray] = None
 
     def __post_init__(self):
         object.__setattr__(self, 'contact_point',
                            as_array(self.contact_point, 'Poke.contact_point', (3,)))
         object.__setattr__(self, 'force', as_array(self.force, 'Poke.force', (3,)))
         object.__setattr__(self, 'cloud', as_array(self.cloud, 'Poke.cloud', (None, 3)))
+        if self.tip is not None:
+            object.__setattr__(self, 'tip', as_array(self.tip, 'Poke.tip', (3,)))
 
 
 @dataclass(frozen=True)

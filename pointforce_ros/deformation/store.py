@@ -3,7 +3,9 @@
 A model file ``deformation-v<version>.npz`` holds the volume mesh, the identified material, the
 rest-scan offsets and the fit's figures; it is written atomically (a temporary file in the same
 folder, then ``os.replace``), so a reader sees the old file or the new one, never half of one,
-and versions only grow (:func:`save_model` picks the next). Units SI, frame ``base``.
+and versions only grow (:func:`save_model` picks the next). Units SI, frame ``base``. A model
+identified for the fused force also holds its :class:`.fusion.FusionData` (``fusion_*``
+arrays, same layout version); files written before it load with ``fusion`` None.
 
 :func:`ft_consistency` compares a camera-only force estimate with the F/T reading at the same
 instant: a broken, drifting or saturated F/T sensor shows up as a difference beyond their
@@ -19,6 +21,7 @@ import numpy as np
 
 from pointforce_ros.deformation.fem import CorotationalFem
 from pointforce_ros.deformation.force import ForceEstimate
+from pointforce_ros.deformation.fusion import FusionData
 from pointforce_ros.deformation.mesh import TetMesh
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.types import as_array
@@ -41,6 +44,8 @@ class DeformationModel:
         load_radius: load patch radius the model was identified with, metres.
         residual_rms: identification residual, metres.
         version: model version (0 until saved).
+        fusion: what the fused force needs from the identification pushes
+            (:func:`.fusion.fusion_data`), or None (a model identified before it).
 
     """
 
@@ -51,6 +56,7 @@ class DeformationModel:
     load_radius: float
     residual_rms: float = float('nan')
     version: int = 0
+    fusion: Optional[FusionData] = None
 
     def build(self) -> CorotationalFem:
         """Return the factorised FEM of this model."""
@@ -77,12 +83,18 @@ def save_model(folder: str, model: DeformationModel) -> str:
         path = os.path.join(folder, f'deformation-v{version}.npz')
         tmp = os.path.join(folder, f'.deformation-v{version}.tmp.npz')
         m = model.mesh
+        fusion = {}
+        if model.fusion is not None:
+            f = model.fusion
+            fusion = dict(fusion_spread=f.fem_spread, fusion_source=np.str_(f.spread_source),
+                          fusion_tips=f.tips, fusion_forces=f.forces, fusion_sites=f.sites,
+                          fusion_errors=f.errors, fusion_seconds=f.seconds)
         np.savez_compressed(
             tmp, format=FORMAT, version=version, nodes=m.nodes, tets=m.tets,
             fixed_nodes=m.fixed_nodes, surface_triangles=m.surface_triangles,
             element_size=m.element_size, young=np.asarray(model.young, dtype=float),
             poisson=model.poisson, rest_offset=model.rest_offset,
-            load_radius=model.load_radius, residual_rms=model.residual_rms)
+            load_radius=model.load_radius, residual_rms=model.residual_rms, **fusion)
         os.replace(tmp, path)
     except OSError as exc:
         raise DataError(f'cannot save the deformation model in {folder}: {exc}')
@@ -107,10 +119,17 @@ def load_model(path: str) -> DeformationModel:
                    surface_triangles=d['surface_triangles'],
                    element_size=float(d['element_size']))
     young = d['young']
+    fusion = None
+    if 'fusion_spread' in d:   # older files have none: the fused force then uses defaults
+        fusion = FusionData(fem_spread=float(d['fusion_spread']),
+                            spread_source=str(d['fusion_source']), tips=d['fusion_tips'],
+                            forces=d['fusion_forces'], sites=d['fusion_sites'],
+                            errors=d['fusion_errors'], seconds=float(d['fusion_seconds']))
     return DeformationModel(mesh=mesh, young=float(young) if young.ndim == 0 else young,
                             poisson=float(d['poisson']), rest_offset=d['rest_offset'],
                             load_radius=float(d['load_radius']),
-                            residual_rms=float(d['residual_rms']), version=int(d['version']))
+                            residual_rms=float(d['residual_rms']), version=int(d['version']),
+                            fusion=fusion)
 
 
 def load_latest(folder: str) -> Optional[DeformationModel]:

@@ -38,11 +38,28 @@ Thin wiring of the deformation wing (:mod:`pointforce_ros.deformation`, seed 001
   are named); the model is saved atomically as the next ``deformation-v<k>.npz`` in
   ``model_dir`` and used at once. The newest model file is loaded at start-up.
 - ``~/estimate_force`` (EstimateForce): the force at a contact point (``base``) that explains
-  the newest cloud, camera only, with residual and covariance.
+  the newest cloud, camera only, with residual and covariance; with ``use_tip`` the fused
+  force at that probe tip (below; refused, with the reason, without a point model, for a
+  non-finite tip, or a tip off or above the scanned surface: a client that asked for the fused
+  force never silently gets the FEM's).
 - While a poke runs, every new cloud gives a camera estimate on ``~/force`` (WrenchStamped,
   ``base``, force on the object) and a ``~/ft_consistency`` report (DiagnosticStatus: OK when
   camera and F/T agree within ``consistency_sigma`` of their combined uncertainty, ERROR when
   not, e.g. a saturated or broken F/T; WARN when no camera estimate could be made).
+- **Fused force** (issue 18, :mod:`pointforce_ros.deformation.fusion`): on a heterogeneous
+  object the FEM's magnitude is 30 % off while its direction holds. The node holds the
+  learner's point model (newest valid ``model-v*.npz`` of ``point_model_dir``, polled every
+  ``point_model_poll`` s, and the path the learner announces on ``stiffness_learner/model``;
+  a corrupt file is quarantined and logged, the last good model kept). Observations keep the
+  probe tip (the TCP) of their deepest state; ``~/identify`` also stores, from the
+  identification pushes only, their tips and F/T (the point model's depth offset is read
+  there, per point model version) and the FEM's magnitude error at a site it was not
+  identified on (``cross_validate_fem``: one more identification per site, each left out).
+  With a point model, ``~/force`` publishes the fused force (tip = the current TCP): the
+  point model's force at the tip's depth below its scan and the FEM's magnitude, averaged by
+  inverse variance along the FEM's direction; else (or when the fusion is refused) the
+  FEM's. ``~/ft_consistency`` checks the force published and reports both (``method``,
+  ``fem_magnitude_n``, ``point_magnitude_n``, ``fused_magnitude_n`` and their stds).
 
 Services never raise into rclpy: a missing model, surface or cloud, an empty or NaN cloud, a
 contact point off the surface (the wing's ``InvalidInput``), and any other exception
@@ -59,6 +76,7 @@ from pathlib import Path
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import EstimateForce, IdentifyDeformation
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -72,13 +90,16 @@ from msg_adapters.interfaces import fail
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_from_msg
 from pointforce_ros.deformation.fem import CorotationalFem
 from pointforce_ros.deformation.force import estimate_force, ForceConfig
+from pointforce_ros.deformation.fusion import (fuse_estimate, fused_covariance, fusion_data,
+                                               point_calibration)
 from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
 from pointforce_ros.deformation.mesh import volume_mesh_from_surface
 from pointforce_ros.deformation.observe import rest_offsets, RestFrames
 from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, load_latest,
                                               save_model)
 from pointforce_ros.errors import InvalidInput, PointforceError
-from pointforce_ros.model.files import load_surface
+from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
+                                        version_of_path)
 from pointforce_ros.nodes.common import declare, live, run
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
@@ -152,6 +173,18 @@ class DeformationForceNode(Node):
                               'reference when the next poke starts (the pushing camera\'s own '
                               'rest frames); 0: the merged rest surface', bounds=(0, 50),
                               read_only=True)
+        self.point_model_dir = declare(
+            self, 'point_model_dir', 'out/cell/models',
+            "The learner's model-v*.npz (its model_dir): the point model the fused force "
+            'uses (newest valid one, polled); empty: only models announced on '
+            'stiffness_learner/model', read_only=True)
+        poll = declare(self, 'point_model_poll', 2.0, 'Seconds between point_model_dir polls',
+                       bounds=(0.1, 600.0), read_only=True)
+        self.cross_validate = declare(
+            self, 'cross_validate_fem', True,
+            "~/identify measures the FEM's error at a site it was not identified on (the "
+            "fused force's FEM spread): one more identification per site; false: the sites' "
+            'modulus spread')
         # thresholds and sizes apply from the next message; paths, topic, frame, camera pose
         # and mesh settings are read-only (the mesh is built once per surface)
         live(self, {'consistency_sigma': lambda v: lambda: setattr(self, 'sigma', v),
@@ -161,7 +194,8 @@ class DeformationForceNode(Node):
                         lambda v: lambda: setattr(self, 'min_observation_force', v),
                     'landed_window': lambda v: lambda: setattr(self, 'landed_window', v),
                     'max_observations':
-                        lambda v: lambda: setattr(self, 'max_observations', v)})
+                        lambda v: lambda: setattr(self, 'max_observations', v),
+                    'cross_validate_fem': lambda v: lambda: setattr(self, 'cross_validate', v)})
         try:
             self.default_pose = Pose(position=pose7[:3], orientation=pose7[3:])
         except PointforceError as exc:
@@ -181,6 +215,9 @@ class DeformationForceNode(Node):
         self._scan_fem = None       # its model factorised at the reference nu (for identify)
         self._model = None
         self._fem = None
+        self._point = None          # the learner's point model (ContactModel), or None
+        self._calibration = None    # (deformation model, point version, DepthCalibration|None,
+        #                             note): the point model's depth offset for that pair
         self.clouds_received = 0
         self.estimates_published = 0
         self._load_model()
@@ -211,6 +248,12 @@ class DeformationForceNode(Node):
         self.create_service(EstimateForce, '~/estimate_force', self._on_estimate,
                             callback_group=work)
         self.create_service(Trigger, '~/observe', self._on_observe, callback_group=work)
+        loader = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(ModelStatus, 'stiffness_learner/model', self._on_point_model,
+                                 LATCHED, callback_group=loader)
+        if self.point_model_dir:
+            self._poll_point_models()
+            self.create_timer(poll, self._poll_point_models, callback_group=loader)
         self.get_logger().info(f'clouds on {self.cloud_topic}; model '
                                + (f'v{self._model.version}' if self._model else 'none yet'))
 
@@ -228,6 +271,79 @@ class DeformationForceNode(Node):
         except Exception as exc:  # noqa: BLE001 - start without a model, say why
             self.get_logger().error(f'cannot load a model from {self.model_dir}: '
                                     f'{_reason(exc)}')
+
+    def _poll_point_models(self):
+        """Swap in a newer valid point model of ``point_model_dir``.
+
+        Corrupt files are quarantined beside it and logged; the model held stays.
+        """
+        try:
+            held = -1 if self._point is None else self._point.version
+            found = load_latest_model(self.point_model_dir, newer_than=held,
+                                      log=self.get_logger().error)
+            if found is not None:
+                self._use_point_model(*found)
+        except Exception as exc:  # noqa: BLE001 - a timer callback must not end the executor
+            self.get_logger().error(f'cannot load a point model from {self.point_model_dir}: '
+                                    f'{_reason(exc)}', throttle_duration_sec=10.0)
+
+    def _on_point_model(self, msg: ModelStatus):
+        announced = max(msg.version, version_of_path(msg.model_path) or -1)
+        if not msg.model_path or (self._point is not None
+                                  and announced <= self._point.version):
+            return
+        try:
+            self._use_point_model(load_model(msg.model_path), msg.model_path)
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            self.get_logger().error(f'point model v{msg.version} at {msg.model_path} '
+                                    f'rejected, keeping the one held: {_reason(exc)}')
+
+    def _use_point_model(self, model, path):
+        if model.response.std is None:
+            self.get_logger().error(f'point model {path} has no predictive std (the fusion '
+                                    f'needs one): not used')
+            return
+        self._point = model
+        self.get_logger().info(f'point model v{model.version} from {path}: the fused force '
+                               f'is on')
+
+    def _fusable(self, tip):
+        """Return the point model if one is held and ``tip`` is finite; else raise."""
+        point = self._point
+        if point is None:
+            raise InvalidInput('use_tip: no point model loaded (point_model_dir '
+                               f'{self.point_model_dir or "empty"}, nor announced on '
+                               'stiffness_learner/model): ask without use_tip for the FEM force')
+        if tip is None or not np.all(np.isfinite(tip)):
+            raise InvalidInput(f'tip: need a finite probe tip in {self.frame}, m; got '
+                               f'{None if tip is None else np.asarray(tip).tolist()}')
+        return point
+
+    def _fuse(self, est, tip):
+        """``FusedForce`` of the FEM estimate ``est`` at ``tip``, and a note on its inputs.
+
+        Raises:
+            InvalidInput: no point model; the tip or the point model refused.
+
+        """
+        point, model = self._fusable(tip), self._model
+        fusion = model.fusion
+        cached = self._calibration
+        if cached is None or cached[0] is not model or cached[1] != point.version:
+            calibration, note = None, 'point model uncalibrated (no identification tips)'
+            if fusion is not None:
+                try:
+                    calibration = point_calibration(point, fusion)
+                    note = (f'point model depth offset {calibration.offset * 1e3:+.2f} +- '
+                            f'{calibration.std * 1e3:.2f} mm')
+                except PointforceError as exc:
+                    note = f'point model uncalibrated ({exc})'
+            cached = self._calibration = (model, point.version, calibration, note)
+        spread = fusion.fem_spread if fusion is not None else float('nan')
+        fused = fuse_estimate(est, tip, point, spread, calibration=cached[2])
+        source = fusion.spread_source if fusion is not None else 'none stored'
+        return fused, (f'{cached[3]}; FEM spread {spread:.2f} ({source}); point model '
+                       f'v{point.version}')
 
     def _set_surface(self, surface):
         mesh = volume_mesh_from_surface(surface.points, surface.normals,
@@ -358,17 +474,18 @@ class DeformationForceNode(Node):
             if repeat:
                 return
             contact, ft = self._contact, self._ft
+            tip = None if self._tcp is None else self._tcp[0].copy()
             if contact is None:
                 self._rest_frames.add(points)
             if contact is not None and len(points):
                 magnitude = float(np.linalg.norm(ft))
                 if self._candidate is None or magnitude >= self._candidate[0]:
                     try:
-                        self._candidate = (magnitude, Poke(contact, ft, points))
+                        self._candidate = (magnitude, Poke(contact, ft, points, tip=tip))
                     except PointforceError:
                         pass
         if contact is not None and self._fem is not None:
-            self._publish_estimate(contact, points, ft, stamp)
+            self._publish_estimate(contact, points, ft, stamp, tip)
 
     def _reference(self, mesh, fallback, fallback_name):
         """``(rest offsets (N,), what they are)`` on ``mesh``: the rest frames, else fallback."""
@@ -377,8 +494,11 @@ class DeformationForceNode(Node):
             return fallback, fallback_name
         return offset, f'{self._rest_frames.frozen} rest frame(s) of this camera'
 
-    def _publish_estimate(self, contact, points, ft, stamp):
-        """Camera estimate on ``~/force``, its agreement with the F/T on ``~/ft_consistency``."""
+    def _publish_estimate(self, contact, points, ft, stamp, tip):
+        """Publish the camera estimate on ``~/force``, its F/T check on ``~/ft_consistency``.
+
+        The estimate is fused at ``tip`` with a point model when one is held, else the FEM's.
+        """
         status = DiagnosticStatus(name=f'{self.get_name()}: camera vs F/T force',
                                   hardware_id='ft_sensor')
         try:
@@ -387,6 +507,16 @@ class DeformationForceNode(Node):
                                                 "the model's stored reference")
             est = estimate_force(self._fem, contact, points,
                                  ForceConfig(load_radius=model.load_radius), rest_offset=offset)
+            fem = est
+            fused, method, note = None, 'fem', 'no point model'
+            if self._point is not None:
+                try:
+                    fused, note = self._fuse(est, tip)
+                    method = 'fused'
+                    est = replace(est, force=fused.force, covariance=fused_covariance(est, fused))
+                except Exception as exc:  # noqa: BLE001 - the FEM's force is still published
+                    note = f'fusion refused, FEM force published: {_reason(exc)}'
+            fem_std = fem.magnitude_std if fused is None else fused.fem_std
             out = WrenchStamped()
             out.header.frame_id = self.frame
             sec_to_stamp(stamp, out.header.stamp)
@@ -405,7 +535,22 @@ class DeformationForceNode(Node):
                              KeyValue(key='camera_magnitude_std_n',
                                       value=f'{est.magnitude_std:.4f}'),
                              KeyValue(key='residual_rms_m', value=f'{est.residual_rms:.3g}'),
-                             KeyValue(key='reference', value=reference)]
+                             KeyValue(key='reference', value=reference),
+                             KeyValue(key='method', value=method),
+                             KeyValue(key='fusion', value=note),
+                             KeyValue(key='fem_magnitude_n',
+                                      value=f'{np.linalg.norm(fem.force):.4f}'),
+                             KeyValue(key='fem_magnitude_std_n', value=f'{fem_std:.4f}'),
+                             KeyValue(key='point_magnitude_n',
+                                      value='nan' if fused is None
+                                      else f'{fused.point_magnitude:.4f}'),
+                             KeyValue(key='point_magnitude_std_n',
+                                      value='nan' if fused is None else f'{fused.point_std:.4f}'),
+                             KeyValue(key='fused_magnitude_n',
+                                      value='nan' if fused is None
+                                      else f'{np.linalg.norm(fused.force):.4f}'),
+                             KeyValue(key='fused_magnitude_std_n',
+                                      value='nan' if fused is None else f'{fused.std:.4f}')]
         except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
             status.level = DiagnosticStatus.WARN
             status.message = f'no camera estimate for this cloud: {_reason(exc)}'
@@ -430,9 +575,10 @@ class DeformationForceNode(Node):
                 if contact is None:
                     raise InvalidInput(f'no poke is running (F/T force on the object below '
                                        f'{self.contact_force:g} N): nothing to observe')
+                tip = None if self._tcp is None else self._tcp[0].copy()
                 self._count += 1
                 name = f'observe-{self._count}'
-                self._add_observation(name, Poke(contact, ft, points))
+                self._add_observation(name, Poke(contact, ft, points, tip=tip))
             response.success, response.message = True, name
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             fail(response, _reason(exc))
@@ -464,11 +610,14 @@ class DeformationForceNode(Node):
             offset, reference = self._reference(mesh, offset, 'merged rest surface')
             config = IdentifyConfig()
             warm = scanned is not None and scanned.mesh is mesh
-            fit, fem = identify_elasticity(mesh, [held[n] for n in names], config,
-                                           rest_offset=offset, fem=scanned if warm else None)
+            pokes = [held[n] for n in names]
+            fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset,
+                                           fem=scanned if warm else None)
+            fusion, fusion_note = fusion_data(mesh, pokes, fit, config, rest_offset=offset,
+                                              cross=self.cross_validate)
             model = DeformationModel(mesh=mesh, young=fit.young, poisson=fit.poisson,
                                      rest_offset=offset, load_radius=config.load_radius,
-                                     residual_rms=fit.residual_rms)
+                                     residual_rms=fit.residual_rms, fusion=fusion)
             where = 'kept in memory (model_dir is empty)'
             if self.model_dir:
                 path = save_model(self.model_dir, model)
@@ -485,7 +634,8 @@ class DeformationForceNode(Node):
                                 + (' from the scan-time model' if warm else '')
                                 + f'; reference: {reference}; nu interval '
                                 f'{fit.poisson_interval[0]:.3f}-'
-                                f'{fit.poisson_interval[1]:.3f}; {where}')
+                                f'{fit.poisson_interval[1]:.3f}; fused force: {fusion_note} '
+                                f'in {fusion.seconds:.2f} s; {where}')
             self.get_logger().info(response.message)
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             fail(response, _reason(exc))
@@ -498,12 +648,25 @@ class DeformationForceNode(Node):
             if self._fem is None:
                 raise InvalidInput('no deformation model: call ~/identify or put a '
                                    'deformation-v*.npz in model_dir')
+            if request.use_tip:
+                self._fusable(vec(request.tip))   # refused before any work
             points = self._latest_cloud()
             model = self._model
             offset, reference = self._reference(model.mesh, model.rest_offset,
                                                 "the model's stored reference")
             est = estimate_force(self._fem, vec(request.contact_point), points,
                                  ForceConfig(load_radius=model.load_radius), rest_offset=offset)
+            fem, fused, note = est, None, ''
+            if request.use_tip:
+                fused, note = self._fuse(est, vec(request.tip))
+                est = replace(est, force=fused.force, covariance=fused_covariance(est, fused))
+            response.method = 'fem' if fused is None else 'fused'
+            response.fem_magnitude = float(np.linalg.norm(fem.force))
+            response.fem_magnitude_std = float(fem.magnitude_std if fused is None
+                                               else fused.fem_std)
+            response.point_magnitude = float('nan') if fused is None else fused.point_magnitude
+            response.point_magnitude_std = float('nan') if fused is None else fused.point_std
+            response.point_weight = 0.0 if fused is None else float(fused.point_weight)
             response.success = True
             response.wrench.header.frame_id = self.frame
             response.wrench.header.stamp = self.get_clock().now().to_msg()
@@ -511,12 +674,17 @@ class DeformationForceNode(Node):
             f.x, f.y, f.z = (float(v) for v in est.force)
             response.residual_rms = float(est.residual_rms)
             response.covariance = [float(v) for v in np.asarray(est.covariance).ravel()]
-            response.magnitude_std = float(est.magnitude_std)
+            response.magnitude_std = float(est.magnitude_std if fused is None else fused.std)
             response.points = int(est.points)
-            response.message = (f'|F| {np.linalg.norm(est.force):.3f} +- '
-                                f'{est.magnitude_std:.3f} N from {est.points} points '
+            response.message = (f'{response.method}: |F| {np.linalg.norm(est.force):.3f} +- '
+                                f'{response.magnitude_std:.3f} N from {est.points} points '
                                 f'(model v{model.version}; reference: {reference}) in '
                                 f'{est.seconds * 1e3:.0f} ms')
+            if fused is not None:
+                response.message += (f'; FEM {fused.fem_magnitude:.3f} +- {fused.fem_std:.3f} N, '
+                                     f'point model {fused.point_magnitude:.3f} +- '
+                                     f'{fused.point_std:.3f} N (weight '
+                                     f'{fused.point_weight:.2f}); {note}')
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             fail(response, _reason(exc))
             self.get_logger().warn(f'estimate_force refused: {response.message}',

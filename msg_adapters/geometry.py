@@ -5,6 +5,7 @@ degenerate mesh in a request becomes :class:`~pointforce_ros.errors.InvalidInput
 """
 
 import array
+import math
 
 import numpy as np
 from geometry_msgs.msg import (Point, Pose as PoseMsg, PoseStamped, Quaternion, Vector3,
@@ -54,7 +55,7 @@ def pose_from_msg(msg: PoseMsg, frame: str = 'base') -> Pose:
 
     """
     q = np.array([msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w])
-    if np.all(q == 0.0):
+    if not q.any():
         q = np.array([0.0, 0.0, 0.0, 1.0])
     return Pose(position=vec(msg.position), orientation=q, frame=frame)
 
@@ -187,8 +188,8 @@ def mesh_to_msg(mesh: Mesh) -> MeshMsg:
 def unit_vector(msg: Vector3, name: str) -> np.ndarray:
     """(3,) unit vector from a Vector3, or :class:`InvalidInput` if NaN or not unit length."""
     v = vec(msg)
-    norm = float(np.linalg.norm(v))
-    if not np.all(np.isfinite(v)) or abs(norm - 1.0) > 1e-3:
+    norm = math.sqrt(float(v @ v))   # np.linalg.norm's sum; not finite if any entry is not
+    if not math.isfinite(norm) or abs(norm - 1.0) > 1e-3:
         raise InvalidInput(f'{name}: must be a finite unit vector, got ({v[0]:.4g}, {v[1]:.4g}, '
                            f'{v[2]:.4g}) with length {norm:.4g}')
     return v / norm

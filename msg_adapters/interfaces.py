@@ -17,7 +17,7 @@ from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch, Suggest
 from std_msgs.msg import Header
 
 from msg_adapters.geometry import (mesh_from_flat, mesh_from_msg, pose_from_msg, to_point,
-                                   to_vector3, unit_vector, vec, wrench_to_msg)
+                                   to_vector3, unit_vector, vec)
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import ContactQuery, Mesh, PokeGoal
 
@@ -140,7 +140,9 @@ def fill_contact_response(resp: ContactWrench.Response, result, model_version: i
     """Write a core contact result into a ContactWrench response (success=True)."""
     resp.success = True
     resp.message = ''
-    resp.wrench = wrench_to_msg(result.wrench)
+    force, torque = resp.wrench.force, resp.wrench.torque   # in place: no message built
+    force.x, force.y, force.z = (float(c) for c in result.wrench.force)
+    torque.x, torque.y, torque.z = (float(c) for c in result.wrench.torque)
     resp.contact_count = int(result.contact_count)
     resp.max_displacement = float(result.max_displacement)
     resp.model_version = int(model_version)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pointforce_ros.deformation.force import estimate_force
+from pointforce_ros.deformation.fusion import FusionData
 from pointforce_ros.deformation.mesh import block_mesh, volume_mesh_from_surface
 from pointforce_ros.deformation.observe import rest_offsets
 from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, load_latest,
@@ -36,6 +37,27 @@ def test_model_round_trip_is_versioned(tmp_path):
         fh.write(b'not a model')
     with pytest.raises(DataError):
         load_model(first)
+
+
+def test_fusion_data_round_trips_and_a_file_without_it_still_loads(tmp_path):
+    mesh = block_mesh((0.02, 0.02, 0.01), 0.005, 2)
+    data = FusionData(fem_spread=0.55, spread_source='cross-site',
+                      tips=np.array([[0.5, 0.0, 0.037], [np.nan, np.nan, np.nan]]),
+                      forces=np.array([0.9, 2.0]), sites=np.array([0, 1]),
+                      errors=np.array([0.5, -0.6]), seconds=1.25)
+    model = DeformationModel(mesh=mesh, young=4.2e4, poisson=0.37,
+                             rest_offset=np.zeros(mesh.n_nodes), load_radius=0.004,
+                             fusion=data)
+    back = load_model(save_model(str(tmp_path), model)).fusion
+    assert (back.fem_spread, back.spread_source, back.seconds) == (0.55, 'cross-site', 1.25)
+    np.testing.assert_array_equal(back.tips, data.tips)
+    np.testing.assert_array_equal(back.sites, data.sites)
+    np.testing.assert_array_equal(back.errors, data.errors)
+    # a file written before the fused force (no fusion_* arrays) loads with fusion None
+    old = dict(np.load(save_model(str(tmp_path), model)))
+    old = {k: v for k, v in old.items() if not k.startswith('fusion_')}
+    np.savez_compressed(tmp_path / 'deformation-v3.npz', **old)
+    assert load_latest(str(tmp_path)).fusion is None
 
 
 def test_a_saturated_ft_stream_is_flagged():

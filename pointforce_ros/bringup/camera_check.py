@@ -10,8 +10,18 @@ that camera's rest frames as the residual's reference, and hands them to
 
 Demo use (inside ``with CellSession(...) as cell``)::
 
-    check = camera_force_check(cell)
-    print(f'[demo] {check.line()}')
+    for line in camera_force_checks(cell).lines():
+        print(f'[demo] {line}')
+
+With the learner's point model (the one the cell's ``deformation_force`` node holds), the
+held-out push's force is also fused as the node fuses it (issue 18,
+:func:`pointforce_ros.deformation.fusion.fuse_estimate`: the point model's force at the probe
+tip's depth below its scan, the FEM's magnitude, inverse variance along the FEM's direction),
+and that is the force printed against the F/T, the FEM's beside it. The check identifies on
+one site, so the FEM's spread is the node's one-site default
+(:data:`~pointforce_ros.deformation.fusion.DEFAULT_FEM_SPREAD`) and the point model is not
+calibrated (that needs two identification sites): weaker than the node after ``~/identify``
+on pokes at several sites.
 
 The same check without the rest of the demo (the cell's camera as the demo builds it: the
 scenario's camera on the ring of ``views`` viewpoints at 0.35 m around the object's top
@@ -26,14 +36,17 @@ In ``pointforce demo --quick --object foam_block --camera-check``: 5.2 % and 2.1
 """
 
 import argparse
-from dataclasses import replace
+from dataclasses import dataclass, replace
 import time
-from typing import Optional, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 
 from pointforce_ros.deformation.cell_check import CameraForceCheck, check_from_views
-from pointforce_ros.errors import InvalidInput
+from pointforce_ros.deformation.fused import FusedForce
+from pointforce_ros.deformation.fusion import DEFAULT_FEM_SPREAD, fuse_estimate
+from pointforce_ros.errors import InvalidInput, PointforceError
+from pointforce_ros.model.files import load_latest_model
 from pointforce_ros.rotations import quaternion_to_matrix
 from pointforce_ros.sim.fem.live import POINT_PROBE
 from pointforce_ros.sim.fem.probes import point_probe, pose_for_push
@@ -75,12 +88,86 @@ def render_view(camera, pose, vertices, triangles, occluder=None):
     return frame.points[keep] @ pose[:3, :3].T + pose[:3, 3], normal
 
 
+@dataclass(frozen=True)
+class ForceChecks:
+    """The camera check's FEM force and, with a point model, the fused one, against the F/T.
+
+    Attributes:
+        fem: the camera-only FEM estimate against the F/T.
+        fused: the fused estimate against the same F/T (``camera_force`` the fused force,
+            ``camera_std`` its std), or None (no point model, or the fusion refused).
+        fusion: the fusion's figures (FEM, point model, weight), or None.
+        note: why there is no fused estimate, or what it was made with.
+
+    """
+
+    fem: CameraForceCheck
+    fused: Optional[CameraForceCheck] = None
+    fusion: Optional[FusedForce] = None
+    note: str = ''
+
+    def lines(self) -> List[str]:
+        """Printable lines: the fused force against the F/T first when there is one."""
+        if self.fused is None:
+            return [self.fem.line()] + ([f'(no fused force: {self.note})'] if self.note else [])
+        f = self.fusion
+        return [f'fused camera force: {self.fused.line()}',
+                f'  (FEM alone {f.fem_magnitude:.2f} +- {f.fem_std:.2f} N, magnitude error '
+                f'{100 * self.fem.magnitude_error:.1f} %; point model {f.point_magnitude:.2f} +- '
+                f'{f.point_std:.2f} N, weight {f.point_weight:.2f}; {self.note})']
+
+
+def fuse_check(check: CameraForceCheck, tip, point_model) -> ForceChecks:
+    """Fuse the check's FEM estimate with ``point_model`` at ``tip``, as the node does.
+
+    One identification site: the FEM's spread is
+    :data:`~pointforce_ros.deformation.fusion.DEFAULT_FEM_SPREAD` and the point model is not
+    calibrated. A refused fusion is reported in ``note``, not raised.
+    """
+    if point_model is None:
+        return ForceChecks(fem=check, note='no point model held by deformation_force')
+    estimate = _Estimate(check.camera_force, check.camera_std)
+    try:
+        fused = fuse_estimate(estimate, tip, point_model, DEFAULT_FEM_SPREAD)
+    except PointforceError as exc:
+        return ForceChecks(fem=check, note=f'fusion refused: {exc}')
+    return ForceChecks(fem=check, fused=replace(check, camera_force=fused.force,
+                                                camera_std=fused.std),
+                       fusion=fused, note=f'point model v{getattr(point_model, "version", "?")}, '
+                       f'uncalibrated, FEM spread {DEFAULT_FEM_SPREAD:.2f} (one site)')
+
+
+@dataclass(frozen=True)
+class _Estimate:
+    """The FEM check as :func:`fuse_estimate` reads an estimate (force and magnitude std)."""
+
+    force: np.ndarray
+    magnitude_std: float
+
+
 def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: float = 0.005,
                           identify_offset=(-0.010, 0.006), estimate_offset=(0.010, -0.006),
                           element_size: float = 0.004, truth_h: float = 0.002,
                           frames: int = FRAMES, field: bool = False, field_samples=None
                           ) -> CameraForceCheck:
     """Identify on one static push, estimate the force of another from the camera alone.
+
+    :func:`camera_force_checks_on` with no point model: the FEM check alone.
+    """
+    return camera_force_checks_on(spec, camera, poses, depth, identify_offset,
+                                  estimate_offset, element_size, truth_h, frames, field,
+                                  field_samples).fem
+
+
+def camera_force_checks_on(spec, camera, poses: Sequence[np.ndarray], depth: float = 0.005,
+                           identify_offset=(-0.010, 0.006), estimate_offset=(0.010, -0.006),
+                           element_size: float = 0.004, truth_h: float = 0.002,
+                           frames: int = FRAMES, field: bool = False, field_samples=None,
+                           point_model=None) -> ForceChecks:
+    """Identify on one static push, estimate the force of another from the camera alone.
+
+    With ``point_model`` the held-out push's estimate is also fused at its probe tip
+    (:func:`fuse_check`).
 
     Args:
         spec: the cell's object (:class:`pointforce_ros.sim.objects.ObjectSpec`).
@@ -98,6 +185,7 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
         field: identify a heterogeneous modulus field seeded by the pushes' own moduli.
         field_samples: ``(xy (n, 2) m, stiffness (n,))`` to seed the field instead (a learned
             point model's force at one depth over the surface, for instance).
+        point_model: the learner's point model (``surface``, ``response`` with std), or None.
 
     Raises:
         InvalidInput: no viewpoint, a non-positive depth, or a push the truth cannot solve.
@@ -123,6 +211,7 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
                          for _ in range(int(frames) - 1)])
     steps = np.linspace(0.0, depth, 6)[1:]
     states = []  # per push: [(contact point, force on the object, cloud)] per kept depth
+    tip = None   # the held-out push's probe tip (the arm's TCP)
     for off, keep in ((identify_offset, (2, 4)), (estimate_offset, (4,))):
         x, y = spec.centre[0] + off[0], spec.centre[1] + off[1]
         q = np.asarray(spec.top_point(x, y), dtype=float)
@@ -137,11 +226,36 @@ def camera_force_check_on(spec, camera, poses: Sequence[np.ndarray], depth: floa
                 [render_view(camera, poses[0], res.surface[k], tris, occluder)[0]
                  for _ in range(int(frames))])
             kept.append((q, -res.force[k], cloud))
+            tip = q + steps[k] * d
         states.append(kept)
-    return check_from_views(rest, rest_normals, states[0], states[1][0],
-                            np.asarray(poses[0])[:3, 3], element_size=element_size,
-                            depth=float(depth), started=t0, view_rest=view_rest, field=field,
-                            field_samples=field_samples)
+    check = check_from_views(rest, rest_normals, states[0], states[1][0],
+                             np.asarray(poses[0])[:3, 3], element_size=element_size,
+                             depth=float(depth), started=t0, view_rest=view_rest, field=field,
+                             field_samples=field_samples)
+    return fuse_check(check, tip, point_model)
+
+
+def camera_force_checks(cell, depth: float = 0.005) -> ForceChecks:
+    """Run :func:`camera_force_checks_on` on a running simulated cell, with its point model.
+
+    The point model is the one the cell's ``deformation_force`` node holds (the learner's,
+    announced on its model topic), if any.
+
+    Raises:
+        InvalidInput: as :func:`camera_force_check`.
+
+    """
+    node = getattr(cell, 'deformation_node', None)
+    point_model = getattr(node, 'point_model', None)
+    _require_sim(cell)
+    return camera_force_checks_on(cell.spec.spec, cell.camera.camera, cell.camera.poses, depth,
+                                  point_model=point_model)
+
+
+def _require_sim(cell):
+    if getattr(cell, 'spec', None) is None or getattr(cell, 'camera', None) is None:
+        raise InvalidInput('camera_force_check: needs the simulated object and camera; on a '
+                           'real cell call /deformation_force/estimate_force during a push')
 
 
 def camera_force_check(cell, depth: float = 0.005) -> CameraForceCheck:
@@ -157,11 +271,8 @@ def camera_force_check(cell, depth: float = 0.005) -> CameraForceCheck:
             node's ``~/estimate_force`` runs on the real camera's clouds).
 
     """
-    sim_camera = getattr(cell, 'camera', None)
-    if getattr(cell, 'spec', None) is None or sim_camera is None:
-        raise InvalidInput('camera_force_check: needs the simulated object and camera; on a '
-                           'real cell call /deformation_force/estimate_force during a push')
-    return camera_force_check_on(cell.spec.spec, sim_camera.camera, sim_camera.poses, depth)
+    _require_sim(cell)
+    return camera_force_check_on(cell.spec.spec, cell.camera.camera, cell.camera.poses, depth)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -172,15 +283,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument('--views', type=int, default=2, help='camera viewpoints on the ring')
     ap.add_argument('--distance', type=float, default=0.35, help='camera distance, m')
     ap.add_argument('--depth', type=float, default=0.005, help='push depth past contact, m')
+    ap.add_argument('--point-model', help="the learner's model folder (model-v*.npz): also "
+                    'print the fused force (issue 18)')
     args = ap.parse_args(argv)
+    point_model = None
+    if args.point_model:
+        found = load_latest_model(args.point_model)
+        if found is None:
+            raise SystemExit(f'no valid model-v*.npz in {args.point_model}')
+        point_model = found[0]
     spec = load_object(args.object)
     mesh, _ = spec.surface_mesh()
     lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
     target = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]]   # as the cell's camera
     camera = DepthCamera(**load_scenario(args.scenario).camera_kwargs())
     poses = ring_viewpoints(target, args.distance, count=args.views)
-    check = camera_force_check_on(spec, camera, poses, args.depth)
-    print(f'[camera-check] {args.object}, {args.scenario}: {check.line()}', flush=True)
+    checks = camera_force_checks_on(spec, camera, poses, args.depth, point_model=point_model)
+    for line in checks.lines():
+        print(f'[camera-check] {args.object}, {args.scenario}: {line}', flush=True)
     return 0
 
 

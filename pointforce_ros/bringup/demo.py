@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup import plots
-from pointforce_ros.bringup.camera_check import camera_force_check
+from pointforce_ros.bringup.camera_check import camera_force_checks
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.bringup.domain import private_domain
 from pointforce_ros.contact.sampling import sample_mesh_surface
@@ -539,7 +539,8 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
             _report(what, summary, len(queries))
         if camera_check:
             try:  # seed 001: the contact force from the camera alone, against the F/T
-                print(f'[demo] {camera_force_check(cell).line()}')
+                for line in camera_force_checks(cell).lines():  # fused with a point model
+                    print(f'[demo] {line}')
             except PointforceError as exc:
                 print(f'[demo] no camera-only force estimate: {exc}')
         learner = cell.learner_node.learner

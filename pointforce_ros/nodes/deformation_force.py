@@ -257,6 +257,11 @@ class DeformationForceNode(Node):
         self.get_logger().info(f'clouds on {self.cloud_topic}; model '
                                + (f'v{self._model.version}' if self._model else 'none yet'))
 
+    @property
+    def point_model(self):
+        """The learner's point model the fused force uses (ContactModel), or None."""
+        return self._point
+
     # ------------------------------------------------------------------ model and surface
     def _load_model(self):
         if not self.model_dir:

@@ -6,13 +6,15 @@ import numpy as np
 import pytest
 
 from pointforce_ros.bringup import camera_check
-from pointforce_ros.deformation.cell_check import (contact_on_scan, direction_std_deg,
-                                                   seeded_field)
+from pointforce_ros.deformation.cell_check import (CameraForceCheck, contact_on_scan,
+                                                   direction_std_deg, seeded_field)
 from pointforce_ros.deformation.identify import Poke
 from pointforce_ros.deformation.mesh import block_mesh
 from pointforce_ros.errors import InvalidInput
+from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints
 from pointforce_ros.sim.objects import load_object
+from pointforce_ros.types import Surface
 
 
 def _glue():
@@ -63,6 +65,33 @@ def test_a_cell_without_a_simulated_camera_is_refused():
 
     with pytest.raises(InvalidInput, match='simulated object and camera'):
         _glue().camera_force_check(RealCell())
+
+
+def test_the_demo_check_prints_the_fused_force_against_the_ft_with_a_point_model():
+    # a flat scanned top and a point law that says 1.0 N at the tip; the FEM says 2.0 N
+    g = np.arange(-0.02, 0.0201, 0.002)
+    xy = np.stack(np.meshgrid(g, g, indexing='ij'), -1).reshape(-1, 2) + [0.5, 0.0]
+    surface = Surface(np.column_stack([xy, np.full(len(xy), 0.04)]),
+                      np.tile([0.0, 0.0, 1.0], (len(xy), 1)))
+    depths = np.linspace(-0.002, 0.01, 25)
+    forces = np.tile(250.0 * np.clip(depths, 0.0, None), (len(xy), 1))    # 1 N at 4 mm
+    response = BakedResponse(depths=depths, forces=forces, slopes=np.full(len(xy), 250.0),
+                             std=0.05 * forces + 1e-3)
+    model = SimpleNamespace(surface=surface, response=response, version=4)
+    check = CameraForceCheck(camera_force=np.array([0.0, 0.0, -2.0]), camera_std=0.1,
+                             ft_force=np.array([0.0, 0.0, -1.0]),
+                             contact_point=np.array([0.5, 0.0, 0.04]), depth=0.004,
+                             young=5e4, poisson=0.3, seconds=1.0, estimate_seconds=0.1)
+    tip = np.array([0.5, 0.0, 0.036])
+    checks = _glue().fuse_check(check, tip, model)
+    assert checks.fused.magnitude_error < 0.15 < checks.fem.magnitude_error
+    lines = checks.lines()
+    assert lines[0].startswith('fused camera force') and 'FEM alone 2.00' in lines[1]
+    assert 'point model v4, uncalibrated' in lines[1]
+    assert _glue().fuse_check(check, tip, None).lines() == [
+        check.line(), '(no fused force: no point model held by deformation_force)']
+    refused = _glue().fuse_check(check, tip + [0.0, 0.0, 0.02], model)
+    assert refused.fused is None and 'above the scanned surface' in refused.note
 
 
 def test_direction_std_of_an_isotropic_covariance_is_sigma_over_the_force():

@@ -415,7 +415,8 @@ def _relative_error(sim, poke) -> float:
 
 def calibrate_shape(simulator, pokes: Sequence[tuple],
                     decays: Optional[Sequence[float]] = DECAY_GRID,
-                    c_bounds: Tuple[float, float] = (1e-4, 0.1)) -> ShapeCalibration:
+                    c_bounds: Tuple[float, float] = (1e-4, 0.1),
+                    decay_law: Optional[str] = None) -> ShapeCalibration:
     """Identify ``(c, L)`` from calibration pushes with the wrench's uncertainty sources.
 
     The joint fit is :func:`identify_shape_constant_from_probes`. Its residual and its
@@ -440,16 +441,23 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
         decays: decay lengths to try, metres (default :data:`DECAY_GRID`; ``None``: the
             simulator's own).
         c_bounds: search interval for ``c``, metres.
+        decay_law: the simulator's decay law to identify ``(c, L)`` under (``'fixed'`` or
+            ``'penetration'``, :class:`~pointforce_ros.contact.simulator.ContactSimulator`);
+            ``None``: the simulator's own. The pushes do not choose the law: on the demo's
+            lamb both fit them alike, and the planner queries preferred ``'penetration'``
+            (``data/fem/demo_floor_law.py``).
 
     Returns:
         :class:`ShapeCalibration`.
 
     Raises:
-        InvalidInput: as :func:`identify_shape_constant_from_probes`.
+        InvalidInput: as :func:`identify_shape_constant_from_probes`, or an unknown law.
         NotConverged: the joint fit's ``c`` lies on a search bound at every decay length.
 
     """
     pokes = list(pokes)
+    if decay_law is not None:
+        simulator = simulator.with_shape_constant(simulator.c, decay_law=decay_law)
     fit = identify_shape_constant_from_probes(simulator, pokes, c_bounds, decays)
     calibrated = simulator.with_shape_constant(fit.c, fit.decay)
     pred, measured = zip(*(_along(calibrated, p) for p in pokes))

@@ -64,6 +64,34 @@ def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray
     return g
 
 
+def varying_shape_function(r: np.ndarray, c: float, decay_i: np.ndarray,
+                           decay_j: np.ndarray) -> np.ndarray:
+    """Return ``g_ij`` with a decay length per point: :func:`shape_function` generalised.
+
+    ``g_ij = c / (c + r) * (2 L_i L_j / (L_i^2 + L_j^2)) ** 1.5 * exp(-r / L_ij)`` with
+    ``L_ij = sqrt((L_i^2 + L_j^2) / 2)``: the exponential factor is the non-stationary
+    exponential kernel of Paciorek and Schervish (2004) with isotropic lengths in 3-D, positive
+    definite for any lengths, and its Schur product with the positive definite ``c / (c + r)``
+    stays so; equal lengths give :func:`shape_function` exactly and ``g_ii = 1``.
+
+    Args:
+        r: distances, metres (any shape broadcasting with the lengths).
+        c: shape-function constant, metres (> 0).
+        decay_i: decay lengths of the rows' points, metres (> 0, finite), broadcasting with
+            ``r`` (for a matrix: a column ``(m, 1)``).
+        decay_j: those of the columns' points (for a matrix: a row ``(1, m)``).
+
+    """
+    r = np.asarray(r, dtype=np.float64)
+    li = np.asarray(decay_i, dtype=np.float64)
+    lj = np.asarray(decay_j, dtype=np.float64)
+    s2 = 0.5 * (li * li + lj * lj)
+    g = c / (c + r)
+    g *= (li * lj / s2) ** 1.5
+    g *= np.exp(-r / np.sqrt(s2))
+    return g
+
+
 def _shape_in_place(r2: np.ndarray, c: float, decay: float) -> np.ndarray:
     """Return :func:`shape_function` of ``sqrt(r2)``, overwriting ``r2`` (squared distances)."""
     r = np.sqrt(r2, out=r2)
@@ -113,15 +141,19 @@ class PointShapeStack:
             finite.
         c: shape-function constant, metres (> 0).
         decay: decay length of the shape function, metres (> 0 or ``inf``).
+        decays: optional (B, m) decay length per point, metres (> 0, finite; padding rows
+            any positive value): :func:`varying_shape_function` instead of ``decay``.
 
     """
 
-    def __init__(self, points: np.ndarray, c: float, decay: float = np.inf):
+    def __init__(self, points: np.ndarray, c: float, decay: float = np.inf,
+                 decays: Optional[np.ndarray] = None):
         points = np.asarray(points, dtype=np.float64)
         B, m = points.shape[:2]
         self.points = points
         self.c = float(c)
         self.decay = float(decay)
+        self.decays = None if decays is None else np.asarray(decays, dtype=np.float64)
         sq = np.einsum('bij,bij->bi', points, points)
         self._left = np.empty((B, m, 5))     # [q, |q|^2, 1]
         self._left[..., :3] = points
@@ -150,6 +182,10 @@ class PointShapeStack:
         diag = np.arange(k)
         r2[:, diag, diag] = 0.0   # exact: rounding there would put 1 - 3e-8 on the diagonal
         np.maximum(r2, 0.0, out=r2)
+        if self.decays is not None:
+            lengths = self.decays[problems[:, None], order]
+            return varying_shape_function(np.sqrt(r2, out=r2), self.c, lengths[:, :, None],
+                                          lengths[:, None, :k])
         return _shape_in_place(r2, self.c, self.decay)
 
     def dense(self) -> np.ndarray:
@@ -416,7 +452,8 @@ def _solve_points(G: PointShapeStack, d: np.ndarray, valid: np.ndarray, F: np.nd
         if not len(todo):
             break
     if len(todo):
-        dense = PointShapeStack(G.points[todo], G.c, G.decay).dense()
+        dense = PointShapeStack(G.points[todo], G.c, G.decay,
+                                None if G.decays is None else G.decays[todo]).dense()
         _not_converged((dense @ x[todo][:, :, None])[:, :, 0] - d[todo], x[todo], valid[todo],
                        max_iter)
     x = np.maximum(x, 0.0)

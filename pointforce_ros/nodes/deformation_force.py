@@ -90,8 +90,8 @@ from msg_adapters.interfaces import fail
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_from_msg
 from pointforce_ros.deformation.fem import CorotationalFem
 from pointforce_ros.deformation.force import estimate_force, ForceConfig
-from pointforce_ros.deformation.fusion import (fuse_estimate, fused_covariance, fusion_data,
-                                               point_calibration)
+from pointforce_ros.deformation.fusion import (DEFAULT_FEM_SPREAD, fuse_estimate,
+                                               fused_covariance, fusion_data, point_calibration)
 from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
 from pointforce_ros.deformation.mesh import volume_mesh_from_surface
 from pointforce_ros.deformation.observe import rest_offsets, RestFrames
@@ -344,9 +344,10 @@ class DeformationForceNode(Node):
                 except PointforceError as exc:
                     note = f'point model uncalibrated ({exc})'
             cached = self._calibration = (model, point.version, calibration, note)
-        spread = fusion.fem_spread if fusion is not None else float('nan')
+        spread = fusion.fem_spread if fusion is not None else DEFAULT_FEM_SPREAD
         fused = fuse_estimate(est, tip, point, spread, calibration=cached[2])
-        source = fusion.spread_source if fusion is not None else 'none stored'
+        source = (fusion.spread_source if fusion is not None
+                  else 'default: a model identified before the fused force')
         return fused, (f'{cached[3]}; FEM spread {spread:.2f} ({source}); point model '
                        f'v{point.version}')
 
@@ -618,8 +619,12 @@ class DeformationForceNode(Node):
             pokes = [held[n] for n in names]
             fit, fem = identify_elasticity(mesh, pokes, config, rest_offset=offset,
                                            fem=scanned if warm else None)
-            fusion, fusion_note = fusion_data(mesh, pokes, fit, config, rest_offset=offset,
-                                              cross=self.cross_validate)
+            try:
+                fusion, fusion_note = fusion_data(mesh, pokes, fit, config, rest_offset=offset,
+                                                  cross=self.cross_validate)
+                fusion_note += f' in {fusion.seconds:.2f} s'
+            except Exception as exc:  # noqa: BLE001 - the identification stands without it
+                fusion, fusion_note = None, f'no fusion data ({_reason(exc)})'
             model = DeformationModel(mesh=mesh, young=fit.young, poisson=fit.poisson,
                                      rest_offset=offset, load_radius=config.load_radius,
                                      residual_rms=fit.residual_rms, fusion=fusion)
@@ -639,8 +644,8 @@ class DeformationForceNode(Node):
                                 + (' from the scan-time model' if warm else '')
                                 + f'; reference: {reference}; nu interval '
                                 f'{fit.poisson_interval[0]:.3f}-'
-                                f'{fit.poisson_interval[1]:.3f}; fused force: {fusion_note} '
-                                f'in {fusion.seconds:.2f} s; {where}')
+                                f'{fit.poisson_interval[1]:.3f}; fused force: {fusion_note}; '
+                                f'{where}')
             self.get_logger().info(response.message)
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             fail(response, _reason(exc))

@@ -17,7 +17,7 @@ import pytest
 from pointforce_ros.contact import ContactSimulator, shape_function, solve_lcp_batch
 from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID
 from pointforce_ros.contact.lcp import PointShapeStack, varying_shape_function
-from pointforce_ros.contact.simulator import DECAY_FLOOR, DECAY_REFERENCE
+from pointforce_ros.contact.simulator import DECAY_FLOOR, DECAY_LAW, DECAY_REFERENCE
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.lab.synthetic_contact import grid_surface, linear_response, power_response
 from pointforce_ros.shapes import box, icosphere
@@ -144,7 +144,12 @@ def test_calibrate_shape_identifies_the_law_it_is_given():
     assert fixed.decay_law == 'fixed'             # the caller's simulator is left alone
 
 
-def test_an_unknown_law_is_refused():
+def test_an_unknown_law_is_refused_and_the_default_is_the_penetration_law():
     surface = grid_surface(half=0.01, step=0.001)
+    response = linear_response(K, len(surface))
     with pytest.raises(InvalidInput, match='decay_law'):
-        ContactSimulator(surface, linear_response(K, len(surface)), c=C, decay_law='depth')
+        ContactSimulator(surface, response, c=C, decay_law='depth')
+    sim = ContactSimulator(surface, response, c=C, decay=L)
+    assert sim.decay_law == DECAY_LAW == 'penetration'
+    with pytest.raises(InvalidInput, match='decay_law'):
+        sim.with_shape_constant(C, decay_law='depth')

@@ -86,7 +86,7 @@ def test_the_demo_check_prints_the_fused_force_against_the_ft_with_a_point_model
     checks = _glue().fuse_check(check, tip, model)
     assert checks.fused.magnitude_error < 0.15 < checks.fem.magnitude_error
     lines = checks.lines()
-    assert lines[0].startswith('fused camera force') and 'FEM alone 2.00' in lines[1]
+    assert lines[0].startswith('fused camera force [') and 'FEM alone 2.00' in lines[1]
     assert 'point model v4, uncalibrated' in lines[1]
     assert _glue().fuse_check(check, tip, None).lines() == [
         check.line(), '(no fused force: no point model held by deformation_force)']

@@ -89,8 +89,10 @@ class _Perturbed:
 
     def __init__(self, model: ContactModel, spacing: float):
         response = model.response
+        law = getattr(model, 'shape_decay_law', None)   # None: the simulator's default
         self.nominal = ContactSimulator(model.surface, response, model.shape_constant,
-                                        spacing=spacing, decay=model.shape_decay)
+                                        spacing=spacing, decay=model.shape_decay,
+                                        decay_law=law)
         self.raised = None
         if response.std is not None:
             # raised where the table is a contact force only (above the onset force): the
@@ -108,7 +110,8 @@ class _Perturbed:
                                    slopes=response.slopes * ratio, std=None,
                                    version=response.version, meta=response.meta)
             self.raised = ContactSimulator(model.surface, raised, model.shape_constant,
-                                           spacing=spacing, decay=model.shape_decay)
+                                           spacing=spacing, decay=model.shape_decay,
+                                           decay_law=law)
 
 
 _CACHE: Dict[int, Tuple[object, float, _Perturbed]] = {}

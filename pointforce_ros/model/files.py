@@ -32,6 +32,7 @@ from typing import Callable, List, Mapping, Optional, Tuple
 import numpy as np
 
 from pointforce_ros.contact.lcp import check_decay
+from pointforce_ros.contact.simulator import DECAY_LAW, DECAY_LAWS
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, uncertainty_sources
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.response.baked import BakedResponse
@@ -61,10 +62,15 @@ class ContactModel:
         version: model version (monotone over refits).
         effects: accepted model effects from ``pointforce diagnose`` (name -> parameters).
         meta: free-form JSON description (training pokes, errors, model kind).
+        shape_decay_law: how ``shape_decay`` applies
+            (:data:`~pointforce_ros.contact.simulator.DECAY_LAWS`): ``'fixed'``, one length for
+            every contact, or ``'penetration'``, each contact's length grows with its
+            penetration. A file without it was written under ``'fixed'``, and is read so: a
+            calibration keeps the law it was identified under.
 
     Raises:
-        InvalidInput: surface and table of different sizes, ``c <= 0`` or ``shape_decay``
-            neither a positive length nor ``inf``.
+        InvalidInput: surface and table of different sizes, ``c <= 0``, ``shape_decay``
+            neither a positive length nor ``inf``, or an unknown ``shape_decay_law``.
 
     """
 
@@ -75,6 +81,7 @@ class ContactModel:
     shape_decay: float = float('inf')
     effects: Mapping = field(default_factory=dict)
     meta: Mapping = field(default_factory=dict)
+    shape_decay_law: str = DECAY_LAW
 
     def __post_init__(self):
         if len(self.surface) != len(self.response):
@@ -84,6 +91,9 @@ class ContactModel:
             raise InvalidInput(f'ContactModel.shape_constant: must be > 0 m, got '
                                f'{self.shape_constant}')
         check_decay(self.shape_decay, 'ContactModel.shape_decay')
+        if self.shape_decay_law not in DECAY_LAWS:
+            raise InvalidInput(f'ContactModel.shape_decay_law: must be one of {DECAY_LAWS}, '
+                               f'got {self.shape_decay_law!r}')
 
 
 def atomic_write(path, write: Callable, binary: bool = True) -> Path:
@@ -120,13 +130,16 @@ def version_of_path(path) -> Optional[int]:
 
 
 def _header(model: ContactModel) -> dict:
-    return {
+    header = {
         'format': FORMAT, 'version': int(model.version),
         'shape_constant': float(model.shape_constant), 'frame': model.surface.frame,
         'shape_decay': float(model.shape_decay) if np.isfinite(model.shape_decay) else None,
         'effects': dict(model.effects), 'meta': dict(model.meta),
         'response_version': int(model.response.version), 'response_meta': model.response.meta,
     }
+    if model.shape_decay_law != 'fixed':   # absent means 'fixed' (files from before the law)
+        header['shape_decay_law'] = model.shape_decay_law
+    return header
 
 
 def _arrays(model: ContactModel) -> dict:
@@ -262,7 +275,8 @@ def load_model(path) -> ContactModel:
                              shape_constant=float(header['shape_constant']),
                              version=int(header['version']),
                              shape_decay=float(header.get('shape_decay') or float('inf')),
-                             effects=header.get('effects', {}), meta=header.get('meta', {}))
+                             effects=header.get('effects', {}), meta=header.get('meta', {}),
+                             shape_decay_law=header.get('shape_decay_law', 'fixed'))
     except DataError:
         raise
     except Exception as exc:  # noqa: BLE001 - zipfile, zlib, numpy, json: many error types
@@ -360,7 +374,7 @@ def latest_model_path(directory) -> Optional[Path]:
 
 
 def save_shape(directory, shape_constant: float, shape_decay: float = float('inf'),
-               uncertainty: Optional[Mapping] = None) -> Path:
+               uncertainty: Optional[Mapping] = None, decay_law: str = DECAY_LAW) -> Path:
     """Persist the shape function set at run time beside the models (``shape.json``, atomic).
 
     Args:
@@ -369,18 +383,22 @@ def save_shape(directory, shape_constant: float, shape_decay: float = float('inf
         shape_decay: decay length ``L``, metres (``inf``: none, stored as ``null``).
         uncertainty: the wrench's uncertainty sources from the same calibration
             (:func:`~pointforce_ros.contact.uncertainty.uncertainty_sources`; ``None``: none).
+        decay_law: the decay law ``(c, L)`` were identified under (:class:`ContactModel`).
 
     Raises:
-        InvalidInput: ``c`` not finite and positive, ``L`` neither positive nor ``inf``, or
-            malformed uncertainty sources.
+        InvalidInput: ``c`` not finite and positive, ``L`` neither positive nor ``inf``,
+            malformed uncertainty sources or an unknown decay law.
         OSError: the file cannot be written.
 
     """
     if not (np.isfinite(shape_constant) and shape_constant > 0):
         raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
     decay = check_decay(shape_decay, 'shape_decay')
+    if decay_law not in DECAY_LAWS:
+        raise InvalidInput(f'decay_law: must be one of {DECAY_LAWS}, got {decay_law!r}')
     body = {'shape_constant': float(shape_constant),
             'shape_decay': float(decay) if np.isfinite(decay) else None,
+            'shape_decay_law': decay_law,
             'uncertainty': uncertainty_sources(**dict(uncertainty or {}))}
     return atomic_write(Path(directory) / SHAPE, lambda fh: json.dump(body, fh), binary=False)
 
@@ -406,6 +424,28 @@ def load_shape(directory) -> Optional[Tuple[float, float]]:
     except (OSError, ValueError, KeyError, TypeError, AttributeError, InvalidInput) as exc:
         raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
     return c, decay
+
+
+def load_shape_law(directory) -> str:
+    """Return the decay law of ``shape.json`` (:func:`save_shape`).
+
+    ``'fixed'`` for a file from before the law was stored,
+    :data:`~pointforce_ros.contact.simulator.DECAY_LAW` when there is no file.
+
+    Raises:
+        DataError: the file exists but cannot be read or names an unknown law.
+
+    """
+    path = Path(directory) / SHAPE
+    if not path.is_file():
+        return DECAY_LAW
+    try:
+        law = json.loads(path.read_text()).get('shape_decay_law', 'fixed')
+    except (OSError, ValueError, AttributeError) as exc:
+        raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
+    if law not in DECAY_LAWS:
+        raise DataError(f'{path}: unknown shape_decay_law {law!r} (one of {DECAY_LAWS})')
+    return law
 
 
 def load_shape_uncertainty(directory) -> dict:

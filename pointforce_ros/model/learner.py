@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pointforce_ros.contact.lcp import check_decay
+from pointforce_ros.contact.simulator import DECAY_LAW, DECAY_LAWS
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import correct_surface, effects_from_dict
 from pointforce_ros.effects.correct import correct_record
@@ -95,6 +96,9 @@ class OnlineLearner:
         shape_constant: ``c`` of the shape function, metres.
         shape_decay: decay length of the shape function's tail, metres (``inf``: the paper's
             ``g``).
+        shape_decay_law: how the decay length applies (``'fixed'`` or ``'penetration'``,
+            :class:`~pointforce_ros.contact.simulator.ContactSimulator`), stored in each
+            model; ``None``: the simulator's default.
         depths: (K,) bake grid, metres.
         model_factory: makes an empty force-response model (ours by default).
         corrections: optional callable ``records -> records`` applied before curve extraction
@@ -123,11 +127,13 @@ class OnlineLearner:
                  model_factory: Callable[[], object] = ContactGpModel,
                  corrections: Optional[Callable] = None, effects: Optional[dict] = None,
                  min_peak_force: Optional[float] = None, shape_decay: float = np.inf,
-                 contact_snr: float = 5.0, min_peak_fraction: float = 0.02):
+                 contact_snr: float = 5.0, min_peak_fraction: float = 0.02,
+                 shape_decay_law: Optional[str] = None):
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
         self.shape_decay = check_decay(shape_decay, 'shape_decay')
+        self.shape_decay_law = _decay_law(shape_decay_law)
         self.store = None if store_dir is None else PokeStore(store_dir)
         self.model_dir = None if model_dir is None else Path(model_dir)
         self.surface = surface
@@ -308,12 +314,12 @@ class OnlineLearner:
             return None
         return self._save(start)
 
-    def set_shape_constant(self, c: float, decay: Optional[float] = None
-                           ) -> Optional[LearnerStatus]:
+    def set_shape_constant(self, c: float, decay: Optional[float] = None,
+                           decay_law: Optional[str] = None) -> Optional[LearnerStatus]:
         """Use shape constant ``c`` (m) from now on; save a new model version if there is one.
 
         ``decay`` (m, or ``inf`` for the paper's ``g``) replaces the tail's decay length too
-        unless it is ``None``.
+        unless it is ``None``, and ``decay_law`` the law it applies by.
 
         For a ``c`` identified from data (``identify_shape_constant_from_probe`` or a dent):
         the response is unchanged, the saved model's simulator uses the new ``c``.
@@ -325,10 +331,13 @@ class OnlineLearner:
         if not (np.isfinite(c) and c > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {c}')
         decay = None if decay is None else check_decay(decay, 'shape_decay')
+        law = None if decay_law is None else _decay_law(decay_law)
         with self._lock:
             self.shape_constant = float(c)
             if decay is not None:
                 self.shape_decay = decay
+            if law is not None:
+                self.shape_decay_law = law
             if self.model is None:
                 return None
             self._c_updates += 1
@@ -373,6 +382,7 @@ class OnlineLearner:
                                 shape_constant=self.shape_constant,
                                 version=len(self.curves) + self._c_updates,
                                 shape_decay=self.shape_decay, effects=self.effects,
+                                shape_decay_law=self.shape_decay_law,
                                 meta={'kind': getattr(self.model, 'kind', 'unknown'),
                                       'pokes': [c.poke_id for c in self.curves],
                                       'surface_corrected': corrected,
@@ -557,3 +567,11 @@ def _on_rim(points: np.ndarray, indices: np.ndarray, radius: float) -> np.ndarra
         offsets = points[neighbours] - points[indices[k]]
         rim[k] = np.linalg.norm(offsets.mean(axis=0)) > radius / 5
     return rim
+
+
+def _decay_law(law: Optional[str]) -> str:
+    """``law`` checked (``None``: :data:`~pointforce_ros.contact.simulator.DECAY_LAW`)."""
+    law = DECAY_LAW if law is None else law
+    if law not in DECAY_LAWS:
+        raise InvalidInput(f'shape_decay_law: must be one of {DECAY_LAWS}, got {law!r}')
+    return law

@@ -208,7 +208,8 @@ class WrenchServer:
         terms = ForwardTerms.of(model.effects, series_compliance=self._series,
                                 hold_time=self._hold_time)
         simulator = ContactSimulator(model_surface(model), model.response, model.shape_constant,
-                                     spacing=self._spacing, decay=model.shape_decay)
+                                     spacing=self._spacing, decay=model.shape_decay,
+                                     decay_law=model.shape_decay_law)
         bounds = _model_bounds(model, self.limits)
         with self._swap_lock:
             if self._current is None or model.version >= self._current[0].version:
@@ -246,7 +247,8 @@ class WrenchServer:
             if spacing != self._spacing:
                 simulator = ContactSimulator(model_surface(model), model.response,
                                              model.shape_constant, spacing=spacing,
-                                             decay=model.shape_decay)
+                                             decay=model.shape_decay,
+                                             decay_law=model.shape_decay_law)
             rebuilt = (model, simulator, ForwardTerms.of(model.effects,
                                                          series_compliance=series,
                                                          hold_time=hold_time),

@@ -41,12 +41,14 @@ from msg_adapters.geometry import sec_to_stamp, stamp_to_sec
 from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.markers import model_markers
 from msg_adapters.pointcloud2 import surface_from_msg
+from pointforce_ros.contact.simulator import DECAY_LAW
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import check_region, OnlineLearner
-from pointforce_ros.model.files import (load_model, load_shape, load_shape_uncertainty,
-                                        load_surface, save_shape, version_of_path)
+from pointforce_ros.model.files import (load_model, load_shape, load_shape_law,
+                                        load_shape_uncertainty, load_surface, save_shape,
+                                        version_of_path)
 from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
@@ -106,6 +108,7 @@ class StiffnessLearnerNode(Node):
         except PointforceError as exc:
             self.get_logger().error(f'uncertainty sources refused, models carry none: {exc}')
             self.uncertainty = {}
+        self.decay_law = DECAY_LAW   # the law (c, L) apply by (shape.json's, when restored)
         self._restore_shape()
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
                        bounds=(0.1, 600.0), read_only=True)
@@ -217,6 +220,11 @@ class StiffnessLearnerNode(Node):
             return
         c, decay = shape
         try:
+            law = load_shape_law(self.model_dir)
+        except PointforceError as exc:
+            self.get_logger().error(f'ignoring the persisted shape function: {exc}')
+            return
+        try:
             sources = load_shape_uncertainty(self.model_dir)
         except PointforceError as exc:
             self.get_logger().error(f'ignoring the persisted uncertainty sources: {exc}')
@@ -236,9 +244,11 @@ class StiffnessLearnerNode(Node):
             self.get_logger().error(f'persisted shape function refused: {refused}')
             return
         self.shape_constant, self.shape_decay, self.uncertainty = c, decay_param, sources
+        self.decay_law = law
         self.get_logger().info(f'shape function restored from {self.model_dir}/shape.json: '
                                f'c = {1e3 * c:.3f} mm, decay '
-                               + (f'{1e3 * decay:.3f} mm' if np.isfinite(decay) else 'none'))
+                               + (f'{1e3 * decay:.3f} mm ({law} law)' if np.isfinite(decay)
+                                  else 'none'))
 
     def _set_shape(self, name: str, value: float):
         """Take a new ``shape_constant`` or ``shape_decay`` (identified from data) into use.
@@ -248,18 +258,21 @@ class StiffnessLearnerNode(Node):
         model exists, saved as a new model version the contact service hot-swaps to.
         """
         setattr(self, name, float(value))
+        # a (c, L) set now was identified under the simulator's own law (calibrate_shape)
+        self.decay_law = DECAY_LAW
         self._persist_shape(name, value)
         learner = self.learner
         if learner is not None:
             status = learner.set_shape_constant(self.shape_constant,
-                                                _decay_length(self.shape_decay))
+                                                _decay_length(self.shape_decay),
+                                                self.decay_law)
             if status is not None:
                 self._publish(status, learner)
 
     def _persist_shape(self, name: str, value) -> None:
         try:
             save_shape(self.model_dir, self.shape_constant, _decay_length(self.shape_decay),
-                       self.uncertainty)
+                       self.uncertainty, decay_law=self.decay_law)
         except (OSError, PointforceError) as exc:
             self.get_logger().error(f'{name} = {value} is in use but NOT persisted (a restart '
                                     f'loses it): {exc}')
@@ -315,6 +328,7 @@ class StiffnessLearnerNode(Node):
             self.learner = OnlineLearner(self.store_dir, self.model_dir, surface,
                                          shape_constant=self.shape_constant,
                                          shape_decay=_decay_length(self.shape_decay),
+                                         shape_decay_law=self.decay_law,
                                          min_peak_force=self.min_peak_force or None,
                                          effects=self.effects)
             self.learner.set_uncertainty(self.uncertainty)

@@ -4,15 +4,20 @@ Issue 16 item 8: a shape-constant update was lost on restart and the version wen
 """
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 
+from pointforce_ros.contact.simulator import ContactSimulator, DECAY_LAW
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
-from pointforce_ros.model.files import (ContactModel, load_shape, load_shape_uncertainty,
-                                        save_model, save_shape,
+from pointforce_ros.model.files import (ContactModel, load_model, load_shape, load_shape_law,
+                                        load_shape_uncertainty, save_model, save_shape,
                                         SHAPE, version_of_path)
+from pointforce_ros.model.serving import WrenchServer
+from pointforce_ros.shapes import cylinder
+from pointforce_ros.types import ContactQuery, Pose
 
 MODEL = patch_contact_model(spacing=0.006)
 
@@ -73,3 +78,49 @@ def test_uncertainty_sources_round_trip_and_bad_ones_are_refused(tmp_path):
     (tmp_path / SHAPE).write_text('{"shape_constant": 0.003, "uncertainty": {"bias": 1}}')
     with pytest.raises(DataError, match='unknown uncertainty sources'):
         load_shape_uncertainty(tmp_path)
+
+
+def test_a_calibration_keeps_the_decay_law_it_was_identified_under(tmp_path):
+    """(c, L) identified under one law, served under the other, answer another force.
+
+    A model or shape file written before the law was stored (no ``shape_decay_law``) was
+    identified under ``'fixed'`` and is read so; a new one round-trips its law.
+    """
+    assert load_shape_law(tmp_path) == DECAY_LAW              # nothing stored: the default
+    (tmp_path / SHAPE).write_text('{"shape_constant": 0.003, "shape_decay": 0.008}')
+    assert load_shape_law(tmp_path) == 'fixed'                # a file from before the law
+    save_shape(tmp_path, 0.003, 0.008, decay_law='penetration')
+    assert load_shape_law(tmp_path) == 'penetration'
+    (tmp_path / SHAPE).write_text('{"shape_constant": 0.003, "shape_decay_law": "bent"}')
+    with pytest.raises(DataError, match='bent'):
+        load_shape_law(tmp_path)
+    with pytest.raises(InvalidInput, match='decay_law'):
+        save_shape(tmp_path, 0.003, 0.008, decay_law='bent')
+
+    base = dataclasses.replace(MODEL, shape_decay=0.006)
+    answers = {}
+    for law in ('fixed', 'penetration'):
+        folder = tmp_path / law
+        path = save_model(dataclasses.replace(base, shape_decay_law=law), folder)
+        loaded = load_model(path)                              # its SHA-256 checked
+        assert loaded.shape_decay_law == law
+        server = WrenchServer(spacing=0.003)
+        server.swap(loaded)
+        # a wide contact: a 10 mm cylinder 30 mm long lying on the patch, 3 mm deep
+        query = ContactQuery(mesh=cylinder(0.01, 0.03),
+                             poses=(Pose(position=[0.5, 0.0, 0.04 - 0.003]),),
+                             approach=[0, 0, -1], torque_centre=[0.5, 0.0, 0.04])
+        answers[law] = server.answer(query)[0].wrench.force[2]
+        simulator = ContactSimulator(loaded.surface, loaded.response, loaded.shape_constant,
+                                     spacing=0.003, decay=0.006, decay_law=law)
+        expected = simulator.query(query.mesh, query.poses[0], query.approach,
+                                   query.torque_centre).wrench.force[2]
+        assert answers[law] == pytest.approx(expected, rel=1e-12)
+    # a file without the key (as before the law was stored) is the fixed law's
+    with np.load(save_model(dataclasses.replace(base, shape_decay_law='fixed'),
+                            tmp_path / 'old')) as z:
+        assert 'shape_decay_law' not in json.loads(bytes(z['header']).decode())
+    # the two laws differ on a wide contact by more than rounding: the law matters
+    assert abs(answers['penetration'] - answers['fixed']) > 0.01 * abs(answers['fixed'])
+    with pytest.raises(InvalidInput, match='shape_decay_law'):
+        dataclasses.replace(base, shape_decay_law='bent')

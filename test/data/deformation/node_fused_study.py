@@ -23,13 +23,16 @@ site, as the study does), the fused force
 (:func:`~pointforce_ros.deformation.fusion.point_calibration`,
 :func:`~pointforce_ros.deformation.fusion.fuse_estimate`) at the probe tip. Printed per state
 and summarised: mean / worst magnitude error of the FEM and of the fused force, the time of
-each identification (with its fusion data).
+each identification (with its fusion data), and the angle between the fused force (the FEM's
+direction) and the F/T's.
 
 Measured (issue 18, session 14; lamb, vest, plush: 5 sites, ``--out out/held_out_<object>5``;
 foam block: 6 sites, ``--out out/held_out_pushes``; 15 / 15 / 15 / 18 states, none failed),
 mean / worst magnitude error, FEM -> fused: lamb 47.0 / 185.4 -> 10.3 / 21.8 %; vest 55.2 /
 136.4 -> 15.3 / 27.6 %; plush 10.8 / 45.8 -> 10.9 / 49.8 % (the soft pocket: the point model
-+54..+59 %, the fused +23..+50 %); foam block 8.5 / 28.8 -> 5.0 / 18.8 %. The FEM alone is
++54..+59 %, the fused +23..+50 %); foam block 8.5 / 28.8 -> 5.0 / 18.8 %. Direction error of
+the fused force (the FEM's direction), mean / worst: lamb 22.0 / 68.3 deg, vest 17.4 / 58.6,
+plush 10.7 / 21.1, foam block 6.9 / 17.8. The FEM alone is
 worse here than in ``held_out_study.py`` (one frame per state instead of 4 stacked, the
 node's 2000-point pairing, the arm's contact point not moved onto the biased scan): that is
 what the node sees. Identification 2.5-13 s, its fusion data (4-5 leave-one-site-out
@@ -163,7 +166,11 @@ def main(argv=None):
                 failed.append(dict(push=j, depth=float(depth), reason=str(exc)))
                 say(f'push {j} {depth * 1e3:.1f} mm: FAILED ({exc})')
                 continue
+            true_dir = held['force'][i] / truth
+            cosine = float(np.dot(fused.force, true_dir)) / max(
+                float(np.linalg.norm(fused.force)), 1e-300)
             row = dict(push=j, tilt=held['tilt'], depth=float(depth), force=truth,
+                       direction_deg=float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))),
                        fem_error=float(np.linalg.norm(est.force)) / truth - 1.0,
                        fused_error=float(np.linalg.norm(fused.force)) / truth - 1.0,
                        point_error=fused.point_magnitude / truth - 1.0,
@@ -173,7 +180,7 @@ def main(argv=None):
             say(f'push {j} (tilt {row["tilt"]:.0f}) {depth * 1e3:.1f} mm |F| {truth:.2f} N: FEM '
                 f'{100 * row["fem_error"]:+.1f} %, fused {100 * row["fused_error"]:+.1f} % '
                 f'+- {100 * row["fused_std"]:.1f} (point {100 * row["point_error"]:+.1f} %, '
-                f'weight {row["point_weight"]:.2f})')
+                f'weight {row["point_weight"]:.2f}; direction {row["direction_deg"]:.1f} deg)')
     fem = np.abs([r['fem_error'] for r in rows])
     fus = np.abs([r['fused_error'] for r in rows])
     summary = dict(object=args.object, states=len(rows), failed=len(failed),
@@ -182,6 +189,8 @@ def main(argv=None):
                    fem_mean_pct=100 * float(fem.mean()), fem_max_pct=100 * float(fem.max()),
                    fused_mean_pct=100 * float(fus.mean()),
                    fused_max_pct=100 * float(fus.max()),
+                   direction_mean_deg=float(np.mean([r['direction_deg'] for r in rows])),
+                   direction_max_deg=float(np.max([r['direction_deg'] for r in rows])),
                    identify_s=[round(t['identify_s'], 1) for t in timings],
                    fusion_s=[round(t['fusion_s'], 1) for t in timings])
     say('summary ' + json.dumps(summary))

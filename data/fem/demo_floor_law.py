@@ -33,8 +33,24 @@ truth, and each query's predicted / true Fz (sphere #1-3, paddle #1-3, cylinder 
 ``--floor`` the best grid row with the answers known is added for reference. Rows accumulate
 per law and proxy in ``demo_floor_law_<object>_<response><tag>.json``.
 
+With ``--select-gamma`` the exponent too is chosen on the calibration pushes alone: among the
+fitted rows of a law (one per ``gamma``, each with its own ``(c, L)``) the one with the smallest
+calibration error (the objective ``calibrate_shape`` minimises) is added as ``how = 'gamma chosen
+on calibration'``; ``--summarise _tag`` collects those rows of every ``*_<tag>_*.json`` record
+against the law's ``gamma = 1`` row into ``demo_floor_law_summary<tag>.json``.
+
+Issue 17, ``Lpd`` with ``gamma`` chosen from 0.5, 1, 1.5, 2 (records ``*_expsel_*``, every stored
+demo run: 6 lamb, 3 foam block): a negative result. On the lamb the pushes pick 0.5 (the grid's
+end) on all 6 runs with both responses, and the queries get worse than the fixed ``gamma = 1``:
+learned 7.6-9.8 % against 7.2-8.9 % (worse on 5 of 6, equal on 1; 5-7 of 9 below against 4-7),
+true 8.1-8.5 % against 7.7-8.2 % (worse on all 6). On the foam block the learned response keeps
+1 (4.0-6.1 %, unchanged), the true one picks 0.5 where the pushes barely tell the exponents
+apart (7.1-9.1 % against 7.6-9.1 %). The pushes (both beside the bone) cannot choose it.
+
 Usage: python data/fem/demo_floor_law.py out/demo [--object lamb] [--response true|learned]
        [--laws global,Lpd] [--gammas 1] [--proxy 5,10] [--tag _run2] [--floor]
+       [--select-gamma]
+       python data/fem/demo_floor_law.py --summarise _expsel
 """
 
 import argparse
@@ -161,10 +177,35 @@ def thickness_proxy(response, n, shallow=0.003, deep=0.008):
     return np.clip(sref / s, 0.25, 4.0), s
 
 
+def summarise(tag):
+    """Collect the rows chosen on calibration of the records ``*<tag>_*.json`` in one JSON."""
+    runs = []
+    for path in sorted(HERE.glob(f'demo_floor_law_*{tag}_*.json')):
+        record = json.loads(path.read_text())
+        for chosen in (r for r in record['rows'] if r['how'] == 'gamma chosen on calibration'):
+            fitted = {r['gamma']: r for r in record['rows']
+                      if r['law'] == chosen['law'] and r['how'] == 'fit on calibration'}
+            one = fitted.get(1.0)
+            runs.append(dict(
+                record=path.name, object=record['object'], model=record['model'],
+                law=chosen['law'], gamma_chosen=chosen['gamma'],
+                chosen_rmse_pct=round(chosen['rmse_pct'], 2), chosen_below=chosen['below'],
+                gamma1_rmse_pct=None if one is None else round(one['rmse_pct'], 2),
+                gamma1_below=None if one is None else one['below'],
+                cal_rmse_N={g: round(r['cal_rmse_N'], 3) for g, r in sorted(fitted.items())},
+                rmse_pct={g: round(r['rmse_pct'], 2) for g, r in sorted(fitted.items())}))
+            print(f'{path.name:50s} gamma {chosen["gamma"]:.3g}: {chosen["rmse_pct"]:.1f} % '
+                  f'({chosen["below"]} below); gamma 1: '
+                  + ('-' if one is None else f'{one["rmse_pct"]:.1f} % ({one["below"]} below)'))
+    out = HERE / f'demo_floor_law_summary{tag}.json'
+    out.write_text(json.dumps({'runs': runs}, indent=1) + '\n')
+    print(f'wrote {out}')
+
+
 def main():
     """Score the laws and write the JSON record."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('demo_out')
+    parser.add_argument('demo_out', nargs='?')
     parser.add_argument('--object', default='lamb')
     parser.add_argument('--response', default='true', choices=('true', 'learned'))
     parser.add_argument('--laws', default=','.join(LAWS))
@@ -174,7 +215,16 @@ def main():
     parser.add_argument('--floor', action='store_true', help='also the best grid row with the '
                         'answers known')
     parser.add_argument('--gammas', default=None, help='override every law\'s gammas')
+    parser.add_argument('--select-gamma', action='store_true', help='also the row whose gamma '
+                        'the calibration pushes choose (smallest calibration error)')
+    parser.add_argument('--summarise', default=None, metavar='TAG', help='only collect the '
+                        'gamma-chosen rows of the records tagged TAG_* into one summary')
     args = parser.parse_args()
+    if args.summarise:
+        summarise(args.summarise)
+        return
+    if args.demo_out is None:
+        parser.error('demo_out is required unless --summarise')
     spec = load_object(args.object)
     live = LiveContact.load(spec.name, build=False)
     queries = demo_query_set(spec)
@@ -254,6 +304,18 @@ def main():
                       f'{r["L_mm"]} mm, cal {100 * r["cal_rel"]:.1f} % ({r["cal_rmse_N"]:.2f} '
                       f'N), queries {r["rmse_pct"]:.1f} %, {r["below"]} below; '
                       + ' '.join(f'{v:.2f}' for v in r['ratios']), flush=True)
+    if args.select_gamma:
+        # the exponent chosen with (c, L) on the calibration pushes alone: the fitted row of
+        # each law with the smallest calibration error (the objective calibrate_shape minimises)
+        for law in args.laws.split(','):
+            fitted = [r for r in rows if r['law'] == law and r['how'] == 'fit on calibration']
+            if fitted:
+                best = dict(min(fitted, key=lambda r: r['cal_rmse_N']),
+                            how='gamma chosen on calibration')
+                rows.append(best)
+                print(f'{law:8s} gamma chosen on calibration: {best["gamma"]:.3g} (c '
+                      f'{best["c_mm"]:.1f} mm, L {best["L_mm"]} mm), queries '
+                      f'{best["rmse_pct"]:.1f} %, {best["below"]} below', flush=True)
     out = HERE / f'demo_floor_law_{spec.name}_{args.response}{args.tag}.json'
     if out.exists():     # several runs (laws, proxies) accumulate in one record
         old = json.loads(out.read_text())

@@ -98,6 +98,19 @@ DECAY_FLOOR = 0.1
 :data:`DECAY_REFERENCE` (a contact at its rim still spreads its dent)."""
 
 
+def check_decay_law(value, name: str = 'decay_law') -> str:
+    """Return ``value`` as a decay law of :class:`ContactSimulator`, one of :data:`DECAY_LAWS`.
+
+    Raises:
+        InvalidInput: not one of :data:`DECAY_LAWS` (the message starts with ``name`` and
+            lists them).
+
+    """
+    if value not in DECAY_LAWS:
+        raise InvalidInput(f'{name}: must be one of {DECAY_LAWS}, got {value!r}')
+    return value
+
+
 @dataclass(frozen=True)
 class ContactResult:
     """Contact between a rigid body and the equilibrium surface for one pose (``base``).
@@ -296,9 +309,7 @@ class ContactSimulator:
         self.response = response
         self.c = _positive('c', c)
         self.decay = check_decay(decay)
-        self.decay_law = DECAY_LAW if decay_law is None else decay_law
-        if self.decay_law not in DECAY_LAWS:
-            raise InvalidInput(f'decay_law: must be one of {DECAY_LAWS}, got {decay_law!r}')
+        self.decay_law = check_decay_law(DECAY_LAW if decay_law is None else decay_law)
         self.spacing = _positive('spacing', spacing)
         self.max_gap = None if max_gap is None else _positive('max_gap', max_gap)
         self.workers = int(workers)
@@ -333,9 +344,7 @@ class ContactSimulator:
         if decay is not None:
             other.decay = check_decay(decay)
         if decay_law is not None:
-            if decay_law not in DECAY_LAWS:
-                raise InvalidInput(f'decay_law: must be one of {DECAY_LAWS}, got {decay_law!r}')
-            other.decay_law = decay_law
+            other.decay_law = check_decay_law(decay_law)
         return other
 
     # ----------------------------------------------------------------------------- public API
@@ -779,5 +788,6 @@ def _positive(name: str, value) -> float:
 
 __all__: List[str] = ['APPROACH_TOLERANCE', 'BatchContactResult', 'ContactResult',
                       'ContactSimulator', 'DECAY_FLOOR', 'DECAY_LAW', 'DECAY_LAWS',
-                      'DECAY_REFERENCE', 'normalise_approach', 'poses_as_arrays',
+                      'DECAY_REFERENCE', 'check_decay_law', 'normalise_approach',
+                      'poses_as_arrays',
                       ]

@@ -32,7 +32,7 @@ from typing import Callable, List, Mapping, Optional, Tuple
 import numpy as np
 
 from pointforce_ros.contact.lcp import check_decay
-from pointforce_ros.contact.simulator import DECAY_LAW, DECAY_LAWS
+from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, uncertainty_sources
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.response.baked import BakedResponse
@@ -91,9 +91,7 @@ class ContactModel:
             raise InvalidInput(f'ContactModel.shape_constant: must be > 0 m, got '
                                f'{self.shape_constant}')
         check_decay(self.shape_decay, 'ContactModel.shape_decay')
-        if self.shape_decay_law not in DECAY_LAWS:
-            raise InvalidInput(f'ContactModel.shape_decay_law: must be one of {DECAY_LAWS}, '
-                               f'got {self.shape_decay_law!r}')
+        check_decay_law(self.shape_decay_law, 'ContactModel.shape_decay_law')
 
 
 def atomic_write(path, write: Callable, binary: bool = True) -> Path:
@@ -394,8 +392,7 @@ def save_shape(directory, shape_constant: float, shape_decay: float = float('inf
     if not (np.isfinite(shape_constant) and shape_constant > 0):
         raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
     decay = check_decay(shape_decay, 'shape_decay')
-    if decay_law not in DECAY_LAWS:
-        raise InvalidInput(f'decay_law: must be one of {DECAY_LAWS}, got {decay_law!r}')
+    check_decay_law(decay_law)
     body = {'shape_constant': float(shape_constant),
             'shape_decay': float(decay) if np.isfinite(decay) else None,
             'shape_decay_law': decay_law,
@@ -443,9 +440,10 @@ def load_shape_law(directory) -> str:
         law = json.loads(path.read_text()).get('shape_decay_law', 'fixed')
     except (OSError, ValueError, AttributeError) as exc:
         raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
-    if law not in DECAY_LAWS:
-        raise DataError(f'{path}: unknown shape_decay_law {law!r} (one of {DECAY_LAWS})')
-    return law
+    try:
+        return check_decay_law(law, 'shape_decay_law')
+    except InvalidInput as exc:
+        raise DataError(f'{path}: unknown decay law: {exc}') from exc
 
 
 def load_shape_uncertainty(directory) -> dict:

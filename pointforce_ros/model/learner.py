@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pointforce_ros.contact.lcp import check_decay
-from pointforce_ros.contact.simulator import DECAY_LAW, DECAY_LAWS
+from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import correct_surface, effects_from_dict
 from pointforce_ros.effects.correct import correct_record
@@ -133,7 +133,8 @@ class OnlineLearner:
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
         self.shape_decay = check_decay(shape_decay, 'shape_decay')
-        self.shape_decay_law = _decay_law(shape_decay_law)
+        self.shape_decay_law = check_decay_law(
+            DECAY_LAW if shape_decay_law is None else shape_decay_law, 'shape_decay_law')
         self.store = None if store_dir is None else PokeStore(store_dir)
         self.model_dir = None if model_dir is None else Path(model_dir)
         self.surface = surface
@@ -331,7 +332,7 @@ class OnlineLearner:
         if not (np.isfinite(c) and c > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {c}')
         decay = None if decay is None else check_decay(decay, 'shape_decay')
-        law = None if decay_law is None else _decay_law(decay_law)
+        law = None if decay_law is None else check_decay_law(decay_law, 'shape_decay_law')
         with self._lock:
             self.shape_constant = float(c)
             if decay is not None:
@@ -567,11 +568,3 @@ def _on_rim(points: np.ndarray, indices: np.ndarray, radius: float) -> np.ndarra
         offsets = points[neighbours] - points[indices[k]]
         rim[k] = np.linalg.norm(offsets.mean(axis=0)) > radius / 5
     return rim
-
-
-def _decay_law(law: Optional[str]) -> str:
-    """``law`` checked (``None``: :data:`~pointforce_ros.contact.simulator.DECAY_LAW`)."""
-    law = DECAY_LAW if law is None else law
-    if law not in DECAY_LAWS:
-        raise InvalidInput(f'shape_decay_law: must be one of {DECAY_LAWS}, got {law!r}')
-    return law

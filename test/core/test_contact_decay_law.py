@@ -17,7 +17,8 @@ import pytest
 from pointforce_ros.contact import ContactSimulator, shape_function, solve_lcp_batch
 from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID
 from pointforce_ros.contact.lcp import PointShapeStack, varying_shape_function
-from pointforce_ros.contact.simulator import DECAY_FLOOR, DECAY_LAW, DECAY_REFERENCE
+from pointforce_ros.contact.simulator import (check_decay_law, DECAY_FLOOR, DECAY_LAW, DECAY_LAWS,
+                                              DECAY_REFERENCE)
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.lab.synthetic_contact import grid_surface, linear_response, power_response
 from pointforce_ros.shapes import box, icosphere
@@ -153,3 +154,13 @@ def test_an_unknown_law_is_refused_and_the_default_is_the_penetration_law():
     assert sim.decay_law == DECAY_LAW == 'penetration'
     with pytest.raises(InvalidInput, match='decay_law'):
         sim.with_shape_constant(C, decay_law='depth')
+
+
+def test_check_decay_law_returns_each_law_and_refuses_others_by_name():
+    for law in DECAY_LAWS:
+        assert check_decay_law(law) == law
+    with pytest.raises(InvalidInput, match=r"^ContactModel\.shape_decay_law: .*'fixed'.*'depth'"):
+        check_decay_law('depth', 'ContactModel.shape_decay_law')
+    for bad in (None, 'Fixed', 3):
+        with pytest.raises(InvalidInput, match='^decay_law: must be one of'):
+            check_decay_law(bad)

@@ -19,13 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.bringup.demo import (_ground_truth, demo_query_set,
-                                         true_force_below_observed)
+from demo_floor_setup import load_demo_floor  # this folder
 from pointforce_ros.contact.simulator import ContactSimulator
-from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.response.baked import BakedResponse
-from pointforce_ros.sim.fem.live import LiveContact
-from pointforce_ros.sim.objects import load_object
 
 HERE = Path(__file__).resolve().parent
 C_GRID = (0.0007, 0.001, 0.0015, 0.002, 0.003, 0.004, 0.006, 0.01)
@@ -38,23 +33,11 @@ def main():
     parser.add_argument('demo_out', help="the demo's --out folder (its cell/models are read)")
     parser.add_argument('--object', default='lamb')
     args = parser.parse_args()
-    spec = load_object(args.object)
-    live = LiveContact.load(spec.name, build=False)
-    queries = demo_query_set(spec)
-    gt, path = _ground_truth(spec, queries)
-    if gt is None:
-        raise SystemExit(f'no ground truth for the demo queries of {spec.name} ({path})')
-    server = WrenchServer()
-    model_path = sorted((Path(args.demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
-    server.load(model_path)
-    sim = server.simulator()
-    surface, learned = sim.surface, sim.response
-    depths = learned.depths
-    table = np.stack([true_force_below_observed(spec, live, surface.points, d)
-                      for d in depths], axis=1)
-    slopes = (table[:, -1] - table[:, -2]) / (depths[-1] - depths[-2])
-    responses = {'learned': learned,
-                 'true point': BakedResponse(depths=depths, forces=table, slopes=slopes)}
+    floor = load_demo_floor(args.demo_out, args.object)
+    spec, queries, gt, model_path = floor.spec, floor.queries, floor.gt, floor.model_path
+    sim = floor.served
+    surface = sim.surface
+    responses = {'learned': sim.response, 'true point': floor.true_response()}
     true = gt['force'][:, 2]
     peak = float(np.max(np.abs(true)))
     record = {'object': spec.name, 'model': str(model_path), 'served': [sim.c, sim.decay],

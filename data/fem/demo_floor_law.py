@@ -61,16 +61,12 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from pointforce_ros.bringup.demo import (_calibration_pokes, _ground_truth, demo_query_set,
-                                         true_force_below_observed)
+from demo_floor_setup import load_demo_floor  # this folder
+from pointforce_ros.bringup.demo import _calibration_pokes
 from pointforce_ros.contact.identify import DECAY_GRID
 from pointforce_ros.contact.lcp import bpp_dense
 from pointforce_ros.contact.simulator import ContactSimulator, WARM_START
 from pointforce_ros.errors import NotConverged
-from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.response.baked import BakedResponse
-from pointforce_ros.sim.fem.live import LiveContact
-from pointforce_ros.sim.objects import load_object
 
 HERE = Path(__file__).resolve().parent
 C_GRID = (0.001, 0.0015, 0.002, 0.003, 0.004, 0.006, 0.008, 0.01, 0.015, 0.02, 0.03)
@@ -225,23 +221,10 @@ def main():
         return
     if args.demo_out is None:
         parser.error('demo_out is required unless --summarise')
-    spec = load_object(args.object)
-    live = LiveContact.load(spec.name, build=False)
-    queries = demo_query_set(spec)
-    gt, _ = _ground_truth(spec, queries)
-    server = WrenchServer()
-    model_path = sorted((Path(args.demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
-    server.load(model_path)
-    base = server.simulator()
-    surface, learned = base.surface, base.response
-    depths = learned.depths
-    if args.response == 'true':
-        table = np.stack([true_force_below_observed(spec, live, surface.points, d)
-                          for d in depths], axis=1)
-        slopes = (table[:, -1] - table[:, -2]) / (depths[-1] - depths[-2])
-        response = BakedResponse(depths=depths, forces=table, slopes=slopes)
-    else:
-        response = learned
+    floor = load_demo_floor(args.demo_out, args.object)
+    spec, queries, gt, model_path = floor.spec, floor.queries, floor.gt, floor.model_path
+    surface = floor.served.surface
+    response = floor.response(args.response)
     sim = ContactSimulator(surface, response, c=0.002)
     shallow, deep = (1e-3 * float(v) for v in args.proxy.split(','))
     t, s = thickness_proxy(response, len(surface), shallow, deep)

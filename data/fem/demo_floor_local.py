@@ -20,14 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.bringup.demo import (_calibration_pokes, _ground_truth, demo_query_set,
-                                         true_force_below_observed)
+from demo_floor_setup import load_demo_floor  # this folder
+from pointforce_ros.bringup.demo import _calibration_pokes
 from pointforce_ros.contact.lcp import bpp_dense
 from pointforce_ros.contact.simulator import ContactSimulator
-from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.response.baked import BakedResponse
-from pointforce_ros.sim.fem.live import LiveContact
-from pointforce_ros.sim.objects import load_object
 
 HERE = Path(__file__).resolve().parent
 C_GRID = (0.001, 0.0015, 0.002, 0.003, 0.004, 0.006, 0.01)
@@ -73,23 +69,10 @@ def main():
                         help='k_i: the point force at 3 mm, or its growth from 3 to 8 mm '
                         '(F(8 mm) / F(3 mm): a stiff layer below the surface)')
     args = parser.parse_args()
-    spec = load_object(args.object)
-    live = LiveContact.load(spec.name, build=False)
-    queries = demo_query_set(spec)
-    gt, path = _ground_truth(spec, queries)
-    server = WrenchServer()
-    model_path = sorted((Path(args.demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
-    server.load(model_path)
-    base = server.simulator()
-    surface, learned = base.surface, base.response
-    depths = learned.depths
-    if args.response == 'true':
-        table = np.stack([true_force_below_observed(spec, live, surface.points, d)
-                          for d in depths], axis=1)
-        slopes = (table[:, -1] - table[:, -2]) / (depths[-1] - depths[-2])
-        response = BakedResponse(depths=depths, forces=table, slopes=slopes)
-    else:
-        response = learned
+    floor = load_demo_floor(args.demo_out, args.object)
+    spec, queries, gt, model_path = floor.spec, floor.queries, floor.gt, floor.model_path
+    surface = floor.served.surface
+    response = floor.response(args.response)
     sim = ContactSimulator(surface, response, c=0.002)
     every = np.arange(len(surface))
     k = np.asarray(response.force(every, np.full(len(surface), 0.003)))

@@ -23,17 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.bringup.demo import (_calibration_pokes, _ground_truth, CALIBRATION_OFFSET,
-                                         CALIBRATIONS, demo_query_set, planner_region,
-                                         point_model_check)
+from demo_floor_setup import load_demo_queries  # this folder
+from pointforce_ros.bringup.demo import (_calibration_pokes, CALIBRATION_OFFSET, CALIBRATIONS,
+                                         planner_region, point_model_check)
 from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID
 from pointforce_ros.model.files import load_surface
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.pokes.store import PokeStore
-from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.generate import fem_cell_object
-from pointforce_ros.sim.objects import load_object
 from pointforce_ros.sim.scenario import load_scenario
 from pointforce_ros.sim.session import simulate_campaign
 
@@ -110,13 +108,9 @@ def main():
                         'tips only; footprint: the query and calibration contact footprints')
     parser.add_argument('--tag', default='', help='suffix of the JSON record')
     args = parser.parse_args()
-    spec = load_object(args.object)
-    live = LiveContact.load(spec.name, build=False)
+    demo = load_demo_queries(args.object)
+    spec, live, queries, gt = demo.spec, demo.live, demo.queries, demo.gt
     surface = load_surface(Path(args.demo_out) / 'cell' / 'surface.npz')
-    queries = demo_query_set(spec)
-    gt, path = _ground_truth(spec, queries)
-    if gt is None:
-        raise SystemExit(f'no ground truth for the demo queries of {spec.name} ({path})')
     runs = []
     for seed in args.seeds:
         for mode in args.modes:

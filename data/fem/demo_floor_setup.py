@@ -1,0 +1,92 @@
+"""The set-up the ``demo_floor*.py`` scripts share: the demo's queries, their truth, its model.
+
+Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py`` and
+``demo_floor_pokes.py`` import it from this folder (a script's folder is on ``sys.path``).
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pointforce_ros.bringup.demo import (_ground_truth, demo_query_set,
+                                         true_force_below_observed)
+from pointforce_ros.contact.simulator import ContactSimulator
+from pointforce_ros.model.serving import WrenchServer
+from pointforce_ros.response.baked import BakedResponse
+from pointforce_ros.sim.fem.live import LiveContact
+from pointforce_ros.sim.objects import load_object
+
+
+@dataclass(frozen=True)
+class DemoQueries:
+    """The demo object, its live FEM table and the 9 planner queries with their FEM truth.
+
+    ``queries``: ``(name, mesh, pose, approach, torque centre)`` tuples
+    (:func:`~pointforce_ros.bringup.demo.demo_query_set`); ``gt``: ``force`` and ``torque``
+    (9, 3) in N and N m, base frame, and ``names``, from ``demo_queries_<object>.npz``.
+    """
+
+    spec: object
+    live: LiveContact
+    queries: list
+    gt: dict
+
+
+@dataclass(frozen=True)
+class DemoFloor(DemoQueries):
+    """:class:`DemoQueries` and the demo's last point model, as served.
+
+    ``served``: the simulator of ``model_path`` (the captured surface, the learned response,
+    the served ``(c, L)`` and decay law).
+    """
+
+    model_path: Path
+    served: ContactSimulator
+
+    def true_response(self) -> BakedResponse:
+        """The TRUE point response below the captured surface at the learned model's depths.
+
+        The live FEM force with the tip where the learned model puts it
+        (:func:`~pointforce_ros.bringup.demo.true_force_below_observed`); the slope past the
+        last depth continues the last interval's.
+        """
+        surface, depths = self.served.surface, self.served.response.depths
+        table = np.stack([true_force_below_observed(self.spec, self.live, surface.points, d)
+                          for d in depths], axis=1)
+        slopes = (table[:, -1] - table[:, -2]) / (depths[-1] - depths[-2])
+        return BakedResponse(depths=depths, forces=table, slopes=slopes)
+
+    def response(self, which: str):
+        """``'true'``: :meth:`true_response`; ``'learned'``: the demo's learned response."""
+        return self.true_response() if which == 'true' else self.served.response
+
+
+def load_demo_queries(object_name: str) -> DemoQueries:
+    """Load the demo object, its live FEM table, its queries and their FEM truth.
+
+    Raises:
+        SystemExit: no ground truth for the queries (``demo_queries_<object>.npz`` missing or
+            made for other queries).
+
+    """
+    spec = load_object(object_name)
+    live = LiveContact.load(spec.name, build=False)
+    queries = demo_query_set(spec)
+    gt, path = _ground_truth(spec, queries)
+    if gt is None:
+        raise SystemExit(f'no ground truth for the demo queries of {spec.name} ({path})')
+    return DemoQueries(spec, live, queries, gt)
+
+
+def load_demo_floor(demo_out, object_name: str) -> DemoFloor:
+    """:func:`load_demo_queries` and the last model of the demo run in ``demo_out``.
+
+    ``demo_out``: the demo's ``--out`` folder; its ``cell/models/model-v*.npz`` are read.
+    """
+    base = load_demo_queries(object_name)
+    server = WrenchServer()
+    model_path = sorted((Path(demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
+    server.load(model_path)
+    return DemoFloor(base.spec, base.live, base.queries, base.gt, model_path,
+                     server.simulator())

@@ -231,8 +231,15 @@ def load_truth(path):
     return t['nodes'], tris, pushes
 
 
-def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2):
-    """Rest scan (all viewpoints), the first viewpoint's rest frames and every push's clouds."""
+def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2, per_frame=False):
+    """Rest scan (all viewpoints), the first viewpoint's rest frames and every push's clouds.
+
+    Default (this study): the rest scan's first view is the first of ``frames`` rest frames,
+    returned stacked, and each push state's cloud stacks ``frames`` frames. ``per_frame`` (the
+    node's view, ``node_fused_study.py``): ``frames`` rest frames rendered after the scan,
+    returned as a list of clouds, and one frame per push state. The camera draws in the same
+    order either way: scan, rest frames, push states.
+    """
     kw = load_scenario('realistic').camera_kwargs()
     kw['seed'] = seed
     camera = DepthCamera(**kw)
@@ -241,8 +248,9 @@ def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2):
     scans = [render_view(camera, p, nodes, tris) for p in poses]
     rest = np.concatenate([s[0] for s in scans])
     normals = np.concatenate([s[1] for s in scans])
-    view_rest = np.concatenate([scans[0][0]] + [render_view(camera, poses[0], nodes, tris)[0]
-                                                for _ in range(frames - 1)])
+    rest_frames = [] if per_frame else [scans[0][0]]
+    rest_frames += [render_view(camera, poses[0], nodes, tris)[0]
+                    for _ in range(frames - len(rest_frames))]
     probe = point_probe(**POINT_PROBE)
     for p in pushes:
         p['clouds'] = []
@@ -252,8 +260,9 @@ def render_views(nodes, tris, pushes, frames, seed, distance=0.35, views=2):
             occluder = Mesh(probe.vertices @ rot.T + pose.position, probe.triangles)
             p['clouds'].append(np.concatenate([
                 render_view(camera, poses[0], p['surface'][i], tris, occluder)[0]
-                for _ in range(frames)]))
-    return rest, normals, view_rest, np.asarray(poses[0])[:3, 3]
+                for _ in range(1 if per_frame else frames)]))
+    return (rest, normals, rest_frames if per_frame else np.concatenate(rest_frames),
+            np.asarray(poses[0])[:3, 3])
 
 
 def point_samples(name, depth=0.003, spacing=0.004):

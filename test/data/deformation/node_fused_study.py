@@ -54,8 +54,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.abspath(os.path.join(HERE, '..', '..', '..')))
 
-from held_out_study import IDENTIFY, learned_model, load_truth, SITES  # noqa: E402
-from pointforce_ros.bringup.camera_check import render_view  # noqa: E402
+from held_out_study import (IDENTIFY, learned_model, load_truth, render_views,  # noqa: E402
+                            SITES)
 from pointforce_ros.deformation.force import estimate_force, ForceConfig  # noqa: E402
 from pointforce_ros.deformation.fusion import (fuse_estimate, fusion_data,  # noqa: E402
                                                point_calibration)
@@ -64,39 +64,11 @@ from pointforce_ros.deformation.identify import (identify_elasticity,  # noqa: E
 from pointforce_ros.deformation.mesh import volume_mesh_from_surface  # noqa: E402
 from pointforce_ros.deformation.observe import RestFrames  # noqa: E402
 from pointforce_ros.errors import PointforceError  # noqa: E402
-from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints  # noqa: E402
-from pointforce_ros.sim.fem.live import POINT_PROBE  # noqa: E402
-from pointforce_ros.sim.fem.probes import point_probe, pose_for_push  # noqa: E402
-from pointforce_ros.sim.scenario import load_scenario  # noqa: E402
-from pointforce_ros.types import Mesh  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
 
 
 def say(msg):
     """Print a progress line at once."""
     print(msg, flush=True)
-
-
-def render(nodes, tris, pushes, rest_frames, seed, distance=0.35, views=2):
-    """Rest scan, the pushing camera's rest frames, one frame per static state (as a node)."""
-    kw = load_scenario('realistic').camera_kwargs()
-    kw['seed'] = seed
-    camera = DepthCamera(**kw)
-    lo, hi = nodes[:, :2].min(axis=0), nodes[:, :2].max(axis=0)
-    poses = ring_viewpoints([*(0.5 * (lo + hi)), 0.0], distance, count=views)
-    scans = [render_view(camera, p, nodes, tris) for p in poses]
-    frames = [render_view(camera, poses[0], nodes, tris)[0] for _ in range(rest_frames)]
-    probe = point_probe(**POINT_PROBE)
-    for p in pushes:
-        p['clouds'] = []
-        for i, depth in enumerate(p['depths']):
-            pose = pose_for_push(p['q'] + depth * p['d'], p['d'])
-            rot = Rotation.from_quat(pose.orientation).as_matrix()
-            occluder = Mesh(probe.vertices @ rot.T + pose.position, probe.triangles)
-            p['clouds'].append(render_view(camera, poses[0], p['surface'][i], tris,
-                                           occluder)[0])
-    return (np.concatenate([s[0] for s in scans]), np.concatenate([s[1] for s in scans]),
-            frames)
 
 
 def main(argv=None):
@@ -116,7 +88,8 @@ def main(argv=None):
     ap.add_argument('--json')
     args = ap.parse_args(argv)
     nodes, tris, pushes = load_truth(os.path.join(args.out, f'truth_{args.object}.npz'))
-    rest, normals, frames = render(nodes, tris, pushes, args.rest_frames, args.seed)
+    rest, normals, frames, _ = render_views(nodes, tris, pushes, args.rest_frames, args.seed,
+                                            per_frame=True)
     mesh = volume_mesh_from_surface(rest, normals, element_size=args.element_size,
                                     layers=args.layers)
     reference = RestFrames(args.rest_frames)

@@ -26,10 +26,11 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
+from scipy.stats import t as student_t
 from scipy.spatial import cKDTree
 
 from pointforce_ros.contact.lcp import check_decay, shape_function
-from pointforce_ros.contact.uncertainty import lateral_share, uncertainty_sources
+from pointforce_ros.contact.uncertainty import lateral_share, uncertainty_sources, Z90
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.types import as_array, Mesh, Pose, Surface
 
@@ -370,9 +371,10 @@ class ShapeCalibration:
             ``m >= 2`` pushes that determine one (what a new probe's ``c`` may differ by).
         relative_std: share of the force along the push that the model misses on a push it
             was not fitted to: the root mean square, over the pushes, of each push's relative
-            RMS error predicted by ``c`` refitted on the other pushes (at ``fit.decay``);
-            never below ``in_sample_std``, which it is with one push or where no refit
-            converged.
+            RMS error predicted by ``c`` refitted on the other pushes (at ``fit.decay``),
+            times :func:`small_sample_factor` of their number (a share estimated from two or
+            three pushes is itself uncertain); never below ``in_sample_std``, which it is with
+            one push or where no refit converged.
         lateral_std: RMS force across the push not predicted, over the RMS normal force
             (:func:`~pointforce_ros.contact.uncertainty.lateral_share`; 0 where no push has
             force vectors).
@@ -396,6 +398,24 @@ class ShapeCalibration:
         """Return the sources in the model-``meta`` form (the learner stores them)."""
         return uncertainty_sources(shape_cov=self.shape_cov, relative_std=self.relative_std,
                                    lateral_std=self.lateral_std)
+
+
+def small_sample_factor(n: int) -> float:
+    """Widening of a share estimated from ``n`` held-out errors, for a nominal 90 % interval.
+
+    A new push's error over the root mean square ``s`` of ``n`` earlier ones (zero-mean
+    normal errors) follows Student's t with ``n`` degrees of freedom, so its 90 % interval is
+    ``+- t_0.95(n) s``; the uncertainty sources are standard deviations read as ``+- Z90``
+    intervals, so ``s`` is stored times ``t_0.95(n) / Z90``: 1.78 with two pushes, 1.43 with
+    three, 1.10 with ten, 1 in the limit.
+
+    Raises:
+        InvalidInput: ``n < 1``.
+
+    """
+    if int(n) < 1:
+        raise InvalidInput(f'small_sample_factor: need >= 1 held-out error, got {n}')
+    return float(student_t.ppf(0.95, int(n))) / Z90
 
 
 def _along(sim, poke) -> Tuple[np.ndarray, np.ndarray]:
@@ -483,7 +503,8 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
                  if np.isfinite(c) else float('nan'))
         held_out.append((c, error))
     errors = np.array([e for _, e in held_out if np.isfinite(e)])
-    relative = max(float(np.sqrt(np.mean(errors ** 2))) if len(errors) else 0.0, in_sample)
+    relative = max(float(np.sqrt(np.mean(errors ** 2))) * small_sample_factor(len(errors))
+                   if len(errors) else 0.0, in_sample)
     cov = shape_fit_covariance(simulator, pokes, fit)
     alone = np.log([c for c in per_push if np.isfinite(c)])
     if len(alone) >= 2:

@@ -168,6 +168,9 @@ class BatchContactResult:
         lcp_residual: (B,) metres.
         torque_centres: (B, 3) metres.
         frame: frame of everything above.
+        centres_of_pressure: (B, 3) metres, where the force acts: the contacts' positions
+            weighted by their force (the torque centre where a pose has no contact force);
+            ``None`` unless asked for (``query_batch(..., centre_of_pressure=True)``).
 
     """
 
@@ -177,6 +180,7 @@ class BatchContactResult:
     lcp_residual: np.ndarray
     torque_centres: np.ndarray
     frame: str = 'base'
+    centres_of_pressure: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         """Return the number of poses ``B``."""
@@ -393,7 +397,8 @@ class ContactSimulator:
         return self._result(run, a, centre, return_displacements)
 
     def query_batch(self, mesh: Mesh, poses: Union[Sequence[Pose], np.ndarray], approach,
-                    torque_centre, chunk: int = 1024) -> BatchContactResult:
+                    torque_centre, chunk: int = 1024,
+                    centre_of_pressure: bool = False) -> BatchContactResult:
         """Contact of ``mesh`` at many ``poses`` (one approach direction).
 
         Args:
@@ -402,6 +407,7 @@ class ContactSimulator:
             approach: (3,) unit direction, ``base``.
             torque_centre: (3,) for every pose or (B, 3) per pose, metres, ``base``.
             chunk: poses handled together (memory ~ chunk x samples).
+            centre_of_pressure: also return each pose's centre of pressure.
 
         Returns:
             :class:`BatchContactResult`; row ``i`` equals ``query(mesh, poses[i], ...)``.
@@ -421,16 +427,20 @@ class ContactSimulator:
         count = np.zeros(n, dtype=np.int64)
         umax = np.zeros(n)
         resid = np.zeros(n)
+        cop = centres.copy() if centre_of_pressure else None
         chunk = max(int(chunk), 1)
         with single_threaded_blas():
             for s in range(0, n, chunk):
                 sl = slice(s, min(s + chunk, n))
-                run = self._run(local, rot[sl], pos[sl], a, centres[sl], detail=False)
+                run = self._run(local, rot[sl], pos[sl], a, centres[sl],
+                                detail=centre_of_pressure)
                 out[sl], count[sl] = run['wrench'], run['count']
                 umax[sl], resid[sl] = run['umax'], run['residual']
+                if centre_of_pressure and 'f' in run:
+                    _centres_of_pressure(run, cop[sl])
         return BatchContactResult(wrenches=out, contact_count=count, max_displacement=umax,
                                   lcp_residual=resid, torque_centres=centres.copy(),
-                                  frame=self.surface.frame)
+                                  frame=self.surface.frame, centres_of_pressure=cop)
 
     def surface_displacement(self, contact_points: np.ndarray, actual: np.ndarray,
                              penetrations: Optional[np.ndarray] = None) -> np.ndarray:
@@ -716,6 +726,20 @@ class ContactSimulator:
             contact_normals=run['nq'][act], nominal_displacements=run['d'][act],
             actual_displacements=x, contact_forces=run['f'][act],
             candidate_count=len(run['x']))
+
+
+def _centres_of_pressure(run: dict, out: np.ndarray) -> None:
+    """Write each pose's force-weighted contact position into ``out`` (B, 3), in place.
+
+    ``run`` is a detailed :meth:`ContactSimulator._run` (``b``, ``p``, ``f``); a pose without
+    contact force keeps its row of ``out``.
+    """
+    weight = np.maximum(run['f'], 0.0)
+    total = np.bincount(run['b'], weights=weight, minlength=len(out))
+    moment = np.stack([np.bincount(run['b'], weights=weight * run['p'][:, k],
+                                   minlength=len(out)) for k in range(3)], axis=1)
+    held = total > 0.0
+    out[held] = moment[held] / total[held, None]
 
 
 def _deepest_per_key(key: np.ndarray, d: np.ndarray) -> Optional[np.ndarray]:

@@ -90,12 +90,62 @@ def test_lateral_part_spreads_across_the_approach_only():
     fz = np.abs(out.wrench[:, 2])
     np.testing.assert_allclose(out.std[:, 0], 0.1 * fz)
     np.testing.assert_allclose(out.std[:, 1], 0.1 * fz)
-    np.testing.assert_allclose(out.std[:, 2:], 0.0)
+    np.testing.assert_allclose(out.std[:, 2], 0.0)
+    # about z (the approach) the lateral force turns only with the in-plane lever
+    cop = ContactSimulator(model.surface, model.response, model.shape_constant).query_batch(
+        mesh, poses, DOWN, centre, centre_of_pressure=True).centres_of_pressure
+    r = cop - centre
+    np.testing.assert_allclose(out.std[:, 5], 0.1 * fz * np.hypot(r[:, 0], r[:, 1]),
+                               rtol=1e-9)
     # an oblique approach: the component along x shrinks by sqrt(1 - a_x^2)
     a = np.array([0.6, 0.0, -0.8])
     oblique = wrench_uncertainty(model, mesh, poses[:1], a, centre, lateral_std=0.1)
     f_n = abs(oblique.wrench[0, :3] @ a)
     np.testing.assert_allclose(oblique.std[0, :3], 0.1 * f_n * np.sqrt(1 - a ** 2))
+
+
+def test_the_lateral_force_carries_its_torque_from_the_centre_of_pressure():
+    # a planner asking about its wrist, 10 cm above the contact: a lateral discrepancy dF
+    # there turns the wrist by r x dF. Monte Carlo of dF (isotropic across the approach, std
+    # 0.1 F_n per axis) applied at the centre of pressure against the part's torque std.
+    model = patch_contact_model()
+    mesh, poses, tip = _queries()[0]
+    wrist = tip + np.array([0.0, 0.0, 0.1])
+    near = wrench_uncertainty(model, mesh, poses, DOWN, tip, lateral_std=0.1)
+    far = wrench_uncertainty(model, mesh, poses, DOWN, wrist, lateral_std=0.1)
+    np.testing.assert_allclose(far.wrench[:, :3], near.wrench[:, :3])
+    cop = ContactSimulator(model.surface, model.response, model.shape_constant).query_batch(
+        mesh, poses, DOWN, wrist, centre_of_pressure=True).centres_of_pressure
+    rng = np.random.default_rng(5)
+    for i, f_n in enumerate(np.abs(far.wrench[:, 2])):
+        d_f = np.zeros((20000, 3))
+        d_f[:, :2] = rng.normal(scale=0.1 * f_n, size=(20000, 2))
+        d_t = np.cross(cop[i] - wrist, d_f)
+        np.testing.assert_allclose(far.std[i, 3:], d_t.std(axis=0), rtol=0.03, atol=1e-9)
+        # the 10 cm lever dominates: about 0.1 F_n x 0.1 m on each axis across the approach
+        assert far.std[i, 3] > 5 * near.std[i, 3] and far.std[i, 4] > 5 * near.std[i, 4]
+
+
+def test_the_centre_of_pressure_is_where_the_force_acts():
+    # every contact force along the surface normal: on the patch the torque about any centre
+    # is (centre of pressure - centre) x force, and the centre of pressure lies under the probe
+    model = patch_contact_model()
+    sim = ContactSimulator(model.surface, model.response, model.shape_constant)
+    for mesh, poses, centre in _queries():
+        out = sim.query_batch(mesh, poses, DOWN, centre, centre_of_pressure=True)
+        r = out.centres_of_pressure - centre
+        lever = np.cross(r, out.wrenches[:, :3])
+        np.testing.assert_allclose(out.wrenches[:, 3:5], lever[:, :2],
+                                   atol=0.02 * np.abs(lever[:, :2]).max() + 1e-9)
+        for pose, cop in zip(poses, out.centres_of_pressure):
+            assert np.linalg.norm(cop[:2] - np.asarray(pose.position)[:2]) < 0.02
+        assert sim.query_batch(mesh, poses, DOWN, centre).centres_of_pressure is None
+    # no contact: the centre of pressure is the torque centre (no lever)
+    mesh, poses, centre = _queries()[0]
+    lifted = [Pose(position=np.asarray(p.position) + [0, 0, 0.05]) for p in poses]
+    out = sim.query_batch(mesh, lifted, DOWN, centre, centre_of_pressure=True)
+    assert np.all(out.wrenches == 0.0)
+    np.testing.assert_allclose(out.centres_of_pressure, np.broadcast_to(centre, (2, 3)))
 
 
 def test_shape_covariance_shrinks_with_more_informative_pushes():

@@ -8,6 +8,10 @@ Figures, each against a baseline measured in the same run:
   ``shape_msgs/Mesh`` (``single_rtt_mesh_msg_*``: rclpy builds a Python object per vertex and
   triangle on both sides) and a trivial ``std_srvs/Trigger`` service's round trip (what rclpy
   and DDS cost for nothing);
+* where the ``DirectClient`` series' time goes in the service, from the contact node's own
+  ``~/service_timing`` report (``service_take_p50_ms``: taking the request from the
+  middleware, ``service_callback_p50_ms``, ``service_send_p50_ms``: sending the response); the
+  rest of the round trip is the middleware's delivery and the two wake-ups;
 * small batches (``small_batch`` poses, p50 and p99) against the core's batch call, and the
   throughput of one large batch over ROS (poses/s) against the core (``batch_ros_over_core``);
 
@@ -52,6 +56,7 @@ import threading
 import time
 from pathlib import Path
 
+from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -66,10 +71,10 @@ from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
 from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.nodes.contact_wrench import REQUESTS, spin_single_threaded
+from pointforce_ros.nodes.contact_wrench import REQUESTS, spin_single_threaded, TIMING_PERIOD
 from pointforce_ros.nodes.direct_client import DirectClient, ServiceTimeout
 from pointforce_ros.nodes.poke_server import PokeServerNode
-from pointforce_ros.nodes.service_loop import ServiceLoop
+from pointforce_ros.nodes.service_loop import ServiceLoop, STAGES, TIMING_WINDOW
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.sim.rtde.process import start_emulator
@@ -307,6 +312,37 @@ def _load_test(clients: int, calls: int, service_pids, lanes: bool = False,
     return {prefix + key: value for key, value in out.items()}
 
 
+def _timing_reports(planner) -> list:
+    """Subscribe the planner to the contact service's ``~/service_timing``; return the list."""
+    node = planner.add(Node('bench_timing', context=planner.context))
+    reports = []
+    node.create_subscription(DiagnosticStatus, '/contact_wrench/service_timing', reports.append,
+                             10)
+    return reports
+
+
+def _service_stages(planner, reports: list, n_single: int) -> dict:
+    """The service's own account of the ``DirectClient`` series (its lane 1), p50 in ms.
+
+    Read from the contact node's ``~/service_timing`` report that includes the series (within
+    two report periods): taking the request, the callback, sending the response, over the
+    lane's latest answers (warm-up, bursts and the calls after idle; at most
+    :data:`~pointforce_ros.nodes.service_loop.TIMING_WINDOW`).
+    """
+    lane = '/contact_wrench/lane_1/contact_wrench'
+
+    def latest():
+        for report in reversed(reports):
+            values = {kv.key: kv.value for kv in report.values}
+            if float(values.get(f'{lane} answers', 0)) >= min(n_single, TIMING_WINDOW):
+                return values
+        return None
+    values = planner.wait_for(latest, 2 * TIMING_PERIOD + 5, 'the service timing report',
+                              period=0.1)
+    return {f'service_{stage}_p50_ms': float(values[f'{lane} {stage}_p50_ms'])
+            for stage in STAGES}
+
+
 def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3,
                  ContactWrenchBatch):
     """Single, Mesh-message, Trigger, small-batch and large-batch round trips (seconds).
@@ -501,8 +537,10 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     services = [*contact, _start('pointforce_ros.bringup.bench_ros', 'trigger')]
     try:
         with InProcessLauncher(threads=2) as planner:
+            reports = _timing_reports(planner)
             trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
                                  Vector3, ContactWrenchBatch)
+            out.update(_service_stages(planner, reports, n_single))
         pids = [contact[0].pid]
         out.update(_load_test(load_clients, load_calls, pids))
         out.update(_load_test(load_clients, load_calls, pids, lanes=True))

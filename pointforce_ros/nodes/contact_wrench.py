@@ -17,13 +17,17 @@ Run-time parameters (issue 21): every parameter but ``model_dir`` (read-only) ta
 when set: checked, logged (old -> new) and used from the next request (``sample_spacing``
 rebuilds the simulator of the model in use). ``~/last_query`` (latched MarkerArray) shows the
 last answered single query's contact points and wrench arrow; a timer at ``marker_rate``
-publishes it only when a new query was answered, off the service path.
+publishes it only when a new query was answered, off the service path. ``~/service_timing``
+(DiagnosticStatus, every :data:`TIMING_PERIOD` s after new answers) says where each service's
+answers spent their time over its latest :data:`~pointforce_ros.nodes.service_loop.
+TIMING_WINDOW`: taking the request, the callback, sending the response (p50 and p99, ms).
 """
 
 import dataclasses
 import time
 from pathlib import Path
 
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
 
 from pointforce_interfaces.msg import ModelStatus
@@ -56,6 +60,9 @@ LIMIT_PARAMETERS = {'max_sample_poses': 'max_sample_poses', 'max_request_memory'
                     'max_distance': 'max_distance', 'max_depth': 'max_depth',
                     'max_torque_arm': 'max_torque_arm', 'max_request_seconds': 'max_seconds'}
 """Parameter name -> :class:`RequestLimits` field (``max_request_memory`` in MiB)."""
+
+TIMING_PERIOD = 5.0
+"""Seconds between ``~/service_timing`` reports (only after new answers)."""
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -153,6 +160,9 @@ class ContactWrenchNode(Node):
         self.marker_pub = self.create_publisher(MarkerArray, '~/last_query', LATCHED)
         self._marker_timer = self.create_timer(1.0 / marker_rate, self._publish_markers,
                                                callback_group=loader)
+        self.timing_pub = self.create_publisher(DiagnosticStatus, '~/service_timing', 10)
+        self._timed = -1
+        self.create_timer(TIMING_PERIOD, self._publish_timing, callback_group=loader)
         live(self, {'max_batch': lambda v: lambda: setattr(self, 'max_batch', v),
                     'uncertainty': lambda v: lambda: setattr(self, 'uncertainty', v),
                     'sample_spacing': lambda v: self._configure(spacing=v),
@@ -212,6 +222,25 @@ class ContactWrenchNode(Node):
             self.get_logger().error(f'~/last_query not published: {type(exc).__name__}: {exc}',
                                     throttle_duration_sec=10.0)
         self._shown = last
+
+    def _publish_timing(self):
+        """Timer: publish ~/service_timing when requests were answered since the last one."""
+        try:
+            taken = self._service_loop.requests_taken
+            if taken == self._timed:
+                return
+            self._timed = taken
+            keys = [KeyValue(key='requests_taken', value=str(taken)),
+                    KeyValue(key='faults', value=str(self._service_loop.faults))]
+            for name, row in sorted(self._service_loop.timing().items()):
+                keys += [KeyValue(key=f'{name} {key}', value=f'{value:.4f}')
+                         for key, value in row.items()]
+            self.timing_pub.publish(DiagnosticStatus(
+                level=DiagnosticStatus.OK, name=f'{self.get_fully_qualified_name()}: service '
+                'timing', message='take / callback / send per service, ms', values=keys))
+        except Exception as exc:  # noqa: BLE001 - a timer callback must not end the executor
+            self.get_logger().error(f'~/service_timing not published: {type(exc).__name__}: '
+                                    f'{exc}', throttle_duration_sec=10.0)
 
     def _try_load_dir(self):
         if not self.model_dir:

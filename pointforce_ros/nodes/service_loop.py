@@ -18,8 +18,12 @@ escapes one anyway, or a take or send that fails, is logged and the loop keeps s
 """
 
 import threading
+import time
+from collections import deque
 from contextlib import ExitStack
-from typing import Callable, List, Optional
+from typing import Callable, Dict, List, Optional
+
+import numpy as np
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import InvalidHandle
@@ -31,6 +35,14 @@ from rclpy.type_support import check_is_valid_srv_type
 
 WAKE_PERIOD_NS = 500_000_000
 """Longest wait before the loop looks at its stop flag again (a missed wake-up costs this)."""
+
+TIMING_WINDOW = 1000
+"""Requests per service whose stage times :meth:`ServiceLoop.timing` summarises (the latest)."""
+
+STAGES = ('take', 'callback', 'send')
+"""Stages of one answer :meth:`ServiceLoop.timing` times: taking the request from the
+middleware (its deserialisation into a message), the callback, sending the response (its
+serialisation and the middleware's write)."""
 
 
 class ServiceLoop:
@@ -48,6 +60,9 @@ class ServiceLoop:
             self._wake = _rclpy.GuardCondition(node.context.handle)
         self.requests_taken = 0
         self.faults = 0
+        self._times: Dict[Service, deque] = {}
+        self._resolved: Dict[Service, str] = {}
+        self._times_lock = threading.Lock()
 
     def add(self, srv_type, name: str, callback: Callable, qos_profile: QoSProfile) -> Service:
         """Create service ``name`` on the node, answered by ``callback(request, response)``.
@@ -64,7 +79,30 @@ class ServiceLoop:
                                   qos_profile.get_c_qos_profile())
         service = Service(impl, srv_type, name, callback, self._group, qos_profile)
         self._services.append(service)
+        self._times[service] = deque(maxlen=TIMING_WINDOW)
+        self._resolved[service] = self._node.resolve_service_name(name)
         return service
+
+    def timing(self) -> Dict[str, Dict[str, float]]:
+        """Where each service's answers spent their time, over its latest answers.
+
+        Returns:
+            per service (its full name) that has answered: ``answers`` (in the window, at most
+            :data:`TIMING_WINDOW`) and, for each of :data:`STAGES`, ``<stage>_p50_ms`` and
+            ``<stage>_p99_ms`` (wall time on the loop's thread, milliseconds).
+
+        """
+        with self._times_lock:
+            copies = {self._resolved[service]: np.array(times)
+                      for service, times in self._times.items() if times}
+        out = {}
+        for name, times in copies.items():
+            row = {'answers': float(len(times))}
+            for k, stage in enumerate(STAGES):
+                p50, p99 = np.percentile(times[:, k], [50, 99])
+                row[f'{stage}_p50_ms'], row[f'{stage}_p99_ms'] = 1e3 * p50, 1e3 * p99
+            out[name] = row
+        return out
 
     @property
     def services(self) -> List[Service]:
@@ -149,6 +187,7 @@ class ServiceLoop:
         reason in ``message`` where the type has those fields, so the caller is not left
         waiting.
         """
+        start = time.perf_counter()
         try:
             request, header = service.handle.service_take_request(service.srv_type.Request)
         except Exception as exc:  # noqa: BLE001 - a service never stops answering others
@@ -159,6 +198,7 @@ class ServiceLoop:
         if header is None:
             return
         self.requests_taken += 1
+        taken = time.perf_counter()
         try:
             response = service.callback(request, service.srv_type.Response())
         except Exception as exc:  # noqa: BLE001 - the caller gets a refusal, not silence
@@ -166,12 +206,17 @@ class ServiceLoop:
             logger.error(f'{service.srv_name}: callback failed: {type(exc).__name__}: {exc}',
                          throttle_duration_sec=2.0)
             response = _refusal(service.srv_type.Response(), exc)
+        answered = time.perf_counter()
         try:
             service.send_response(response, header)
         except Exception as exc:  # noqa: BLE001 - a service never stops answering others
             self.faults += 1
             logger.error(f'{service.srv_name}: response not sent: {type(exc).__name__}: '
                          f'{exc}', throttle_duration_sec=2.0)
+            return
+        sent = time.perf_counter()
+        with self._times_lock:
+            self._times[service].append((taken - start, answered - taken, sent - answered))
 
 
 def _refusal(response, exc: Exception):

@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
 from rcl_interfaces.srv import SetParameters
@@ -18,7 +19,7 @@ from msg_adapters.geometry import mesh_to_flat, mesh_to_msg, pose_to_msg, to_poi
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import ContactModel, save_model
 from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.nodes.contact_wrench import ContactWrenchNode, LATCHED
+from pointforce_ros.nodes.contact_wrench import ContactWrenchNode, LATCHED, TIMING_PERIOD
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.types import ContactQuery, Pose
 
@@ -194,3 +195,28 @@ def test_last_query_markers_show_the_answer_and_are_drawn_off_the_hot_path(
     assert _call(graph, single, _request(0.002)[0]).success
     time.sleep(1.0)
     assert node.markers_published == count
+
+
+def test_service_timing_reports_where_the_answers_spent_their_time(served):  # noqa: F811
+    graph, node, client_node, single, batch, _, _ = served
+    received = []
+    client_node.create_subscription(DiagnosticStatus, '/contact_wrench/service_timing',
+                                    received.append, 10)
+    for depth in (0.002, 0.003, 0.004):
+        assert _call(graph, single, _request(depth)[0]).success
+    assert _call(graph, batch, _batch(40)).success
+    graph.wait_for(lambda: received, 2 * TIMING_PERIOD + 5, 'a service timing report')
+    values = {kv.key: float(kv.value) for kv in received[-1].values}
+    single_name = '/contact_wrench/contact_wrench'
+    batch_name = f'{single_name}_batch'
+    assert values[f'{single_name} answers'] >= 3 and values[f'{batch_name} answers'] >= 1
+    assert values['requests_taken'] == node._service_loop.requests_taken
+    # a 40-pose batch's callback outlasts a single query's; each stage is timed
+    assert values[f'{batch_name} callback_p50_ms'] > values[f'{single_name} callback_p50_ms']
+    for name in (single_name, batch_name):
+        for stage in ('take', 'callback', 'send'):
+            assert 0.0 < values[f'{name} {stage}_p50_ms'] <= values[f'{name} {stage}_p99_ms']
+    # nothing answered since: no new report
+    count = len(received)
+    time.sleep(TIMING_PERIOD + 1.0)
+    assert len(received) == count

@@ -101,6 +101,22 @@ def test_a_timed_out_call_does_not_take_a_later_calls_answer(ros_graph):
     assert node.calls == 2
 
 
+def test_the_loop_times_each_stage_of_its_answers(ros_graph):
+    # eight answers, the last three with a 30 ms callback: the callback stage holds them,
+    # taking and sending stay small, and p99 sees the slow ones where p50 does not
+    steps = [None] * 5 + [lambda: time.sleep(0.03)] * 3
+    node = ros_graph.add(_Served(ros_graph.context, answers=steps))
+    assert node.loop.timing() == {}
+    client = _client(ros_graph, 'on_loop')
+    for _ in steps:
+        assert client.call(Trigger.Request(), timeout_sec=5.0).success
+    (name, row), = node.loop.timing().items()
+    assert name == '/loop_test/on_loop' and row['answers'] == len(steps)
+    assert row['callback_p99_ms'] >= 29.0 and row['callback_p50_ms'] < 20.0
+    for stage in ('take', 'send'):
+        assert 0.0 < row[f'{stage}_p50_ms'] < 20.0 and row[f'{stage}_p99_ms'] < 29.0
+
+
 def test_stop_ends_the_loop_thread_and_its_services(ros_graph):
     node = ros_graph.add(_Served(ros_graph.context))
     client = _client(ros_graph, 'on_loop')

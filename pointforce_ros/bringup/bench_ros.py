@@ -322,7 +322,7 @@ def _timing_reports(planner) -> list:
 
 
 def _service_stages(planner, reports: list, n_single: int) -> dict:
-    """The service's own account of the ``DirectClient`` series (its lane 1), p50 in ms.
+    """Return the service's own account of the ``DirectClient`` series (lane 1), p50 in ms.
 
     Read from the contact node's ``~/service_timing`` report that includes the series (within
     two report periods): taking the request, the callback, sending the response, over the

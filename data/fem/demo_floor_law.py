@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from demo_floor_setup import load_demo_floor  # this folder
+from demo_floor_setup import lcp_force_z, load_demo_floor  # this folder
 from pointforce_ros.bringup.demo import _calibration_pokes
 from pointforce_ros.contact.identify import DECAY_GRID
 from pointforce_ros.contact.lcp import bpp_dense
@@ -148,15 +148,7 @@ def force_z(response, cand, G):
         x, _ = bpp_dense(G, e, free=e >= WARM_START * e.max())
     except NotConverged:     # a law whose G is not positive definite
         return float('nan')
-    act = np.flatnonzero(x > 0)
-    f = np.zeros(len(d))
-    if len(act):
-        ia = nbr[act].ravel()
-        da = np.repeat(d[act], 3)
-        xa = np.repeat(x[act], 3)
-        f[act] = (response.force(ia, da) - response.force(ia, da - xa)).reshape(-1, 3).mean(
-            axis=1)
-    return float((f[:, None] * nq).sum(axis=0) @ -np.asarray(a))
+    return lcp_force_z(response, nbr, d, x, nq, a)
 
 
 def thickness_proxy(response, n, shallow=0.003, deep=0.008):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from demo_floor_setup import load_demo_floor  # this folder
+from demo_floor_setup import lcp_force_z, load_demo_floor  # this folder
 from pointforce_ros.bringup.demo import _calibration_pokes
 from pointforce_ros.contact.lcp import bpp_dense
 from pointforce_ros.contact.simulator import ContactSimulator
@@ -47,16 +47,7 @@ def force_z(sim, mesh, pose, approach, centre, c, decay, scale):
     if np.isfinite(decay):
         G *= np.exp(-r / decay)
     x, _ = bpp_dense(G, e, free=e >= 0.65 * e.max())
-    act = np.flatnonzero(x > 0)
-    f = np.zeros(len(d))
-    if len(act):
-        ia = nbr[act].ravel()
-        da = np.repeat(d[act], 3)
-        xa = np.repeat(x[act], 3)
-        hi = sim.response.force(ia, da)
-        lo = sim.response.force(ia, da - xa)
-        f[act] = (hi - lo).reshape(-1, 3).mean(axis=1)
-    return float((f[:, None] * nq).sum(axis=0) @ -a)
+    return lcp_force_z(sim.response, nbr, d, x, nq, a)
 
 
 def main():

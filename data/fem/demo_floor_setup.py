@@ -1,5 +1,8 @@
 """The set-up the ``demo_floor*.py`` scripts share: the demo's queries, their truth, its model.
 
+Also the force of one query's LCP solution (:func:`lcp_force_z`), the step after the solve that
+``demo_floor_local.py`` and ``demo_floor_law.py`` share.
+
 Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py`` and
 ``demo_floor_pokes.py`` import it from this folder (a script's folder is on ``sys.path``).
 """
@@ -16,6 +19,27 @@ from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.objects import load_object
+
+
+def lcp_force_z(response, nbr, d, x, nq, approach) -> float:
+    """Fz of one query's LCP solution: each active contact's force, summed against the approach.
+
+    ``nbr``: (n, 3) surface point indices of each candidate contact's neighbours; ``d``: (n,)
+    nominal displacements in m; ``x``: (n,) the LCP solution (each contact's give, m, zero
+    where inactive); ``nq``: (n, 3) contact normals, base frame; ``approach``: (3,) unit
+    approach direction, base frame. A contact's force is ``F(d) - F(d - x)`` of ``response``
+    averaged over its 3 neighbours; the result is the total force along ``-approach``, in N.
+    """
+    act = np.flatnonzero(x > 0)
+    f = np.zeros(len(d))
+    if len(act):
+        ia = nbr[act].ravel()
+        da = np.repeat(d[act], 3)
+        xa = np.repeat(x[act], 3)
+        hi = response.force(ia, da)
+        lo = response.force(ia, da - xa)
+        f[act] = (hi - lo).reshape(-1, 3).mean(axis=1)
+    return float((f[:, None] * nq).sum(axis=0) @ -np.asarray(approach))
 
 
 @dataclass(frozen=True)

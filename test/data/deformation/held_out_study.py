@@ -192,6 +192,18 @@ def say(msg):
     print(msg, flush=True)
 
 
+def report(rows, failed, summary, json_path=None):
+    """Print the summary line; with ``json_path``, also write rows, failures and summary there.
+
+    ``rows`` and ``failed``: one dict per scored or failed push; ``summary``: a dict of plain
+    numbers and strings. The JSON holds ``{'rows', 'failed', 'summary'}``.
+    """
+    say('summary ' + json.dumps(summary))
+    if json_path:
+        with open(json_path, 'w') as f:
+            json.dump(dict(rows=rows, failed=failed, summary=summary), f, indent=1)
+
+
 def solve_truth(name, path, h, count=None):
     """Solve the first ``count`` sites' pushes with the cell's FEM on one mesh; cache them."""
     spec = spec_of(name)
@@ -549,10 +561,7 @@ def main(argv=None):
                        point_magnitude_max_pct=100 * float(pmag.max()),
                        point_inside_2sigma=float(np.mean([abs(r['point_error'])
                                                           <= 2 * r['point_std'] for r in fused])))
-    say('summary ' + json.dumps(summary))
-    if args.json:
-        with open(args.json, 'w') as f:
-            json.dump(dict(rows=rows, failed=failed, summary=summary), f, indent=1)
+    report(rows, failed, summary, args.json)
 
 
 if __name__ == '__main__':

@@ -40,7 +40,6 @@ identifications) 10-106 s on the shared 2-core machine.
 """
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -55,7 +54,7 @@ sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.abspath(os.path.join(HERE, '..', '..', '..')))
 
 from held_out_study import (IDENTIFY, learned_model, load_truth, render_views,  # noqa: E402
-                            SITES)
+                            report, SITES)
 from pointforce_ros.deformation.force import estimate_force, ForceConfig  # noqa: E402
 from pointforce_ros.deformation.fusion import (fuse_estimate, fusion_data,  # noqa: E402
                                                point_calibration)
@@ -166,10 +165,7 @@ def main(argv=None):
                    direction_max_deg=float(np.max([r['direction_deg'] for r in rows])),
                    identify_s=[round(t['identify_s'], 1) for t in timings],
                    fusion_s=[round(t['fusion_s'], 1) for t in timings])
-    say('summary ' + json.dumps(summary))
-    if args.json:
-        with open(args.json, 'w') as f:
-            json.dump(dict(rows=rows, failed=failed, summary=summary), f, indent=1)
+    report(rows, failed, summary, args.json)
 
 
 if __name__ == '__main__':

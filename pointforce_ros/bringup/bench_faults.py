@@ -300,6 +300,15 @@ class Bench:
         self.client_launcher = InProcessLauncher(threads=8)
         self.node = self.client_launcher.add(Node('bench_faults_client',
                                                   context=self.client_launcher.context))
+        # The endpoints the bench uses after its first fault exist before it: Fast DDS 2.14 can
+        # deadlock creating an endpoint while its discovery removes a killed peer's endpoints
+        # (the participant's endpoint-list mutex; eProsima/Fast-DDS#2961, #3496): seen once
+        # here, the main thread stuck in create_datareader for an action client after the
+        # learner's SIGKILL.
+        self.statuses: List[ModelStatus] = []
+        self.node.create_subscription(ModelStatus, f'/{self.ns}/stiffness_learner/model',
+                                      self.statuses.append, LATCHED)
+        self.poke_client = ActionClient(self.node, Poke, f'/{self.ns}/poke_server/poke')
         self.processes: List[NodeProcess] = []
         self.server_launcher = None
         self.emulator = None
@@ -538,9 +547,7 @@ def learner_faults(bench: Bench, sizes) -> dict:
                                     seed=bench.seed, force_limit=3.0, depth_limit=0.01,
                                     speed=0.004, gap=0.5):
         store.add(record)
-    statuses = []
-    bench.node.create_subscription(ModelStatus, f'/{bench.ns}/stiffness_learner/model',
-                                   statuses.append, LATCHED)
+    statuses = bench.statuses
     params = dict(store_dir=work / 'pokes', model_dir=work / 'models',
                   surface_file=work / 'surface.npz', poll_period=600.0)
     want = sizes['learner_pokes']
@@ -594,7 +601,7 @@ def poke_faults(bench: Bench, rng, quick: bool) -> dict:
             Parameter('store_dir', value=str(store_dir))]), isolated=True)
     pts = np.column_stack([np.linspace(0.45, 0.55, 30), np.zeros(30), np.full(30, 0.04)])
     server.surface = Surface(points=pts, normals=np.tile([0, 0, 1.0], (30, 1)))
-    client = ActionClient(bench.node, Poke, f'/{bench.ns}/poke_server/poke')
+    client = bench.poke_client
     if not client.wait_for_server(timeout_sec=20.0):
         raise DeviceFault('the poke server did not appear within 20 s')
     before = np.asarray(bench.emulator.control.state()['pose'], dtype=float)

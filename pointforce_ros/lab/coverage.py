@@ -59,7 +59,8 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
 
     Returns:
         ``{'normal': (S,) normalised error err/std of the force along the push, 'force': (S, 3)
-        of each force component, 'pred', 'std', 'true': (S, 3) N, 'kinds': (S,) trial kind,
+        of each force component, 'torque': (S, 3) of each torque component (about the trial's
+        torque centre), 'pred', 'std', 'true': (S, 3) N, 'kinds': (S,) trial kind,
         'relative_std': (S,) the relative share each step's interval used}`` over the ``S``
         steps of all trials.
 
@@ -79,8 +80,8 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
     train = [curves[i] for i in rng.choice(len(curves), size=n_train, replace=False)]
     baked = ContactGpModel().fit(train, surface).bake(surface, bake_depths(curves))
     nominal = ContactSimulator(surface, baked, DEFAULT_C)
-    rows = {'normal': [], 'force': [], 'pred': [], 'std': [], 'true': [], 'kinds': [],
-            'relative_std': []}
+    rows = {'normal': [], 'force': [], 'torque': [], 'pred': [], 'std': [], 'true': [],
+            'kinds': [], 'relative_std': []}
     for j, trial in enumerate(trials):
         others = [_push(t) for i, t in enumerate(trials) if i != j]
         try:
@@ -98,6 +99,8 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
                                  trial['torque_centre'])
         pred, std = out.wrench[:, :3], np.maximum(out.std[:, :3], 1e-12)
         true = np.asarray(trial['force'], dtype=float)
+        rows['torque'].append((out.wrench[:, 3:] - np.asarray(trial['torque'], dtype=float))
+                              / np.maximum(out.std[:, 3:], 1e-12))
         a = -np.asarray(trial['direction'], dtype=float)
         a_std = np.sqrt(np.sum((std * a) ** 2, axis=1))   # components' std along the push
         rows['normal'].append(((pred - true) @ a) / np.maximum(a_std, 1e-12))
@@ -115,9 +118,9 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
     if not rows['normal']:
         raise InvalidInput('probe_coverage: no trial could be calibrated from the others')
     return {'normal': np.concatenate(rows['normal']), 'force': np.vstack(rows['force']),
-            'pred': np.vstack(rows['pred']), 'std': np.vstack(rows['std']),
-            'true': np.vstack(rows['true']), 'kinds': np.array(rows['kinds']),
-            'relative_std': np.array(rows['relative_std'])}
+            'torque': np.vstack(rows['torque']), 'pred': np.vstack(rows['pred']),
+            'std': np.vstack(rows['std']), 'true': np.vstack(rows['true']),
+            'kinds': np.array(rows['kinds']), 'relative_std': np.array(rows['relative_std'])}
 
 
 def summary(result: Mapping) -> Dict:
@@ -128,6 +131,8 @@ def summary(result: Mapping) -> Dict:
     return {'steps': int(len(normal)),
             'coverage_normal': float(np.mean(np.abs(normal) <= Z90)),
             'coverage_force': float(np.mean(np.abs(result['force']) <= Z90)),
+            'coverage_torque': float(np.mean(np.abs(result['torque']) <= Z90))
+            if 'torque' in result else float('nan'),
             'below': int(np.sum(normal < 0)), 'above': int(np.sum(normal > 0)),
             'width_over_force': float(np.median(2 * Z90 * np.linalg.norm(std, axis=1)
                                                 / np.maximum(peak, 1e-9))),
@@ -181,17 +186,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         s = table[name]
         print(f'[coverage] {name}: 90 % intervals cover {s["coverage_normal"]:.0%} of '
               f'{s["steps"]} steps (force along the push; {s["coverage_force"]:.0%} of all '
-              f'components); predicted below truth {s["below"]}, above {s["above"]}; median '
+              f'force and {s["coverage_torque"]:.0%} of all torque components); predicted '
+              f'below truth {s["below"]}, above {s["above"]}; median '
               f'width {s["width_over_force"]:.0%} of the force (median relative std '
               f'{s["relative_std"]:.0%})')
     pooled = {key: np.concatenate([np.asarray(r[key]) for r in results.values()])
               if key in ('normal', 'kinds', 'relative_std') else
               np.vstack([np.asarray(r[key]) for r in results.values()])
-              for key in ('normal', 'force', 'pred', 'std', 'true', 'kinds', 'relative_std')}
+              for key in ('normal', 'force', 'torque', 'pred', 'std', 'true', 'kinds',
+                          'relative_std')}
     table['pooled'] = summary(pooled)
     s = table['pooled']
     print(f'[coverage] pooled: {s["coverage_normal"]:.0%} of {s["steps"]} steps covered (goal '
-          f'85-95 %), {s["coverage_force"]:.0%} of all force components; median width '
+          f'85-95 %), {s["coverage_force"]:.0%} of all force and {s["coverage_torque"]:.0%} of '
+          f'all torque components; median width '
           f'{s["width_over_force"]:.0%} of the force')
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

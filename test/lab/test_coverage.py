@@ -25,6 +25,11 @@ def test_summary_counts_what_lies_inside_the_nominal_interval():
     doubled = summary({'normal': 2 * normal, 'force': 2 * force, 'pred': pred, 'std': std,
                        'true': pred})
     assert doubled['coverage_normal'] < 0.65     # intervals half as wide as the errors
+    # torque components are counted on their own (here: inside only within half a std)
+    torque = summary({'normal': normal, 'force': force, 'torque': 4 * force, 'pred': pred,
+                      'std': std, 'true': pred})
+    assert torque['coverage_torque'] == pytest.approx(np.mean(np.abs(force) <= Z90 / 4))
+    assert torque['coverage_torque'] < 0.4 and np.isnan(out['coverage_torque'])
 
 
 def test_probe_coverage_needs_other_trials_to_calibrate():

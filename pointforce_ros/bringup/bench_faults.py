@@ -303,8 +303,8 @@ class Bench:
         # The endpoints the bench uses after its first fault exist before it: Fast DDS 2.14 can
         # deadlock creating an endpoint while its discovery removes a killed peer's endpoints
         # (the participant's endpoint-list mutex; eProsima/Fast-DDS#2961, #3496): seen once
-        # here, the main thread stuck in create_datareader for an action client after the
-        # learner's SIGKILL.
+        # here, the main thread stuck in create_datareader for the poke action client while a
+        # discovery thread removed a killed peer's writers.
         self.statuses: List[ModelStatus] = []
         self.node.create_subscription(ModelStatus, f'/{self.ns}/stiffness_learner/model',
                                       self.statuses.append, LATCHED)

@@ -57,11 +57,16 @@ import time
 from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import Vector3
 import numpy as np
+from pointforce_interfaces.action import Poke
+from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
 import rclpy
+from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from msg_adapters.geometry import mesh_to_flat, mesh_to_msg, pose_to_msg, to_point
@@ -160,8 +165,6 @@ def _bench_poses(n: int, seed: int = 0):
 
 def _single_request(pose, mesh_fields, skip_uncertainty: bool = True):
     """Build a single query; the latency series skip the wrench's spread (four more solves)."""
-    from geometry_msgs.msg import Vector3  # noqa: I100 - message package, as the others here
-    from pointforce_interfaces.srv import ContactWrench
     return ContactWrench.Request(pose=pose_to_msg(pose), approach=Vector3(x=0.0, y=0.0, z=-1.0),
                                  torque_centre=to_point(CENTRE), skip_uncertainty=skip_uncertainty,
                                  **mesh_fields)
@@ -197,7 +200,6 @@ def load_client(calls: int, seed: int, service: str = '/contact_wrench/contact_w
     """
     rclpy.init()
     node = Node(f'bench_load_{seed}')
-    from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
     if direct:
         direct_client = DirectClient(node, ContactWrench, service, REQUESTS)
         if not direct_client.wait_for_service(timeout_sec=60):
@@ -343,8 +345,7 @@ def _service_stages(planner, reports: list, n_single: int) -> dict:
             for stage in STAGES}
 
 
-def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3,
-                 ContactWrenchBatch):
+def _round_trips(planner, sphere, poses, n_single, n_small, small_batch):
     """Single, Mesh-message, Trigger, small-batch and large-batch round trips (seconds).
 
     The planner's client node spins on a ``SingleThreadedExecutor`` of its own, as a planner
@@ -356,7 +357,6 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     package's :class:`DirectClient` (no executor; lane 1 and ``~/trigger_direct``, the latter
     served on a :class:`ServiceLoop` as the contact service is).
     """
-    from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
     client_node = planner.add(Node('bench_client', context=planner.context), isolated=True,
                               threads=1)
     mt_node = planner.add(Node('bench_client_mt', context=planner.context))
@@ -368,13 +368,12 @@ def _round_trips(planner, sphere, poses, n_single, n_small, small_batch, Vector3
     with _direct_clients(planner) as (single_direct, trigger_direct):
         return _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_direct,
                                   trigger_direct, sphere, poses, n_single, n_small,
-                                  small_batch, Vector3, ContactWrenchBatch)
+                                  small_batch)
 
 
 @contextlib.contextmanager
 def _direct_clients(planner):
     """Yield the package's executor-free clients (names of their own: lane 1, trigger_direct)."""
-    from pointforce_interfaces.srv import ContactWrench  # noqa: I100 - after rclpy.init
     node = Node('bench_client_direct', context=planner.context)
     clients = (DirectClient(node, ContactWrench, '/contact_wrench/lane_1/contact_wrench',
                             REQUESTS),
@@ -388,8 +387,7 @@ def _direct_clients(planner):
 
 
 def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_direct,
-                       trigger_direct, sphere, poses, n_single, n_small, small_batch, Vector3,
-                       ContactWrenchBatch):
+                       trigger_direct, sphere, poses, n_single, n_small, small_batch):
     """Time the series of :func:`_round_trips` (seconds), given its clients."""
     for client in (single, batch, trigger, single_mt, trigger_mt, single_direct,
                    trigger_direct):
@@ -483,12 +481,6 @@ def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
 
 
 def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) -> dict:
-    from geometry_msgs.msg import Vector3
-    from pointforce_interfaces.action import Poke
-    from pointforce_interfaces.srv import ContactWrenchBatch
-    from rclpy.action import ActionClient
-    from rclpy.parameter import Parameter
-
     n_single = 100 if quick else 500
     n_small = 50 if quick else 200
     small_batch = 100
@@ -538,8 +530,7 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     try:
         with InProcessLauncher(threads=2) as planner:
             reports = _timing_reports(planner)
-            trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch,
-                                 Vector3, ContactWrenchBatch)
+            trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch)
             out.update(_service_stages(planner, reports, n_single))
         pids = [contact[0].pid]
         out.update(_load_test(load_clients, load_calls, pids))

@@ -21,7 +21,7 @@ import threading
 import time
 from collections import deque
 from contextlib import ExitStack
-from typing import Callable, Dict, List, Optional
+from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -60,8 +60,7 @@ class ServiceLoop:
             self._wake = _rclpy.GuardCondition(node.context.handle)
         self.requests_taken = 0
         self.faults = 0
-        self._times: Dict[Service, deque] = {}
-        self._resolved: Dict[Service, str] = {}
+        self._times: Dict[Service, Tuple[str, deque]] = {}   # full name, stage times
         self._times_lock = threading.Lock()
 
     def add(self, srv_type, name: str, callback: Callable, qos_profile: QoSProfile) -> Service:
@@ -79,8 +78,8 @@ class ServiceLoop:
                                   qos_profile.get_c_qos_profile())
         service = Service(impl, srv_type, name, callback, self._group, qos_profile)
         self._services.append(service)
-        self._times[service] = deque(maxlen=TIMING_WINDOW)
-        self._resolved[service] = self._node.resolve_service_name(name)
+        self._times[service] = (self._node.resolve_service_name(name),
+                                deque(maxlen=TIMING_WINDOW))
         return service
 
     def timing(self) -> Dict[str, Dict[str, float]]:
@@ -93,8 +92,7 @@ class ServiceLoop:
 
         """
         with self._times_lock:
-            copies = {self._resolved[service]: np.array(times)
-                      for service, times in self._times.items() if times}
+            copies = {name: np.array(times) for name, times in self._times.values() if times}
         out = {}
         for name, times in copies.items():
             row = {'answers': float(len(times))}
@@ -216,7 +214,7 @@ class ServiceLoop:
             return
         sent = time.perf_counter()
         with self._times_lock:
-            self._times[service].append((taken - start, answered - taken, sent - answered))
+            self._times[service][1].append((taken - start, answered - taken, sent - answered))
 
 
 def _refusal(response, exc: Exception):

@@ -44,7 +44,6 @@ and the LCPs of many poses solved as padded stacks grouped by size, each round b
 the columns of ``G`` its free sets need (:class:`~pointforce_ros.contact.lcp.PointShapeStack`).
 """
 
-import contextlib
 import copy
 import math
 from dataclasses import dataclass, field
@@ -56,16 +55,23 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
 from pointforce_ros.contact.lcp import (bpp_dense, check_decay, lcp_residual, PointShapeStack,
-                                        shape_function, solve_lcp_batch,
-                                        varying_shape_function)
+                                        shape_function, solve_lcp_batch)
 from pointforce_ros.contact.sampling import sample_mesh_surface
-from pointforce_ros.errors import InvalidInput
+from pointforce_ros.contact import single_pose
+from pointforce_ros.errors import InvalidInput, NotConverged
+from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.response.blas import single_threaded_blas
 from pointforce_ros.types import as_array, Mesh, Pose, Surface, Wrench
 from pointforce_ros.rotations import quaternion_to_matrix
 
 APPROACH_TOLERANCE = 1e-3
 """Largest accepted deviation of the approach direction's length from one."""
+
+MAX_PIVOTING = 200
+"""Most pivoting rounds of one pose's LCP (as :func:`~pointforce_ros.contact.lcp.bpp_dense`)."""
+
+PIVOTING_TOL = 1e-12
+"""Feasibility tolerance of the pivoting, relative to the deepest penetration."""
 
 WARM_START = 0.65
 """The LCP's first guess of the touching set: candidates at least this fraction of the deepest
@@ -326,7 +332,13 @@ class ContactSimulator:
         # a row that never reaches contact force keeps the paper's rule (geometry only)
         self._onset = np.where(np.isfinite(onset), onset, 0.0)
         # what step 2 sums over a sample's 3 neighbours, one row per point: one gather
-        self._table = np.column_stack([self._normals, self._pn, self._onset, self._points])
+        self._table = np.ascontiguousarray(
+            np.column_stack([self._normals, self._pn, self._onset, self._points]))
+        # one pose at a time: the compiled kernels (single_pose), with their own interpolation
+        # of a baked table where the response's force is the table's (not overridden)
+        self._compiled = len(surface) < single_pose.MAX_KEY_POINTS
+        self._baked = (single_pose.baked_tables(response)
+                       if getattr(type(response), 'force', None) is BakedResponse.force else None)
         _, first = np.unique(surface.points, axis=0, return_index=True)
         self._unique = np.sort(first)
         self.duplicates_removed = len(surface) - len(self._unique)
@@ -392,7 +404,7 @@ class ContactSimulator:
         """
         a = normalise_approach(approach)
         centre = as_array(torque_centre, 'torque_centre', (3,))
-        world = as_array(points, 'points', (None, 3))
+        world = np.ascontiguousarray(as_array(points, 'points', (None, 3)))
         run = self._run(world, np.eye(3)[None], np.zeros((1, 3)), a, centre[None], detail=True)
         return self._result(run, a, centre, return_displacements)
 
@@ -479,6 +491,7 @@ class ContactSimulator:
         if hit is not None and hit[0] is mesh:
             return hit[1]
         pts, _ = sample_mesh_surface(mesh, self.spacing)
+        pts = np.ascontiguousarray(pts, dtype=np.float64)   # for the compiled kernels
         if len(self._meshes) > 16:
             self._meshes.clear()
         self._meshes[key] = (mesh, pts)
@@ -544,6 +557,8 @@ class ContactSimulator:
                      umax=np.zeros(B), residual=np.zeros(B))
         if proj.tree is None or len(local) == 0 or B == 0:
             return empty
+        if B == 1 and self._compiled:
+            return self._run_single(local, rot[0], pos[0], a, centres[0], detail, proj, empty)
         # 1. Discard samples that cannot penetrate (conservative per-cell height bound). The
         # height along the approach comes first: a sample below the lowest bound of the whole
         # grid cannot penetrate anywhere (on a planner's query most of the body), so the
@@ -554,7 +569,7 @@ class ContactSimulator:
         # heights less the pose's offset (B, R), against the floor less it: one pass fewer
         # over B x R than adding the offset (a test that rounds differently only for samples
         # within round-off of the floor, which lies 1e-9 m below any penetration)
-        if B > 1 and np.all(to_frame[1:, :, 0] == to_frame[0, :, 0]):
+        if np.all(to_frame[1:, :, 0] == to_frame[0, :, 0]):
             rise = np.broadcast_to(local @ to_frame[0, :, 0], (B, len(local)))  # one rotation
         else:
             rise = np.matmul(to_frame[:, :, 0], local.T)
@@ -601,18 +616,31 @@ class ContactSimulator:
         q = sums[:, 5:] / 3.0
         nsum = sums[:, :3]
         nq = nsum / np.linalg.norm(nsum, axis=1, keepdims=True)
-        # 4. LCP per pose, padded stacks of similar size (one pose: a plain dense solve).
-        if B == 1:
-            lengths = self.decay_lengths(e)
-            G = (shape_function(cdist(q, q), self.c, self.decay) if lengths is None else
-                 varying_shape_function(cdist(q, q), self.c, lengths[:, None], lengths[None]))
-            with single_threaded_blas() if len(e) > 64 else contextlib.nullcontext():
-                x, _ = bpp_dense(G, e, free=e >= WARM_START * e.max())
-            u = G @ x
-            residual = np.array([lcp_residual(G, e, x)])
-        else:
-            x, u, residual = self._solve_grouped(b_idx, q, e, B)
+        # 4. LCP per pose, padded stacks of similar size.
+        x, u, residual = self._solve_grouped(b_idx, q, e, B)
         # 5. Forces and wrench (eq. 4).
+        f = self._contact_forces(nbr, d, x)
+        force = f[:, None] * nq
+        arm = p - centres[b_idx]
+        torque = np.column_stack([arm[:, 1] * force[:, 2] - arm[:, 2] * force[:, 1],
+                                  arm[:, 2] * force[:, 0] - arm[:, 0] * force[:, 2],
+                                  arm[:, 0] * force[:, 1] - arm[:, 1] * force[:, 0]])
+        # b_idx is sorted: per-pose sums over runs, in the order add.at would take
+        both = np.hstack([force, torque])
+        wrench = np.zeros((B, 6))
+        starts = np.flatnonzero(np.concatenate([[True], b_idx[1:] != b_idx[:-1]]))
+        poses = b_idx[starts]
+        wrench[poses] = np.add.reduceat(both, starts, axis=0)
+        count = np.bincount(b_idx[x > 0.0], minlength=B)
+        umax = np.zeros(B)
+        umax[poses] = np.maximum(np.maximum.reduceat(u, starts), 0.0)
+        run = dict(wrench=wrench, count=count, umax=umax, residual=residual)
+        if detail:
+            run.update(b=b_idx, p=p, nbr=nbr, q=q, nq=nq, d=d, e=e, x=x, f=f)
+        return run
+
+    def _contact_forces(self, nbr: np.ndarray, d: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Step 5's ``f`` (K,): the 3 neighbours' mean ``y(d) - y(d - x)`` where ``x > 0``."""
         f = np.zeros(len(d))
         act = np.flatnonzero(x > 0.0)
         if len(act):
@@ -623,29 +651,51 @@ class ContactSimulator:
                                                   np.concatenate([da, da - xa])),
                               dtype=np.float64)
             f[act] = (both[:len(ia)] - both[len(ia):]).reshape(-1, 3).mean(axis=1)
-        force = f[:, None] * nq
-        arm = p - centres[b_idx]
-        torque = np.column_stack([arm[:, 1] * force[:, 2] - arm[:, 2] * force[:, 1],
-                                  arm[:, 2] * force[:, 0] - arm[:, 0] * force[:, 2],
-                                  arm[:, 0] * force[:, 1] - arm[:, 1] * force[:, 0]])
-        if B == 1:
-            wrench = np.concatenate([force.sum(axis=0), torque.sum(axis=0)])[None]
+        return f
+
+    def _run_single(self, local: np.ndarray, rot: np.ndarray, pos: np.ndarray, a: np.ndarray,
+                    centre: np.ndarray, detail: bool, proj: _Projection, empty: dict) -> dict:
+        """:meth:`_run` for one pose (``rot`` (3, 3), ``pos`` (3,)) on the compiled kernels.
+
+        The same steps and answers as the stacked numpy path (to round-off), without its fixed
+        cost of some 80 numpy calls: a planner's single query (issue 21).
+        """
+        frame = np.column_stack([a, proj.basis])
+        uv, posed = single_pose.prefilter(local, rot.T @ frame, pos @ frame,
+                                          np.ascontiguousarray(rot),
+                                          proj.floor, proj.origin, proj.cell, proj.last,
+                                          proj.bound)
+        if len(uv) == 0:
+            return empty
+        dist, nn = proj.tree.query(uv, k=3, workers=self.workers)
+        over = dist[:, 2] <= proj.max_gap
+        nbr = proj.index[nn[over]]
+        (keep, p, q, nq, d, e, G, x, u, residual,
+         status) = single_pose.solve_single(nbr, posed[over], pos, self._table, self.c,
+                                            self.decay, self.decay_law == 'penetration',
+                                            DECAY_REFERENCE, DECAY_FLOOR, WARM_START,
+                                            MAX_PIVOTING, PIVOTING_TOL)
+        if len(keep) == 0:
+            return empty
+        if status == single_pose.SINGULAR:      # the dense solver's own fallback decides
+            x, _ = bpp_dense(G, e, free=e >= WARM_START * e.max())
+            u = G @ x
+            residual = lcp_residual(G, e, x)
+        elif status == single_pose.NOT_CONVERGED:
+            raise NotConverged(f'LCP: still infeasible after {MAX_PIVOTING} pivoting rounds '
+                               f'(residual {residual:.3g})')
+        nbr = nbr[keep]
+        if self._baked is not None:
+            f, wrench = single_pose.baked_wrench(nbr, d, x, nq, p, centre, *self._baked)
         else:
-            # b_idx is sorted: per-pose sums over runs, in the order add.at would take
-            both = np.hstack([force, torque])
-            wrench = np.zeros((B, 6))
-            starts = np.flatnonzero(np.concatenate([[True], b_idx[1:] != b_idx[:-1]]))
-            poses = b_idx[starts]
-            wrench[poses] = np.add.reduceat(both, starts, axis=0)
-        count = np.bincount(b_idx[x > 0.0], minlength=B)
-        umax = np.zeros(B)
-        if B == 1:
-            umax[0] = max(float(u.max()), 0.0)
-        else:
-            umax[poses] = np.maximum(np.maximum.reduceat(u, starts), 0.0)
-        run = dict(wrench=wrench, count=count, umax=umax, residual=residual)
+            f = self._contact_forces(nbr, d, x)
+            force = f[:, None] * nq
+            wrench = np.concatenate([force.sum(axis=0), np.cross(p - centre, force).sum(axis=0)])
+        run = dict(wrench=wrench[None], count=np.array([np.count_nonzero(x > 0.0)]),
+                   umax=np.array([max(float(u.max()), 0.0)]), residual=np.array([residual]))
         if detail:
-            run.update(b=b_idx, p=p, nbr=nbr, q=q, nq=nq, d=d, e=e, x=x, f=f)
+            run.update(b=np.zeros(len(d), dtype=np.int64), p=p, nbr=nbr, q=q, nq=nq, d=d, e=e,
+                       x=x, f=f)
         return run
 
     def _solve_grouped(self, b_idx: np.ndarray, q: np.ndarray, d: np.ndarray,

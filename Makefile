@@ -63,6 +63,8 @@ $(STAMP)/install: setup.py setup.cfg package.xml $(wildcard config/*.yaml config
 	@echo '[setup] installing pointforce_ros (editable)'
 	$(VPY) -m pip install --quiet --no-deps --no-build-isolation -e . 2>&1 | { grep -v '^WARNING: Location' || true; }
 	$(VPY) -c 'import pointforce_ros.bringup.cli'
+	@echo '[setup] compiling the single-query contact kernels (numba, cached once per machine)'
+	$(VPY) -c 'import pointforce_ros.contact.single_pose'
 	@touch $@
 
 install: $(STAMP)/install

@@ -212,6 +212,8 @@ class _Projection:
     bound: np.ndarray            # (nx, ny) a sample at height t <= bound cannot touch
     last: np.ndarray             # (2,) largest cell index per axis (a border of +inf)
     floor: float = np.inf        # smallest finite bound: no sample at or below it can touch
+    cells: Optional[Tuple[np.ndarray, np.ndarray]] = None   # the facing points per grid cell
+    # (single_pose.cell_members), built by the first single-pose query of this approach
 
 
 def normalise_approach(approach) -> np.ndarray:
@@ -660,21 +662,17 @@ class ContactSimulator:
         The same steps and answers as the stacked numpy path (to round-off), without its fixed
         cost of some 80 numpy calls: a planner's single query (issue 21).
         """
+        if proj.cells is None:
+            proj.cells = single_pose.cell_members(proj.tree.data, proj.origin, proj.cell,
+                                                  proj.last)
         frame = np.column_stack([a, proj.basis])
-        uv, posed = single_pose.prefilter(local, rot.T @ frame, pos @ frame,
-                                          np.ascontiguousarray(rot),
-                                          proj.floor, proj.origin, proj.cell, proj.last,
-                                          proj.bound)
-        if len(uv) == 0:
-            return empty
-        dist, nn = proj.tree.query(uv, k=3, workers=self.workers)
-        over = dist[:, 2] <= proj.max_gap
-        nbr = proj.index[nn[over]]
-        (keep, p, q, nq, d, e, G, x, u, residual,
-         status) = single_pose.solve_single(nbr, posed[over], pos, self._table, self.c,
-                                            self.decay, self.decay_law == 'penetration',
-                                            DECAY_REFERENCE, DECAY_FLOOR, WARM_START,
-                                            MAX_PIVOTING, PIVOTING_TOL)
+        (nbr, keep, p, q, nq, d, e, G, x, u, residual,
+         status) = single_pose.single_query(
+            local, rot.T @ frame, pos @ frame, np.ascontiguousarray(rot), proj.floor,
+            proj.origin, proj.cell, proj.last, proj.bound, *proj.cells, proj.tree.data,
+            proj.index, proj.max_gap, pos, self._table, self.c, self.decay,
+            self.decay_law == 'penetration', DECAY_REFERENCE, DECAY_FLOOR, WARM_START,
+            MAX_PIVOTING, PIVOTING_TOL)
         if len(keep) == 0:
             return empty
         if status == single_pose.SINGULAR:      # the dense solver's own fallback decides

@@ -89,6 +89,65 @@ def prefilter(local, to_frame, offset, rot, floor, origin, cell, last, bound):
     return uv[:k], posed[:k]
 
 
+@numba.njit((_M, _V, float64, _I, _I, _I, _M, float64), **_JIT)
+def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
+    """Step 2's neighbour search: the 3 nearest facing points of each ``uv`` within ``max_gap``.
+
+    The fixed-radius twin of the KD-tree query plus its ``max_gap`` test: the projection grid's
+    cells are at least ``max_gap`` wide, so the 3 x 3 cells around a sample hold every point
+    that can count. Equal distances go to the lower facing index.
+
+    Args:
+        uv: (K, 2) samples in the projection plane.
+        origin, cell, last: the projection grid (padded; :class:`_Projection`).
+        starts: (cells + 1,) CSR offsets of each cell (row-major over the grid) into
+            ``members``.
+        members: (F,) facing-point positions (rows of ``facing``) sorted by cell.
+        facing: (F, 2) the facing points in the projection plane.
+
+    Returns:
+        ``nn`` (J, 3) positions in ``facing``, nearest first, and ``rows`` (J,) the samples
+        whose third-nearest point lies within ``max_gap``, in sample order.
+
+    """
+    n = uv.shape[0]
+    ny = last[1] + 1
+    nn = np.empty((n, 3), dtype=np.int64)
+    rows = np.empty(n, dtype=np.int64)
+    best = np.empty(3)
+    pick = np.empty(3, dtype=np.int64)
+    j = 0
+    for k in range(n):
+        u, v = uv[k, 0], uv[k, 1]
+        ci = min(max(np.int64(math.floor((u - origin[0]) / cell)), 0), last[0])
+        cj = min(max(np.int64(math.floor((v - origin[1]) / cell)), 0), last[1])
+        best[:] = np.inf
+        pick[:] = -1
+        for a in range(max(ci - 1, 0), min(ci + 1, last[0]) + 1):
+            for b in range(max(cj - 1, 0), min(cj + 1, last[1]) + 1):
+                key = a * ny + b
+                for s in range(starts[key], starts[key + 1]):
+                    m = members[s]
+                    du = facing[m, 0] - u
+                    dv = facing[m, 1] - v
+                    d2 = du * du + dv * dv
+                    if d2 > best[2] or (d2 == best[2] and m > pick[2]):
+                        continue
+                    slot = 2
+                    while slot > 0 and (d2 < best[slot - 1]
+                                        or (d2 == best[slot - 1] and m < pick[slot - 1])):
+                        best[slot] = best[slot - 1]
+                        pick[slot] = pick[slot - 1]
+                        slot -= 1
+                    best[slot] = d2
+                    pick[slot] = m
+        if pick[2] >= 0 and math.sqrt(best[2]) <= max_gap:
+            nn[j, 0], nn[j, 1], nn[j, 2] = pick[0], pick[1], pick[2]
+            rows[j] = k
+            j += 1
+    return nn[:j], rows[:j]
+
+
 @numba.njit((_I, _V, _I), **_JIT)
 def _deepest_first(key, e, order):
     """Keep the deepest entry (first of equal depths) per run of equal ``key[order]``."""
@@ -323,7 +382,8 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
         for a in range(M):
             lengths[a] = decay * max(e[a], floor_share * reference) / reference
     for i in range(M):
-        for j in range(M):
+        G[i, i] = 1.0           # g(0) = 1 under both laws
+        for j in range(i + 1, M):   # symmetric: each pair once
             dx = q[i, 0] - q[j, 0]
             dy = q[i, 1] - q[j, 1]
             dz = q[i, 2] - q[j, 2]
@@ -336,6 +396,7 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
             elif math.isfinite(decay):
                 g *= math.exp(r * (-1.0 / decay))
             G[i, j] = g
+            G[j, i] = g
     free = np.empty(M, dtype=np.bool_)
     for a in range(M):
         free[a] = e[a] >= warm_start * top
@@ -349,6 +410,34 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
         u[i] = s
         residual = max(residual, abs(min(x[i], s - e[i])))
     return idx, p, q, nq, d, e, G, x, u, residual, status
+
+
+@numba.njit((_M, _M, _V, _M, float64, _V, float64, _I, _M, _I, _I, _M, _I, float64, _V, _M,
+             float64, float64, boolean, float64, float64, float64, int64, float64), **_JIT)
+def single_query(local, to_frame, offset, rot, floor, origin, cell, last, bound, starts, members,
+                 facing, facing_index, max_gap, pos, table, c, decay, penetration_law,
+                 reference, floor_share, warm_start, max_iter, tol):
+    """Solve steps 1-4 of one pose in one call.
+
+    :func:`prefilter`, :func:`three_nearest`, then :func:`solve_single`, with their arguments;
+    ``facing_index`` (F,) maps rows of ``facing`` to surface indices.
+
+    Returns:
+        ``nbr`` (K, 3) surface indices of every candidate, followed by what
+        :func:`solve_single` returns (``keep`` indexes ``nbr``).
+
+    """
+    uv, posed = prefilter(local, to_frame, offset, rot, floor, origin, cell, last, bound)
+    nn, rows = three_nearest(uv, origin, cell, last, starts, members, facing, max_gap)
+    nbr = np.empty(nn.shape, dtype=np.int64)
+    near = np.empty((len(rows), 3))
+    for k in range(len(rows)):
+        for j in range(3):
+            nbr[k, j] = facing_index[nn[k, j]]
+            near[k, j] = posed[rows[k], j]
+    out = solve_single(nbr, near, pos, table, c, decay, penetration_law, reference,
+                       floor_share, warm_start, max_iter, tol)
+    return (nbr,) + out
 
 
 @numba.njit((_V, _M, _V, int64, float64), **_JIT)
@@ -396,6 +485,22 @@ def baked_wrench(nbr, d, x, nq, p, centre, depths, forces, slopes):
     return f, wrench
 
 
+def cell_members(uv: np.ndarray, origin: np.ndarray, cell: float,
+                 last: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """CSR of points ``uv`` (F, 2) over a grid: ``(starts, members)`` for :func:`three_nearest`.
+
+    ``starts`` (cells + 1,) int64 offsets into ``members`` (F,), the point rows sorted by their
+    row-major cell (clipped to the grid as the kernels clip).
+    """
+    cij = np.floor((uv - origin) / cell).astype(np.int64)
+    cij = np.minimum(np.maximum(cij, 0), last)
+    key = cij[:, 0] * (int(last[1]) + 1) + cij[:, 1]
+    members = np.argsort(key, kind='stable').astype(np.int64)
+    cells = (int(last[0]) + 1) * (int(last[1]) + 1)
+    starts = np.searchsorted(key[members], np.arange(cells + 1)).astype(np.int64)
+    return starts, members
+
+
 def baked_tables(response) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return a baked response's ``(depths, forces, slopes)`` as contiguous float64 arrays."""
     return (np.ascontiguousarray(response.depths, dtype=np.float64),
@@ -404,4 +509,4 @@ def baked_tables(response) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 __all__ = ['MAX_KEY_POINTS', 'NOT_CONVERGED', 'OK', 'SINGULAR', 'baked_tables', 'baked_wrench',
-           'bpp', 'prefilter', 'solve_single']
+           'bpp', 'cell_members', 'prefilter', 'single_query', 'solve_single', 'three_nearest']

@@ -179,3 +179,25 @@ def test_pivoting_that_runs_out_of_rounds_raises_not_converged(monkeypatch):
     monkeypatch.setattr(simulator_module, 'WARM_START', 0.0)   # every candidate free at first
     with pytest.raises(NotConverged, match='after 1 pivoting rounds'):
         sim.query(mesh, pose, DOWN, np.zeros(3))
+
+
+def test_the_grid_neighbour_search_finds_the_kd_trees_three_nearest_within_max_gap():
+    from scipy.spatial import cKDTree
+    rng = np.random.default_rng(26)
+    facing = rng.uniform(-0.03, 0.03, (2000, 2))
+    max_gap = 0.002
+    cell = 0.0025                                         # cells at least max_gap wide
+    lo = facing.min(axis=0)
+    origin = lo - 2 * cell
+    last = (np.floor((facing.max(axis=0) - origin) / cell) + 2).astype(np.int64)
+    starts, members = single_pose.cell_members(facing, origin, cell, last)
+    assert starts[-1] == len(facing) and np.all(np.diff(starts) >= 0)
+    # samples inside, at the rim and outside the cloud, plus a few exactly on facing points
+    uv = np.vstack([rng.uniform(-0.04, 0.04, (3000, 2)), facing[:20]])
+    nn, rows = single_pose.three_nearest(uv, origin, cell, last, starts, members, facing,
+                                         max_gap)
+    dist, ref = cKDTree(facing).query(uv, k=3)
+    within = np.flatnonzero(dist[:, 2] <= max_gap)
+    assert 500 < len(within) < len(uv) - 500
+    np.testing.assert_array_equal(rows, within)
+    np.testing.assert_array_equal(nn, ref[within])

@@ -94,6 +94,14 @@ BURST = 25
 IDLE_S = 0.01
 """Idle time before each call of the ``single_rtt_after_idle`` series, seconds."""
 
+WARM_UP_TRIES = 5
+"""Attempts of each warm-up call: a service's first reply to a new client can be lost while
+discovery is incomplete (Fast DDS drops it: "failed to send response (timeout)"; one full
+bench run here lost its first Trigger reply and waited out 30 s)."""
+
+WARM_UP_TIMEOUT = 2.0
+"""Seconds one warm-up attempt waits for its reply."""
+
 
 def _percentiles(values):
     values = np.asarray(values) * 1e3
@@ -118,6 +126,27 @@ def round_trip(client, request, timeout: float, what: str):
         raise RuntimeError(f'timed out after {timeout:.1f} s waiting for {what}')
     elapsed = time.perf_counter() - start
     return elapsed, future.result()
+
+
+def warm_up_call(client, request, what: str, tries: int = WARM_UP_TRIES,
+                 timeout: float = WARM_UP_TIMEOUT):
+    """Call ``client`` (an rclpy client or a :class:`DirectClient`) until one reply arrives.
+
+    Returns the response. A lost reply (discovery not complete) is asked again, up to
+    ``tries`` attempts of ``timeout`` seconds each.
+
+    Raises:
+        RuntimeError: no reply to any attempt.
+
+    """
+    for _ in range(tries):
+        try:
+            if isinstance(client, DirectClient):
+                return client.call(request, timeout)
+            return round_trip(client, request, timeout, what)[1]
+        except (RuntimeError, ServiceTimeout):
+            continue
+    raise RuntimeError(f'no reply from {what} to {tries} warm-up calls of {timeout:g} s')
 
 
 class _TriggerNode(Node):
@@ -408,12 +437,10 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
         response = client.call(request, 30)
         return time.perf_counter() - start, response
     for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
-        for client in (single, single_mt):
-            round_trip(client, _single_request(pose, flat), 30, 'contact_wrench')
-        for client in (trigger, trigger_mt):
-            round_trip(client, Trigger.Request(), 30, 'trigger')
-        direct_trip(single_direct, _single_request(pose, flat))
-        direct_trip(trigger_direct, Trigger.Request())
+        for client in (single, single_mt, single_direct):
+            warm_up_call(client, _single_request(pose, flat), 'contact_wrench')
+        for client in (trigger, trigger_mt, trigger_direct):
+            warm_up_call(client, Trigger.Request(), 'trigger')
     rtt, msg_rtt, trigger_rtt, mt_rtt, mt_trigger_rtt = [], [], [], [], []
     direct_rtt, direct_trigger_rtt, idle_rtt = [], [], []
 

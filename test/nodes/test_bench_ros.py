@@ -6,11 +6,14 @@ trip from the same run, with the services in their own processes (as deployed), 
 of client processes (issue 16).
 """
 
+import threading
+import time
+
 import pytest
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from pointforce_ros.bringup.bench_ros import _trigger_node, bench_ros, round_trip
+from pointforce_ros.bringup.bench_ros import _trigger_node, bench_ros, round_trip, warm_up_call
 
 pytestmark = pytest.mark.ros
 
@@ -30,6 +33,30 @@ def test_round_trip_names_the_service_on_time_out(ros_graph):
         Trigger, '/nobody/trigger')
     with pytest.raises(RuntimeError, match='nobody trigger.*0.2 s|0.2 s.*nobody trigger'):
         round_trip(client, Trigger.Request(), 0.2, 'nobody trigger')
+
+
+def test_a_warm_up_call_asks_again_when_its_reply_does_not_come(ros_graph):
+    # the service's first reply comes too late for the attempt that asked (as a reply lost
+    # while discovery completes): the next attempts are answered
+    first = threading.Event()
+
+    def answer(request, response):
+        if not first.is_set():
+            first.set()
+            time.sleep(0.5)
+        response.success = True
+        return response
+    server = ros_graph.add(Node('late_first', context=ros_graph.context), isolated=True)
+    server.create_service(Trigger, '/late_first/trigger', answer)
+    client = ros_graph.add(Node('warm_client', context=ros_graph.context)).create_client(
+        Trigger, '/late_first/trigger')
+    assert client.wait_for_service(timeout_sec=10.0)
+    assert warm_up_call(client, Trigger.Request(), 'late trigger', tries=8, timeout=0.2).success
+    assert first.is_set()
+    lonely = ros_graph.add(Node('lonely_warm', context=ros_graph.context)).create_client(
+        Trigger, '/nobody_warm/trigger')
+    with pytest.raises(RuntimeError, match='no reply from nobody to 2 warm-up calls of 0.1 s'):
+        warm_up_call(lonely, Trigger.Request(), 'nobody', tries=2, timeout=0.1)
 
 
 def test_bench_ros_reports_round_trips_beside_core_and_trigger():

@@ -148,6 +148,15 @@ def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
     return nn[:j], rows[:j]
 
 
+@numba.njit((_I, _I), **_JIT)
+def _repeats(key, order):
+    """Whether any two neighbours of ``key[order]`` (sorted) are equal."""
+    for a in range(1, len(order)):
+        if key[order[a]] == key[order[a - 1]]:
+            return True
+    return False
+
+
 @numba.njit((_I, _V, _I), **_JIT)
 def _deepest_first(key, e, order):
     """Keep the deepest entry (first of equal depths) per run of equal ``key[order]``."""
@@ -320,12 +329,7 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
         for a in range(npos):
             key[a] = nbr[idx[a], 0]
         order = np.argsort(key, kind='mergesort')
-        repeat = False
-        for a in range(1, npos):
-            if key[order[a]] == key[order[a - 1]]:
-                repeat = True
-                break
-        if repeat:
+        if _repeats(key, order):
             depth = np.empty(npos)
             for a in range(npos):
                 depth[a] = e_all[idx[a]]
@@ -344,12 +348,7 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
             depth[a] = e_all[idx[a]]
         by_depth = np.argsort(-depth, kind='mergesort')
         order = by_depth[np.argsort(tri[by_depth], kind='mergesort')]
-        repeat = False
-        for a in range(1, n):
-            if tri[order[a]] == tri[order[a - 1]]:
-                repeat = True
-                break
-        if repeat:
+        if _repeats(tri, order):
             keep = np.empty(n, dtype=np.int64)
             m = 0
             for a in range(n):

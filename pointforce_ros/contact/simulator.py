@@ -38,10 +38,14 @@ d0`` the penetration of the surface the response saw, the LCP distributes ``e`` 
 is unchanged in form, ``y(q, d) - y(q, d - d~)`` (a lone contact, ``d~ = e``, gives ``y(q, d)``).
 A response without ``onsets`` gets ``d0 = 0``, the paper's rule.
 
-Speed: one KD-tree per approach direction over the projected surface (cached), a conservative
-per-cell height bound that discards rigid samples that cannot penetrate before any tree query,
-and the LCPs of many poses solved as padded stacks grouped by size, each round building only
-the columns of ``G`` its free sets need (:class:`~pointforce_ros.contact.lcp.PointShapeStack`).
+Speed: per approach direction (cached) a grid over the projected surface, with a
+conservative per-cell height bound that discards rigid samples that cannot penetrate before
+any neighbour search, and the facing points of each cell for a fixed-radius search of the
+three nearest (compiled, :func:`~pointforce_ros.contact.single_pose.three_nearest`; equal
+distances go to the lower index, in every path); the LCPs of many poses solved as padded
+stacks grouped by size, each round building only the columns of ``G`` its free sets need
+(:class:`~pointforce_ros.contact.lcp.PointShapeStack`); one pose on compiled kernels
+(:mod:`~pointforce_ros.contact.single_pose`).
 """
 
 import copy
@@ -200,7 +204,7 @@ class BatchContactResult:
 
 @dataclass
 class _Projection:
-    """Per-approach cache: plane basis, KD-tree and the penetration bound grid."""
+    """Per-approach cache: plane basis, KD-tree, the penetration bound grid and its cells."""
 
     approach: np.ndarray
     basis: np.ndarray            # (3, 2) in-plane axes
@@ -213,7 +217,7 @@ class _Projection:
     last: np.ndarray             # (2,) largest cell index per axis (a border of +inf)
     floor: float = np.inf        # smallest finite bound: no sample at or below it can touch
     cells: Optional[Tuple[np.ndarray, np.ndarray]] = None   # the facing points per grid cell
-    # (single_pose.cell_members), built by the first single-pose query of this approach
+    # (single_pose.cell_members), built by the first query of this approach
 
 
 def normalise_approach(approach) -> np.ndarray:
@@ -280,7 +284,6 @@ class ContactSimulator:
         max_gap: largest in-plane distance, metres, from a rigid sample to its third-nearest
             surface point for the sample to count as over the surface; default three times the
             median such distance of the surface itself (computed per approach direction).
-        workers: threads for KD-tree queries (``-1``: all cores).
         decay_law: ``'fixed'`` (one ``decay`` for all contacts) or ``'penetration'``: contact
             ``i`` gets ``L_i = decay * e_i / DECAY_REFERENCE`` (``e_i`` its penetration past the
             response's onset, at least ``DECAY_FLOOR * DECAY_REFERENCE``) and a pair the
@@ -305,7 +308,7 @@ class ContactSimulator:
     """
 
     def __init__(self, surface: Surface, response, c: float, spacing: float = 0.003,
-                 max_gap: Optional[float] = None, workers: int = 1, decay: float = np.inf,
+                 max_gap: Optional[float] = None, decay: float = np.inf,
                  decay_law: Optional[str] = None):
         if not isinstance(surface, Surface):
             raise InvalidInput(f'ContactSimulator: surface must be a types.Surface, got '
@@ -324,7 +327,6 @@ class ContactSimulator:
         self.decay_law = check_decay_law(DECAY_LAW if decay_law is None else decay_law)
         self.spacing = _positive('spacing', spacing)
         self.max_gap = None if max_gap is None else _positive('max_gap', max_gap)
-        self.workers = int(workers)
         self._points = surface.points
         self._normals = surface.normals
         self._pn = np.einsum('ij,ij->i', surface.points, surface.normals)
@@ -589,10 +591,12 @@ class ContactSimulator:
         b_idx, uv, posed = b_idx[near], uv[near], posed[near]
         if len(b_idx) == 0:
             return empty
-        # 2. Three nearest surface points in the projection plane (eq. 1).
-        dist, nn = proj.tree.query(uv, k=3, workers=self.workers)
-        over = dist[:, 2] <= proj.max_gap
-        nbr = proj.index[nn[over]]
+        # 2. Three nearest surface points in the projection plane (eq. 1), within max_gap: the
+        # single-pose path's search, so that ties (a sample equidistant from grid points) go
+        # the same way in both
+        nn, over = single_pose.three_nearest(uv, proj.origin, proj.cell, proj.last,
+                                             *self._cells(proj), proj.tree.data, proj.max_gap)
+        nbr = proj.index[nn]
         b_idx = b_idx[over]
         p = posed[over, 2:] + pos[b_idx]
         # sums over the 3 neighbours: normal (0:3), n . x (3), onset (4), position (5:8), in
@@ -655,6 +659,14 @@ class ContactSimulator:
             f[act] = (both[:len(ia)] - both[len(ia):]).reshape(-1, 3).mean(axis=1)
         return f
 
+    @staticmethod
+    def _cells(proj: _Projection) -> Tuple[np.ndarray, np.ndarray]:
+        """The projection's facing points per grid cell (built on first use, then kept)."""
+        if proj.cells is None:
+            proj.cells = single_pose.cell_members(proj.tree.data, proj.origin, proj.cell,
+                                                  proj.last)
+        return proj.cells
+
     def _run_single(self, local: np.ndarray, rot: np.ndarray, pos: np.ndarray, a: np.ndarray,
                     centre: np.ndarray, detail: bool, proj: _Projection, empty: dict) -> dict:
         """:meth:`_run` for one pose (``rot`` (3, 3), ``pos`` (3,)) on the compiled kernels.
@@ -662,14 +674,11 @@ class ContactSimulator:
         The same steps and answers as the stacked numpy path (to round-off), without its fixed
         cost of some 80 numpy calls: a planner's single query (issue 21).
         """
-        if proj.cells is None:
-            proj.cells = single_pose.cell_members(proj.tree.data, proj.origin, proj.cell,
-                                                  proj.last)
         frame = np.column_stack([a, proj.basis])
         (nbr, keep, p, q, nq, d, e, G, x, u, residual,
          status) = single_pose.single_query(
             local, rot.T @ frame, pos @ frame, np.ascontiguousarray(rot), proj.floor,
-            proj.origin, proj.cell, proj.last, proj.bound, *proj.cells, proj.tree.data,
+            proj.origin, proj.cell, proj.last, proj.bound, *self._cells(proj), proj.tree.data,
             proj.index, proj.max_gap, pos, self._table, self.c, self.decay,
             self.decay_law == 'penetration', DECAY_REFERENCE, DECAY_FLOOR, WARM_START,
             MAX_PIVOTING, PIVOTING_TOL)

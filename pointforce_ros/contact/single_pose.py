@@ -5,12 +5,14 @@ of :meth:`~pointforce_ros.contact.simulator.ContactSimulator._run` spends most o
 the fixed cost of 80 numpy calls, not in arithmetic. These kernels do the same arithmetic in
 loops compiled once per machine (``cache=True``: the first import compiles in a few seconds and
 stores the code beside this file, or in numba's user cache where that is not writable; later
-processes load it). The KD-tree query of step 2 stays in scipy.
+processes load it). The neighbour search of step 2 (:func:`three_nearest`) serves the batched
+numpy path too, so that both break ties between equidistant surface points alike.
 
 Each kernel is the numpy code's twin, in the same order of operations where the order decides
 a result (the de-duplications keep the same candidate, in the same order); only sums of a few
 terms may round differently (1e-16 relative). ``test/core/test_contact_single_pose.py`` checks
-them against the batched numpy path, which shares none of their code.
+them against the batched numpy path, which shares none of their code past the neighbour
+search.
 
 Units: metres and newtons; every array is float64 or int64 and C-contiguous (the callers make
 it so).
@@ -93,9 +95,10 @@ def prefilter(local, to_frame, offset, rot, floor, origin, cell, last, bound):
 def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
     """Step 2's neighbour search: the 3 nearest facing points of each ``uv`` within ``max_gap``.
 
-    The fixed-radius twin of the KD-tree query plus its ``max_gap`` test: the projection grid's
-    cells are at least ``max_gap`` wide, so the 3 x 3 cells around a sample hold every point
-    that can count. Equal distances go to the lower facing index.
+    A KD-tree query for 3 neighbours plus a ``max_gap`` test on the third, as a fixed-radius
+    search: the projection grid's cells are at least ``max_gap`` wide, so the 3 x 3 cells
+    around a sample hold every point that can count. Equal distances go to the lower facing
+    index (a KD-tree breaks such ties by its traversal).
 
     Args:
         uv: (K, 2) samples in the projection plane.
@@ -280,7 +283,7 @@ def bpp(G, d, free, max_iter, tol):
              float64), **_JIT)
 def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, floor_share,
                  warm_start, max_iter, tol):
-    """Solve steps 2 (after the KD-tree), 3 and 4 of one pose: candidates, dedupes, LCP.
+    """Solve steps 2 (after the search), 3 and 4 of one pose: candidates, dedupes, LCP.
 
     Args:
         nbr: (K, 3) int64 surface indices of each sample's three nearest points (within

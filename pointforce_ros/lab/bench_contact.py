@@ -142,7 +142,7 @@ def bench_contact(n_ours: int = 300, n_paper: int = 15, n_grid: int = 201, half:
     return out
 
 
-def bench_batch(n_xy: int = 25, n_z: int = 16, n_paper: int = 5, workers: int = 2,
+def bench_batch(n_xy: int = 25, n_z: int = 16, n_paper: int = 5,
                 n_grid: int = 201, half: float = 0.1, seed: int = 0,
                 quick: bool = False) -> Dict:
     """Time :meth:`ContactSimulator.query_batch` on a packing-style grid of sphere poses.
@@ -165,7 +165,7 @@ def bench_batch(n_xy: int = 25, n_z: int = 16, n_paper: int = 5, workers: int = 
     gx, gy, gz = np.meshgrid(ticks, ticks, heights, indexing='ij')
     poses = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel(),
                              np.zeros((gx.size, 3)), np.ones(gx.size)])
-    sim = ContactSimulator(surface, response, c=C, spacing=SPACING, workers=workers)
+    sim = ContactSimulator(surface, response, c=C, spacing=SPACING)
     t0 = time.perf_counter()
     sim.projection(DOWN)
     setup = time.perf_counter() - t0
@@ -184,7 +184,7 @@ def bench_batch(n_xy: int = 25, n_z: int = 16, n_paper: int = 5, workers: int = 
         times.append(time.perf_counter() - t1)
     paper_total = float(np.median(times)) * len(poses) if times else float('nan')
     return dict(poses=len(poses), seconds=seconds, setup_s=setup,
-                per_pose_us=1e6 * seconds / len(poses), workers=workers,
+                per_pose_us=1e6 * seconds / len(poses),
                 in_contact_fraction=float(np.mean(batch.contact_count > 0)),
                 max_contacts=int(batch.contact_count.max()),
                 paper_median_s=float(np.median(times)) if times else float('nan'),

@@ -18,7 +18,7 @@ from pointforce_ros.contact.lcp import bpp_dense, shape_matrix
 from pointforce_ros.contact.simulator import _deepest_per_key, _deepest_per_triple, \
     _sorted_triples
 from pointforce_ros.errors import NotConverged
-from pointforce_ros.lab.synthetic_contact import linear_response, power_response
+from pointforce_ros.lab.synthetic_contact import grid_surface, linear_response, power_response
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.shapes import box, icosphere
 from pointforce_ros.types import Pose, Surface
@@ -201,3 +201,18 @@ def test_the_grid_neighbour_search_finds_the_kd_trees_three_nearest_within_max_g
     assert 500 < len(within) < len(uv) - 500
     np.testing.assert_array_equal(rows, within)
     np.testing.assert_array_equal(nn, ref[within])
+
+
+def test_a_pose_over_a_regular_grid_gets_the_same_neighbours_single_and_batched():
+    # samples equidistant from grid points: ties that a KD-tree breaks by its traversal
+    surface = grid_surface(half=0.02, step=0.002)
+    sim = ContactSimulator(surface, linear_response(2e3, len(surface)), c=0.004, spacing=0.002)
+    sphere = icosphere(0.008, 2)
+    poses = [Pose(position=[x, y, 0.008 - 0.003]) for x in (0.0, 0.001, 0.002)
+             for y in (0.0, 0.001)]
+    batch = sim.query_batch(sphere, poses, DOWN, np.zeros(3))
+    for i, pose in enumerate(poses):
+        one = sim.query(sphere, pose, DOWN, np.zeros(3))
+        assert one.contact_count == batch.contact_count[i] > 0
+        np.testing.assert_allclose(batch.wrenches[i], one.wrench.as_vector(), rtol=1e-9,
+                                   atol=1e-12)

@@ -17,7 +17,7 @@ def test_bench_contact_small_scene():
 
 
 def test_bench_batch_small_grid():
-    out = bench_batch(n_xy=6, n_z=5, n_paper=2, workers=1, n_grid=81, half=0.05)
+    out = bench_batch(n_xy=6, n_z=5, n_paper=2, n_grid=81, half=0.05)
     json.dumps(out)
     assert out['poses'] == 180
     assert 0.2 < out['in_contact_fraction'] < 1.0

@@ -661,7 +661,7 @@ class ContactSimulator:
 
     @staticmethod
     def _cells(proj: _Projection) -> Tuple[np.ndarray, np.ndarray]:
-        """The projection's facing points per grid cell (built on first use, then kept)."""
+        """Return the projection's facing points per grid cell (built on first use, then kept)."""
         if proj.cells is None:
             proj.cells = single_pose.cell_members(proj.tree.data, proj.origin, proj.cell,
                                                   proj.last)

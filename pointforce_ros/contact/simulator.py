@@ -336,8 +336,7 @@ class ContactSimulator:
         # a row that never reaches contact force keeps the paper's rule (geometry only)
         self._onset = np.where(np.isfinite(onset), onset, 0.0)
         # what step 2 sums over a sample's 3 neighbours, one row per point: one gather
-        self._table = np.ascontiguousarray(
-            np.column_stack([self._normals, self._pn, self._onset, self._points]))
+        self._table = np.column_stack([self._normals, self._pn, self._onset, self._points])
         # one pose at a time: the compiled kernels (single_pose), with their own interpolation
         # of a baked table where the response's force is the table's (not overridden)
         self._compiled = len(surface) < single_pose.MAX_KEY_POINTS
@@ -594,11 +593,11 @@ class ContactSimulator:
         # 2. Three nearest surface points in the projection plane (eq. 1), within max_gap: the
         # single-pose path's search, so that ties (a sample equidistant from grid points) go
         # the same way in both
-        nn, over = single_pose.three_nearest(uv, proj.origin, proj.cell, proj.last,
+        nn, rows = single_pose.three_nearest(uv, proj.origin, proj.cell, proj.last,
                                              *self._cells(proj), proj.tree.data, proj.max_gap)
         nbr = proj.index[nn]
-        b_idx = b_idx[over]
-        p = posed[over, 2:] + pos[b_idx]
+        b_idx = b_idx[rows]
+        p = posed[rows, 2:] + pos[b_idx]
         # sums over the 3 neighbours: normal (0:3), n . x (3), onset (4), position (5:8), in
         # the order sum(axis=1) takes (row gathers: 10x faster than one (K, 3, 8) gather)
         cols = np.ascontiguousarray(nbr.T)
@@ -626,13 +625,8 @@ class ContactSimulator:
         x, u, residual = self._solve_grouped(b_idx, q, e, B)
         # 5. Forces and wrench (eq. 4).
         f = self._contact_forces(nbr, d, x)
-        force = f[:, None] * nq
-        arm = p - centres[b_idx]
-        torque = np.column_stack([arm[:, 1] * force[:, 2] - arm[:, 2] * force[:, 1],
-                                  arm[:, 2] * force[:, 0] - arm[:, 0] * force[:, 2],
-                                  arm[:, 0] * force[:, 1] - arm[:, 1] * force[:, 0]])
         # b_idx is sorted: per-pose sums over runs, in the order add.at would take
-        both = np.hstack([force, torque])
+        both = _force_torque(f, nq, p - centres[b_idx])
         wrench = np.zeros((B, 6))
         starts = np.flatnonzero(np.concatenate([[True], b_idx[1:] != b_idx[:-1]]))
         poses = b_idx[starts]
@@ -696,8 +690,7 @@ class ContactSimulator:
             f, wrench = single_pose.baked_wrench(nbr, d, x, nq, p, centre, *self._baked)
         else:
             f = self._contact_forces(nbr, d, x)
-            force = f[:, None] * nq
-            wrench = np.concatenate([force.sum(axis=0), np.cross(p - centre, force).sum(axis=0)])
+            wrench = _force_torque(f, nq, p - centre).sum(axis=0)
         run = dict(wrench=wrench[None], count=np.array([np.count_nonzero(x > 0.0)]),
                    umax=np.array([max(float(u.max()), 0.0)]), residual=np.array([residual]))
         if detail:
@@ -783,6 +776,15 @@ class ContactSimulator:
             contact_normals=run['nq'][act], nominal_displacements=run['d'][act],
             actual_displacements=x, contact_forces=run['f'][act],
             candidate_count=len(run['x']))
+
+
+def _force_torque(f: np.ndarray, nq: np.ndarray, arm: np.ndarray) -> np.ndarray:
+    """(K, 6) each contact's force ``f nq`` and its torque ``arm x f nq`` (eq. 4)."""
+    force = f[:, None] * nq
+    return np.hstack([force, np.column_stack([
+        arm[:, 1] * force[:, 2] - arm[:, 2] * force[:, 1],
+        arm[:, 2] * force[:, 0] - arm[:, 0] * force[:, 2],
+        arm[:, 0] * force[:, 1] - arm[:, 1] * force[:, 0]])])
 
 
 def _centres_of_pressure(run: dict, out: np.ndarray) -> None:

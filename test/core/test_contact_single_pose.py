@@ -10,6 +10,7 @@ import copy
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact import simulator as simulator_module
@@ -182,7 +183,6 @@ def test_pivoting_that_runs_out_of_rounds_raises_not_converged(monkeypatch):
 
 
 def test_the_grid_neighbour_search_finds_the_kd_trees_three_nearest_within_max_gap():
-    from scipy.spatial import cKDTree
     rng = np.random.default_rng(26)
     facing = rng.uniform(-0.03, 0.03, (2000, 2))
     max_gap = 0.002

@@ -70,7 +70,10 @@ $(STAMP)/install: setup.py setup.cfg package.xml $(wildcard config/*.yaml config
 install: $(STAMP)/install
 
 test: install
-	$(VPY) -m pytest $(PYTEST_ARGS)
+	@mkdir -p out
+	PYTEST_PHASE_FILE=out/.pytest-phase $(VPY) -m pytest $(PYTEST_ARGS) || { rc=$$?; \
+	  if [ $$rc -gt 128 ]; then echo "[test] pytest was killed by signal $$((rc - 128)) in:" \
+	    "$$(cat out/.pytest-phase 2>/dev/null || echo 'no test yet')"; fi; exit $$rc; }
 
 demo: install
 	$(VENV)/bin/pointforce demo

@@ -1,4 +1,8 @@
-"""Suite-wide fixtures: an isolated ROS 2 graph per test process, and seeded randomness."""
+"""Suite-wide fixtures: an isolated ROS 2 graph per test process, and seeded randomness.
+
+With ``PYTEST_PHASE_FILE`` set (``make test`` sets it), each test phase writes its node id
+there first, so a run that a native crash ends can still say which test it was in.
+"""
 
 import os
 
@@ -30,3 +34,27 @@ def ros_graph():
         yield graph
     finally:
         graph.close()
+
+
+_PHASE_FILE = os.environ.get('PYTEST_PHASE_FILE')
+
+
+def _mark_phase(item, phase):
+    if _PHASE_FILE:
+        with open(_PHASE_FILE, 'w') as fh:
+            fh.write(f'{item.nodeid} ({phase})\n')
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    _mark_phase(item, 'setup')
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_call(item):
+    _mark_phase(item, 'call')
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_teardown(item):
+    _mark_phase(item, 'teardown')

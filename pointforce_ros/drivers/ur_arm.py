@@ -1,11 +1,14 @@
 """Universal Robots arm driver on ur_rtde 1.6.5: motion commands, tare and a 250 Hz F/T stream.
 
-This is the only module of the package that imports ``rtde_control`` / ``rtde_receive``.
+No ur_rtde object lives in the caller's process: a ur_rtde interface whose controller died can
+abort the process that destroys it (see :mod:`pointforce_ros.drivers.rtde_host`), and a node
+must outlive its robot. Connections held by :class:`UrArm` (each its own TCP connection to the
+controller):
 
-Connections held by :class:`UrArm` (each its own TCP connection to the controller):
-
-- ``RTDEControlInterface`` (``frequency``, 500 Hz on an e-Series): every command.
-- ``RTDEReceiveInterface`` for status queries made by the caller's thread.
+- ``RTDEControlInterface`` (``frequency``, 500 Hz on an e-Series): every command, and
+- ``RTDEReceiveInterface`` for status queries made by the caller's thread, both in the host
+  process of :class:`~pointforce_ros.drivers.rtde_host.RtdeHost`, called through proxies; a
+  host that dies is a lost connection.
 - the stream: a second ``RTDEReceiveInterface``, also at ``frequency``, owned by a small worker
   process (``python -m pointforce_ros.drivers.ur_arm --stream-worker ...``, started and stopped
   by :class:`UrArm`). ur_rtde keeps only the newest controller sample, so whoever polls it must
@@ -49,9 +52,9 @@ import time
 from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
-import rtde_control
 import rtde_receive
 
+from pointforce_ros.drivers.rtde_host import RtdeHost
 from pointforce_ros.errors import DeviceFault, InvalidInput, UnsafeCommand
 
 STREAM_VARIABLES = ['timestamp', 'actual_TCP_pose', 'actual_TCP_force', 'safety_status_bits',
@@ -275,6 +278,7 @@ class UrArm:
         self._speeding = False
         self._closed = False
         self._ctrl = self._rx = None
+        self._host: Optional[RtdeHost] = None
         self._worker: Optional[subprocess.Popen] = None
         self._reader: Optional[threading.Thread] = None
         self._worker_state = {'ready': False, 'error': None}
@@ -282,11 +286,11 @@ class UrArm:
         deadline = time.monotonic() + connect_timeout
         self._probe_ports(deadline)
         try:
-            self._ctrl = rtde_control.RTDEControlInterface(host, self.frequency)
-            self._rx = rtde_receive.RTDEReceiveInterface(host, self.frequency, STATUS_VARIABLES)
+            self._host = RtdeHost(host, self.frequency, STATUS_VARIABLES,
+                                  max(deadline - time.monotonic(), 1.0))
         except (RuntimeError, ValueError, OSError) as exc:
-            self._disconnect_all()
             raise DeviceFault(f'UR controller {host}: ur_rtde could not connect: {exc}') from exc
+        self._ctrl, self._rx = self._host.ctrl, self._host.rx
         self._start_worker()
         with self._cond:
             while (self._sample_count == 0 and self._worker_state['error'] is None
@@ -319,7 +323,8 @@ class UrArm:
         if self._closed:
             return
         self._closed = True
-        self._stop_worker()
+        if self._worker is not None and self._worker.poll() is None:
+            self._worker.send_signal(signal.SIGTERM)   # it disconnects while we do
         if (self._ctrl is not None and self._safe_connected(self._ctrl)
                 and self._controller_alive()):
             try:
@@ -328,23 +333,11 @@ class UrArm:
             except RuntimeError:
                 pass
         self._disconnect_all()
+        self._stop_worker()
 
     def _disconnect_all(self) -> None:
-        threads = []
-        for iface in (self._ctrl, self._rx):
-            if iface is not None:
-                thread = threading.Thread(target=self._quiet_disconnect, args=(iface,))
-                thread.start()
-                threads.append(thread)
-        for thread in threads:
-            thread.join(timeout=5.0)
-
-    @staticmethod
-    def _quiet_disconnect(iface) -> None:
-        try:
-            iface.disconnect()
-        except RuntimeError:
-            pass
+        if self._host is not None:
+            self._host.close()
 
     @staticmethod
     def _safe_connected(iface) -> bool:
@@ -513,10 +506,15 @@ class UrArm:
             return True
 
     # -- status ---------------------------------------------------------------------------------
+    @property
+    def host_pid(self) -> int:
+        """Pid of the process that holds the ur_rtde control and status interfaces."""
+        return self._host.process.pid
+
     def is_connected(self) -> bool:
         """Return True while every ur_rtde interface is connected."""
         worker_alive = self._worker is not None and self._worker.poll() is None
-        return (worker_alive and EVENT_CONNECTION_LOST not in self._active
+        return (worker_alive and self._host.alive() and EVENT_CONNECTION_LOST not in self._active
                 and all(self._safe_connected(i) for i in (self._ctrl, self._rx)))
 
     def is_protective_stopped(self) -> bool:
@@ -997,6 +995,9 @@ class _StreamPoller:
             time.sleep(0.0005)
 
 
+_KEPT = []
+
+
 def _stream_worker(argv: Sequence[str]) -> int:
     """Entry of the stream worker process; writes framed messages to its original stdout."""
     parser = argparse.ArgumentParser(prog='ur_arm --stream-worker')
@@ -1030,6 +1031,7 @@ def _stream_worker(argv: Sequence[str]) -> int:
     try:
         try:
             rx = rtde_receive.RTDEReceiveInterface(args.host, args.frequency, STREAM_VARIABLES)
+            _KEPT.append(rx)   # never destroyed: the process leaves with os._exit
         except (RuntimeError, ValueError, OSError) as exc:
             send(b'X', json.dumps({'message': f'stream RTDEReceiveInterface: {exc}'}).encode())
             return 1
@@ -1053,6 +1055,8 @@ def _stream_worker(argv: Sequence[str]) -> int:
 
 if __name__ == '__main__':
     if len(sys.argv) > 1 and sys.argv[1] == '--stream-worker':
-        sys.exit(_stream_worker(sys.argv[2:]))
+        _code = _stream_worker(sys.argv[2:])
+        sys.stderr.flush()
+        os._exit(_code)   # skip the interface's destructor, as the rtde_host process does
     sys.exit('usage: python -m pointforce_ros.drivers.ur_arm --stream-worker HOST FREQUENCY '
              'STREAM_HZ STALL_TIMEOUT FT_FREEZE_TIMEOUT|none PARENT_PID')

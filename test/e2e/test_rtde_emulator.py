@@ -1,12 +1,11 @@
 """The RTDE controller emulator, driven only through the real ur_rtde 1.6.5 (+ fault channel)."""
 
-import threading
 import time
 
 import numpy as np
 import pytest
-import rtde_control
-import rtde_receive
+
+from pointforce_ros.drivers.rtde_host import RtdeHost
 
 pytestmark = pytest.mark.e2e
 
@@ -14,17 +13,14 @@ START = [0.3, -0.1, 0.3, 3.14159265, 0.0, 0.0]
 
 
 def _connect(host, frequency=500.0):
-    ctrl = rtde_control.RTDEControlInterface(host, frequency)
-    rx = rtde_receive.RTDEReceiveInterface(host, frequency)
-    return ctrl, rx
+    """(control, receive) interfaces with every output variable, in a host process (an
+    interface whose controller stalled or dropped can abort the process that destroys it)."""
+    rtde = RtdeHost(host, frequency, [], 10.0)
+    return rtde.ctrl, rtde.rx
 
 
-def _disconnect(*ifaces):
-    threads = [threading.Thread(target=i.disconnect) for i in ifaces]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(5.0)
+def _disconnect(ctrl, rx):
+    ctrl.rtde_host.close()
 
 
 def _wait_for(condition, timeout, message):
@@ -72,7 +68,7 @@ def test_handshake_stream_and_registers_in_use(start_emulator):
         assert steps.min() >= 1 and np.all(np.abs(np.diff(ts) - steps * 0.002) < 1e-9)
         # a second control interface wants the same input registers: the controller refuses
         with pytest.raises(RuntimeError, match='in use'):
-            rtde_control.RTDEControlInterface(emu.host, 500.0)
+            _connect(emu.host)
     finally:
         _disconnect(ctrl, rx)
     emu.stop()   # SIGTERM: clean exit

@@ -1,5 +1,7 @@
 """UrArm against the loopback RTDE emulator: the real ur_rtde code path end to end."""
 
+import os
+import signal
 import threading
 import time
 
@@ -214,3 +216,42 @@ def test_an_abort_message_names_only_the_faults_still_active():
         'RTDE connection to 127.0.0.2 lost; no new controller sample for 0.060 s')
     # an active fault whose events fell out of the log is still named by its kind
     assert active_fault_message(events[-1:], [EVENT_FT_FROZEN]) == EVENT_FT_FROZEN
+
+
+def test_an_aborted_interface_host_is_a_lost_connection_not_a_lost_process(cell):
+    """CI, session 17: a ur_rtde destructor that threw (std::terminate) aborted the poke
+    server in destroy_node and the whole test session with it. The interfaces now live in a
+    host process; its abort mid-push is a fault of this push, with the samples kept.
+    """
+    emu, arm = cell
+    assert arm.host_pid != os.getpid()
+    _inject_when(arm, lambda s: s.wrench[2] > 1.0,
+                 lambda: os.kill(arm.host_pid, signal.SIGABRT))
+    with pytest.raises(PushFault) as info:
+        arm.push_until(STANDOFF, DOWN, force_limit=20.0, travel_limit=0.01, speed=0.004)
+    assert 'host process is gone (killed by signal 6)' in str(info.value), str(info.value)
+    assert len(info.value.result) > 50
+    assert not arm.is_connected()
+    with pytest.raises(DeviceFault, match='connection lost'):
+        arm.tare()
+    t0 = time.monotonic()
+    arm.close()
+    assert time.monotonic() - t0 < 3.0
+    # the controller is fine: a new arm connects, pushes and closes
+    with UrArm(emu.host) as again:
+        result = again.push_until(STANDOFF, DOWN, force_limit=2.0, travel_limit=0.01,
+                                  speed=0.004)
+        assert result.outcome == 'force_limit'
+
+
+def test_a_ur_rtde_error_comes_back_with_its_type_and_message(cell):
+    _, arm = cell
+    with pytest.raises(TypeError, match='incompatible function arguments'):
+        arm._ctrl.moveL('not a pose')
+    assert arm.is_connected()   # a refused call leaves the interface usable
+    up = arm.tcp_pose() + [0.0, 0.0, 0.05, 0.0, 0.0, 0.0]
+    with pytest.raises(RuntimeError, match='no reply within 0.05 s'):
+        arm._ctrl.call('moveL', (up.tolist(), 0.05, 0.5, False), 0.05)   # takes ~1 s
+    with pytest.raises(RuntimeError, match='abandoned'):
+        arm._ctrl.isConnected()   # its late answer would be read as this one's: refused
+    assert not arm.is_connected()

@@ -71,7 +71,7 @@ install: $(STAMP)/install
 
 test: install
 	@mkdir -p out
-	PYTEST_PHASE_FILE=out/.pytest-phase $(VPY) -m pytest $(PYTEST_ARGS) || { rc=$$?; \
+	PYTEST_PHASE_FILE=$(abspath out/.pytest-phase) $(VPY) -m pytest $(PYTEST_ARGS) || { rc=$$?; \
 	  if [ $$rc -gt 128 ]; then echo "[test] pytest was killed by signal $$((rc - 128)) in:" \
 	    "$$(cat out/.pytest-phase 2>/dev/null || echo 'no test yet')"; fi; exit $$rc; }
 

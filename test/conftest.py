@@ -1,6 +1,7 @@
 """Suite-wide fixtures: an isolated ROS 2 graph per test process, and seeded randomness.
 
-With ``PYTEST_PHASE_FILE`` set (``make test`` sets it), each test phase writes its node id
+With ``PYTEST_PHASE_FILE`` set (``make test`` sets it, an absolute path: tests change their
+working directory), each test phase writes its node id
 there first, so a run that a native crash ends can still say which test it was in.
 """
 
@@ -41,8 +42,11 @@ _PHASE_FILE = os.environ.get('PYTEST_PHASE_FILE')
 
 def _mark_phase(item, phase):
     if _PHASE_FILE:
-        with open(_PHASE_FILE, 'w') as fh:
-            fh.write(f'{item.nodeid} ({phase})\n')
+        try:   # a bookkeeping write must never fail a test, nor skip its fixtures' teardown
+            with open(_PHASE_FILE, 'w') as fh:
+                fh.write(f'{item.nodeid} ({phase})\n')
+        except OSError:
+            pass
 
 
 @pytest.hookimpl(tryfirst=True)

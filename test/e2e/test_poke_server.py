@@ -4,6 +4,8 @@ Every test starts its own emulator process (a flat elastic top at z = 0.04 m, k 
 its own loopback address and its own ROS graph.
 """
 
+import os
+import signal
 import threading
 import time
 
@@ -144,6 +146,25 @@ def test_ft_stall_mid_push_aborts_and_keeps_the_samples(cell):
     assert fired.is_set() and result.outcome == 'aborted'
     assert 'stall' in result.message.lower() or 'frozen' in result.message.lower()
     assert PokeStore(tmp_path / 'pokes').get(result.poke_id).outcome.startswith('aborted')
+
+
+def test_an_aborted_ur_rtde_process_costs_one_poke_and_loses_none_of_its_samples(cell):
+    """CI, session 17: a throwing ur_rtde destructor aborted the process that held the arm.
+    The interfaces now live in their own process: its death aborts this poke, whose samples
+    are kept, and the next goal reconnects.
+    """
+    graph, emulator, server, _, client, tmp_path = cell
+    arm = server._connect()
+    handle, fired = _push_then(graph, client, lambda: os.kill(arm.host_pid, signal.SIGABRT))
+    result = graph.wait_future(handle.get_result_async(), 40, 'result').result
+    assert fired.is_set() and result.outcome == 'aborted'
+    assert 'host process is gone' in result.message, result.message
+    record = PokeStore(tmp_path / 'pokes').get(result.poke_id)
+    assert record.outcome.startswith('aborted') and len(record) == result.samples > 50
+    again = graph.wait_future(_send(graph, client, _goal()).get_result_async(), 40,
+                              'second result').result
+    assert again.outcome == 'force_limit', again.message
+    assert server._connect() is not arm
 
 
 def test_cancel_stops_the_arm_and_retracts(cell):

@@ -67,6 +67,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rcl_interfaces.srv import SetParameters
 from std_srvs.srv import Trigger
 
 from msg_adapters.geometry import mesh_to_flat, mesh_to_msg, pose_to_msg, to_point
@@ -76,7 +77,8 @@ from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
 from pointforce_ros.model.serving import WrenchServer
-from pointforce_ros.nodes.contact_wrench import REQUESTS, spin_single_threaded, TIMING_PERIOD
+from pointforce_ros.nodes.contact_wrench import (HOT_WAIT_MS, REQUESTS, spin_single_threaded,
+                                                 TIMING_PERIOD)
 from pointforce_ros.nodes.direct_client import DirectClient, ServiceTimeout
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.service_loop import ServiceLoop, STAGES, TIMING_WINDOW
@@ -493,6 +495,44 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
                 direct_trigger_rtt=direct_trigger_rtt, idle_rtt=idle_rtt)
 
 
+def _round_trips_without_hot_wait(planner, sphere, poses, n_single):
+    """Time the ``DirectClient`` single-query series again with the service's ``hot_wait`` at 0.
+
+    Set through the node's own parameter service, then set back to :data:`HOT_WAIT_MS`: the
+    same processes and machine minutes, so the pair shows what the polling window buys.
+    """
+    node = Node('bench_client_sleepy', context=planner.context)
+    setter = DirectClient(node, SetParameters, '/contact_wrench/set_parameters')
+    single = DirectClient(node, ContactWrench, '/contact_wrench/lane_1/contact_wrench', REQUESTS)
+    vertices, triangles = mesh_to_flat(sphere)
+    flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
+
+    def set_hot_wait(value):
+        if not setter.wait_for_service(timeout_sec=30):
+            raise RuntimeError('contact_wrench/set_parameters did not appear within 30 s')
+        result = setter.call(SetParameters.Request(parameters=[
+            Parameter('hot_wait', value=float(value)).to_parameter_msg()]), 30).results[0]
+        if not result.successful:
+            raise RuntimeError(f'hot_wait not set: {result.reason}')
+    times = []
+    try:
+        set_hot_wait(0.0)
+        for pose in poses[:5]:
+            warm_up_call(single, _single_request(pose, flat), 'contact_wrench')
+        for pose in poses[:n_single]:
+            start = time.perf_counter()
+            response = single.call(_single_request(pose, flat), 30)
+            times.append(time.perf_counter() - start)
+            if not response.success:
+                raise RuntimeError(f'contact_wrench refused: {response.message}')
+        set_hot_wait(HOT_WAIT_MS)
+    finally:
+        single.destroy()
+        setter.destroy()
+        node.destroy_node()
+    return times
+
+
 def bench_ros(quick: bool = False, campaign: bool = True, load_clients: int = 8,
               load_calls: int = 500) -> dict:
     """Run the benchmark; returns a JSON-able dict (times in ms unless the key says).
@@ -559,6 +599,7 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
             reports = _timing_reports(planner)
             trips = _round_trips(planner, sphere, poses, n_single, n_small, small_batch)
             out.update(_service_stages(planner, reports, n_single))
+            sleepy = _round_trips_without_hot_wait(planner, sphere, poses, n_single)
         pids = [contact[0].pid]
         out.update(_load_test(load_clients, load_calls, pids))
         out.update(_load_test(load_clients, load_calls, pids, lanes=True))
@@ -580,6 +621,7 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
     mtt50, mtt99 = _percentiles(trips['mt_trigger_rtt'])
     bc50, bc99 = _percentiles(core_small)
     d50, d99 = _percentiles(trips['direct_rtt'])
+    n50, n99 = _percentiles(sleepy)
     dt50, dt99 = _percentiles(trips['direct_trigger_rtt'])
     i50, i99 = _percentiles(trips['idle_rtt'])
     out.update(single_rtt_p50_ms=p50, single_rtt_p99_ms=p99, core_query_p50_ms=c50,
@@ -591,6 +633,10 @@ def _bench_ros(quick: bool, campaign: bool, load_clients: int, load_calls: int) 
                trigger_rtt_mt_client_p50_ms=mtt50, trigger_rtt_mt_client_p99_ms=mtt99,
                single_rtt_direct_client_p50_ms=d50, single_rtt_direct_client_p99_ms=d99,
                ros_overhead_direct_client_p50_ms=d50 - c50,
+               single_rtt_direct_client_no_hot_wait_p50_ms=n50,
+               single_rtt_direct_client_no_hot_wait_p99_ms=n99,
+               ros_overhead_direct_client_no_hot_wait_p50_ms=n50 - c50,
+               hot_wait_ms=HOT_WAIT_MS,
                trigger_rtt_direct_p50_ms=dt50, trigger_rtt_direct_p99_ms=dt99,
                single_rtt_after_idle_p50_ms=i50, single_rtt_after_idle_p99_ms=i99,
                idle_before_call_ms=1e3 * IDLE_S, burst_calls=BURST,

@@ -220,3 +220,20 @@ def test_service_timing_reports_where_the_answers_spent_their_time(served):  # n
     count = len(received)
     time.sleep(TIMING_PERIOD + 1.0)
     assert len(received) == count
+
+
+def test_hot_wait_keeps_the_service_thread_polling_after_an_answer_then_not(served):  # noqa: F811
+    """Issue 21: ``hot_wait`` ms of polling after each answer (an idle vCPU answers its next
+    request up to 2x slower); set at run time, it applies from the next answer."""
+    graph, node, client_node, single, _, _, _ = served
+    loop = node._service_loop
+    request = _request(0.003)[0]
+    polls = {}
+    for hot in (100.0, 0.0):
+        assert _set(graph, client_node, 'hot_wait', hot).successful
+        before = loop.polls
+        assert _call(graph, single, request).success   # the window opens after this answer
+        time.sleep(0.3)
+        polls[hot] = loop.polls - before
+    # 100 ms of zero-timeout waits of ~60 us each: about 1600 (a loaded machine, fewer)
+    assert polls[100.0] > 50 and polls[0.0] == 0, polls

@@ -55,6 +55,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Tuple
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3
@@ -417,6 +418,13 @@ def _direct_clients(planner):
         node.destroy_node()
 
 
+def _direct_trip(client, request) -> Tuple[float, object]:
+    """Return (seconds, response) of one blocking ``DirectClient`` call (no polling)."""
+    start = time.perf_counter()
+    response = client.call(request, 30)
+    return time.perf_counter() - start, response
+
+
 def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_direct,
                        trigger_direct, sphere, poses, n_single, n_small, small_batch):
     """Time the series of :func:`_round_trips` (seconds), given its clients."""
@@ -434,10 +442,6 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
                                           approach=approach, torque_centre=to_point(CENTRE),
                                           skip_uncertainty=True, **flat)
 
-    def direct_trip(client, request):
-        start = time.perf_counter()
-        response = client.call(request, 30)
-        return time.perf_counter() - start, response
     for pose in poses[:20]:   # warm-up: discovery, the server's mesh cache
         for client in (single, single_mt, single_direct):
             warm_up_call(client, _single_request(pose, flat), 'contact_wrench')
@@ -447,7 +451,7 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
     direct_rtt, direct_trigger_rtt, idle_rtt = [], [], []
 
     def contact(client, request):
-        elapsed, resp = (direct_trip(client, request) if client is single_direct
+        elapsed, resp = (_direct_trip(client, request) if client is single_direct
                          else round_trip(client, request, 30, 'contact_wrench'))
         if not resp.success:
             raise RuntimeError(f'contact_wrench refused: {resp.message}')
@@ -463,7 +467,7 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
         for client, times in ((trigger, trigger_rtt), (trigger_mt, mt_trigger_rtt)):
             times.extend(round_trip(client, Trigger.Request(), 30, 'trigger')[0]
                          for _ in block)
-        direct_trigger_rtt.extend(direct_trip(trigger_direct, Trigger.Request())[0]
+        direct_trigger_rtt.extend(_direct_trip(trigger_direct, Trigger.Request())[0]
                                   for _ in block)
     # a planner's occasional query: the service idle for IDLE_S before each call (on a VM an
     # idle virtual CPU takes its time to come back; the sleep is outside the timed call)
@@ -503,7 +507,6 @@ def _round_trips_without_hot_wait(planner, sphere, poses, n_single):
     """
     node = Node('bench_client_sleepy', context=planner.context)
     setter = DirectClient(node, SetParameters, '/contact_wrench/set_parameters')
-    single = DirectClient(node, ContactWrench, '/contact_wrench/lane_1/contact_wrench', REQUESTS)
     vertices, triangles = mesh_to_flat(sphere)
     flat = dict(mesh_vertices=vertices, mesh_triangles=triangles)
 
@@ -516,18 +519,17 @@ def _round_trips_without_hot_wait(planner, sphere, poses, n_single):
             raise RuntimeError(f'hot_wait not set: {result.reason}')
     times = []
     try:
-        set_hot_wait(0.0)
-        for pose in poses[:5]:
-            warm_up_call(single, _single_request(pose, flat), 'contact_wrench')
-        for pose in poses[:n_single]:
-            start = time.perf_counter()
-            response = single.call(_single_request(pose, flat), 30)
-            times.append(time.perf_counter() - start)
-            if not response.success:
-                raise RuntimeError(f'contact_wrench refused: {response.message}')
-        set_hot_wait(HOT_WAIT_MS)
+        with _direct_clients(planner) as (single, _):
+            set_hot_wait(0.0)
+            for pose in poses[:5]:
+                warm_up_call(single, _single_request(pose, flat), 'contact_wrench')
+            for pose in poses[:n_single]:
+                elapsed, response = _direct_trip(single, _single_request(pose, flat))
+                times.append(elapsed)
+                if not response.success:
+                    raise RuntimeError(f'contact_wrench refused: {response.message}')
+            set_hot_wait(HOT_WAIT_MS)
     finally:
-        single.destroy()
         setter.destroy()
         node.destroy_node()
     return times

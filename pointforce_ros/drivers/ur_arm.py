@@ -996,6 +996,7 @@ class _StreamPoller:
 
 
 _KEPT = []
+"""The stream worker's receive interfaces, referenced until ``os._exit`` (no destructor runs)."""
 
 
 def _stream_worker(argv: Sequence[str]) -> int:

@@ -65,8 +65,9 @@ LIMIT_PARAMETERS = {'max_sample_poses': 'max_sample_poses', 'max_request_memory'
 
 HOT_WAIT_MS = 2.0
 """Default ``hot_wait``: polling after each answer, ms. Quiet-machine ``bench ros`` runs, single
-query back to back: p50 1.03 ms and ROS overhead 0.58-0.75 ms against 1.31 / 1.00 ms without
-it, and 0.70 against 0.99 ms of service CPU per call under load (the vCPU stays awake)."""
+query back to back (four runs): p50 1.03-1.29 ms and ROS overhead 0.58-0.93 ms against
+1.31-1.65 / 1.00-1.35 ms without it, and 0.70 against 0.99 ms of service CPU per call under
+load (the vCPU stays awake)."""
 
 TIMING_PERIOD = 5.0
 """Seconds between ``~/service_timing`` reports (only after new answers)."""
@@ -158,7 +159,7 @@ class ContactWrenchNode(Node):
         # answered on a wait loop of their own: the executor's per-request cost (about 1 ms of
         # CPU here) was as large as the query's solve
         self._service_loop = ServiceLoop(self)
-        self._service_loop.hot_window = 1e-3 * hot_wait
+        self._service_loop.set_hot_wait(hot_wait)
         self._service_loop.add(ContactWrench, '~/contact_wrench', self._on_single, REQUESTS)
         self._service_loop.add(ContactWrenchBatch, '~/contact_wrench_batch', self._on_batch,
                                REQUESTS)
@@ -186,8 +187,7 @@ class ContactWrenchNode(Node):
                     'poll_period': self._new_poll_period,
                     'marker_rate': lambda v: lambda: self._set_marker_rate(v),
                     'marker_force_scale': lambda v: lambda: setattr(self, 'marker_scale', v),
-                    'hot_wait': lambda v: lambda: setattr(self._service_loop, 'hot_window',
-                                                          1e-3 * v)})
+                    'hot_wait': lambda v: lambda: self._service_loop.set_hot_wait(v)})
         self._service_loop.start()
         self.get_logger().info(f'serving contact wrenches (model version {self.server.version})')
 

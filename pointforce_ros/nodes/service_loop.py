@@ -113,6 +113,10 @@ class ServiceLoop:
         """The services this loop answers."""
         return list(self._services)
 
+    def set_hot_wait(self, milliseconds: float) -> None:
+        """Set :attr:`hot_window` from a ``hot_wait`` parameter in milliseconds (>= 0)."""
+        self.hot_window = 1e-3 * max(0.0, float(milliseconds))
+
     def start(self) -> None:
         """Start answering (a daemon thread); the context's shutdown stops it."""
         if self._thread is not None:

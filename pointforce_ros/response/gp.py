@@ -198,8 +198,12 @@ class FeatureGp:
                 phi = np.zeros((len(f), 0))
         return ((pos, col, nor) if groups else None), phi
 
-    def fit(self, features: np.ndarray, y: np.ndarray, chunk: int = 512) -> GpState:
+    def fit(self, features: np.ndarray, y: np.ndarray, chunk: int = 512,
+            noise: Optional[np.ndarray] = None) -> GpState:
         """Choose hyperparameters on the grid and condition on ``(features, y)``.
+
+        ``noise``: optional (n,) factors >= 1 on each point's nugget (a point known to
+        scatter more about the smooth field pulls its neighbours less); ``None``: all 1.
 
         Raises:
             InvalidInput: shapes disagree, NaN, no points, or one point without a prior.
@@ -225,7 +229,7 @@ class FeatureGp:
             combos = combos[combos[:, 3] == combos[0, 3]]
             combos[:, 3] = 0.0
         best_val, best = -np.inf, None
-        eye = np.eye(n)
+        eye = np.diag(self._noise(noise, n))
         rhs = np.stack([np.ones(n), y], axis=1)
         for lo in range(0, len(combos), chunk):
             c = combos[lo:lo + chunk]
@@ -258,18 +262,32 @@ class FeatureGp:
         if best is None:
             raise InvalidInput('FeatureGp.fit: no hyperparameters give a positive-definite '
                                'kernel (duplicate pokes with different values?)')
-        self.condition(features, y, best)
+        self.condition(features, y, best, noise)
         return best
 
-    def condition(self, features: np.ndarray, y: np.ndarray, state: GpState) -> None:
-        """Condition on data with given hyperparameters (used by fit and by loading)."""
+    @staticmethod
+    def _noise(noise: Optional[np.ndarray], n: int) -> np.ndarray:
+        if noise is None:
+            return np.ones(n)
+        noise = np.asarray(noise, dtype=float)
+        if noise.shape != (n,) or not np.all(np.isfinite(noise)) or np.any(noise < 1.0):
+            raise InvalidInput(f'FeatureGp: noise factors must be ({n},) finite and >= 1')
+        return noise
+
+    def condition(self, features: np.ndarray, y: np.ndarray, state: GpState,
+                  noise: Optional[np.ndarray] = None) -> None:
+        """Condition on data with given hyperparameters (used by fit and by loading).
+
+        ``noise``: the per-point nugget factors of :meth:`fit`.
+        """
         features = np.asarray(features, dtype=float)
         y = np.asarray(y, dtype=float)
         self.state = state
         groups, phi = self._prepare(features)
         self._z = groups
         self._phi = phi
-        r = self._corr(groups, phi, groups, phi) + state.nugget * np.eye(len(y))
+        noise = self._noise(noise, len(y))
+        r = self._corr(groups, phi, groups, phi) + state.nugget * np.diag(noise)
         chol = np.linalg.cholesky(r)
         self._chol = chol
         inv = np.linalg.inv(chol)                        # n is small (pokes): explicit is fine

@@ -497,7 +497,8 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
     """
     factories = {'ours': ContactGpModel,
                  # before issue 17: one power law, force at the parameters' predictive mean
-                 'ours_before': lambda: ContactGpModel(law='power', mean='median'),
+                 'ours_before': lambda: ContactGpModel(law='power', mean='median',
+                                                       robust_z=None),
                  'ours_capped': lambda: CappedAtTraining(ContactGpModel()),
                  'ours_independent': lambda: ContactGpModel(decorrelate=False),
                  'ours_shape_free': ShapeFreeGpModel, 'et': EtBaseline,

@@ -58,7 +58,7 @@ from pointforce_ros.response.scoring import CONTACT_MARGIN
 from pointforce_ros.lab.paper_contact import PaperContactSimulator
 from pointforce_ros.pokes.curves import extract_curve
 from pointforce_ros.response.common import curve_features
-from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.ours import ContactGpModel, ROBUST_Z
 from pointforce_ros.response.shapefree import ShapeFreeGpModel
 from pointforce_ros.lab.active import active_vs_random_curve
 from pointforce_ros.sim.fem.live import LiveContact, POINT_PROBE
@@ -491,7 +491,8 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
     Models: ours, ours as it was before issue 17 (``ours_before``: power law, force at the
     parameters' mean), ours capped at its training pokes' largest force (a diagnostic, see
     :class:`CappedAtTraining`), ours with independent parameter processes (before
-    decorrelation), its shape-free candidate, ET and Auto-ET. ``truth``
+    decorrelation), ours with the outlier screen, its shape-free candidate, ET and Auto-ET.
+    ``truth``
     (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
     force cap.
     """
@@ -501,6 +502,8 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
                                                        robust_z=None),
                  'ours_capped': lambda: CappedAtTraining(ContactGpModel()),
                  'ours_independent': lambda: ContactGpModel(decorrelate=False),
+                 # the optional outlier screen (ours.py, module docstring point 8)
+                 'ours_screened': lambda: ContactGpModel(robust_z=ROBUST_Z),
                  'ours_shape_free': ShapeFreeGpModel, 'et': EtBaseline,
                  'auto_et': lambda: AutoEtBaseline(budget_s=auto_budget)}
     sizes = [s for s in sizes if s < len(curves)]

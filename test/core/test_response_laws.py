@@ -12,7 +12,7 @@ import pytest
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.response.gp import FeatureFrame, FeatureGp
-from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.ours import ContactGpModel, ROBUST_Z
 from pointforce_ros.types import Surface
 
 SREF = 0.003
@@ -245,8 +245,8 @@ def bone_world(seed):
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_one_extreme_poke_does_not_bend_the_field_of_its_neighbours(seed):
     surface, train, test = bone_world(seed)
-    plain = ContactGpModel(law='power', robust_z=None).fit(train, surface)
-    robust = ContactGpModel(law='power').fit(train, surface)
+    plain = ContactGpModel(law='power').fit(train, surface)
+    robust = ContactGpModel(law='power', robust_z=ROBUST_Z).fit(train, surface)
     # the bone poke is fitted with extreme parameters (that is the premise)
     noise = robust._outlier_noise(robust.poke_params)
     assert np.argmax(noise) == 9 and noise[9] > 4.0 and np.all(noise[:9] < 2.0), noise
@@ -259,24 +259,40 @@ def test_the_screen_leaves_an_object_without_outliers_alone():
     """A smooth field has no outlier: the screen changes no nugget and no prediction."""
     surface, train, test = bone_world(3)
     train = train[:9]
-    plain = ContactGpModel(law='power', robust_z=None).fit(train, surface)
-    robust = ContactGpModel(law='power').fit(train, surface)
+    plain = ContactGpModel(law='power').fit(train, surface)
+    robust = ContactGpModel(law='power', robust_z=ROBUST_Z).fit(train, surface)
     assert np.all(robust._outlier_noise(robust.poke_params) < 1.5)
     x = surface.features[::7]
     d = np.full(len(x), 0.005)
     np.testing.assert_allclose(robust.predict(x, d), plain.predict(x, d), rtol=0.05)
     # two foams, the stiffer on a third of the cells: its pokes are the field, not outliers
     surface, train, _ = colour_world(0, meaningful=True)
-    model = ContactGpModel(law='power').fit(train, surface)
+    model = ContactGpModel(law='power', robust_z=ROBUST_Z).fit(train, surface)
     log_f = model.poke_params[:, 1]
     stiff = log_f > log_f.min() + 0.5
     assert stiff.sum() >= 3
     assert np.all(model._outlier_noise(model.poke_params)[stiff] == 1.0)
 
 
+def test_two_pokes_that_agree_are_a_material_not_outliers():
+    """A second poke over the inclusion confirms the first: neither is screened, and the
+    field follows them near the inclusion (more pokes on lamb put several over its bone)."""
+    surface, train, _ = bone_world(0)
+    rng = np.random.default_rng(5)
+    beside = int(np.argmin(np.linalg.norm(surface.points[:, :2] - [0.034, 0.02], axis=1)))
+    second = make_curve(10, surface, beside, (-0.001, np.log(3.0), 1.2, 1.5), 0.008, rng)
+    model = ContactGpModel(law='power', robust_z=ROBUST_Z).fit(train + [second], surface)
+    assert np.all(model._outlier_noise(model.poke_params) == 1.0)
+    screened = ContactGpModel(law='power', robust_z=ROBUST_Z).fit(train, surface)
+    near = np.linalg.norm(surface.points[:, :2] - [0.032, 0.02], axis=1)
+    at = surface.features[[int(np.argmin(near))]]
+    # at 2 mm between the two pokes the confirmed field is near their 3 N-class stiffness
+    assert model.predict(at, 0.006)[0] > 1.5 * screened.predict(at, 0.006)[0]
+
+
 def test_the_screen_survives_save_and_load():
     surface, train, _ = bone_world(0)
-    model = ContactGpModel(law='power').fit(train, surface)
+    model = ContactGpModel(law='power', robust_z=ROBUST_Z).fit(train, surface)
     again = ContactGpModel.from_dict(model.to_dict())
     x = surface.features[::9]
     d = np.full(len(x), 0.006)

@@ -498,8 +498,7 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
     """
     factories = {'ours': ContactGpModel,
                  # before issue 17: one power law, force at the parameters' predictive mean
-                 'ours_before': lambda: ContactGpModel(law='power', mean='median',
-                                                       robust_z=None),
+                 'ours_before': lambda: ContactGpModel(law='power', mean='median'),
                  'ours_capped': lambda: CappedAtTraining(ContactGpModel()),
                  'ours_independent': lambda: ContactGpModel(decorrelate=False),
                  # the optional outlier screen (ours.py, module docstring point 8)

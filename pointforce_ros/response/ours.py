@@ -554,12 +554,12 @@ class ContactGpModel:
         k = theta.shape[1]
         if not self.decorrelate or len(theta) < DECORRELATE_MIN_POKES:
             return np.zeros(k), np.ones(k), np.eye(k), self.prior_scales[:k]
-        w = np.ones(len(theta)) if weights is None else np.asarray(weights, dtype=float)
-        w = w * (len(theta) / w.sum())
-        mu = w @ theta / w.sum()
-        scale = np.maximum(np.sqrt(w @ (theta - mu) ** 2 / w.sum()), SCALE_FLOOR[:k])
+        n = len(theta)
+        w = np.ones(n) if weights is None else np.asarray(weights, dtype=float)
+        w = w * (n / w.sum())                  # weights that sum to the number of pokes
+        mu = w @ theta / n
+        scale = np.maximum(np.sqrt(w @ (theta - mu) ** 2 / n), SCALE_FLOOR[:k])
         z = (theta - mu) / scale
-        n = len(z)
         cov = ((z * w[:, None]).T @ z + DECORRELATE_PRIOR_POKES * np.eye(k)) \
             / (n + DECORRELATE_PRIOR_POKES)
         cov += DECORRELATE_RIDGE * np.eye(k)

@@ -219,8 +219,8 @@ def test_baked_table_follows_the_chosen_law_and_mean(mean):
 # On the simulated cell's lamb a poke over the buried bone stiffens at depth; the power law
 # fits it only with its exponent on the cap and an onset 3 mm early, and the decorrelated
 # processes spread that set to pokes 17 mm away (their forces at 10 mm came out 60-80 % high;
-# held-out RMSE at 10 pokes 0.58 N against 0.47 N at 5). The outlier screen gives such a poke a
-# larger nugget: it still counts, but as a local departure, not as the field.
+# held-out RMSE at 10 pokes 0.58 N against 0.47 N at 5). The outlier screen (opt-in) gives such
+# a poke a larger nugget: it still counts, but as a local departure, not as the field.
 
 
 def bone_world(seed):

@@ -21,6 +21,43 @@ from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedE
 from rclpy.node import Node
 
 
+DRAIN_TIMEOUT = 10.0
+"""Longest wait (s) for an executor's callbacks in flight when it stops (:func:`drain`): a
+poke in flight at Ctrl-C finishes (bounded by its force and depth limits, it ends retracted)
+before the arm connection closes, if it can within this."""
+
+
+def drain(executor: Executor, name: str, timeout: float) -> bool:
+    """Wait until the callbacks ``executor`` started have finished; True if they did in time.
+
+    rclpy Jazzy's ``Executor.shutdown`` marks itself shut down before it tests that mark, so it
+    never waits for the work in flight, and a ``MultiThreadedExecutor`` keeps running the
+    callbacks it handed to its thread pool. A node destroyed then was met by its own callback
+    (``InvalidHandle``: "cannot use Destroyable because destruction was requested", printed at
+    exit as "The following exception was never retrieved" in about half the demo runs). This
+    waits on the executor's own bookkeeping (the pool's handler tasks and its work tracker,
+    private attributes read defensively: an rclpy that fixes ``shutdown`` needs none of it),
+    then logs what a finished callback raised instead of leaving it to the garbage collector.
+    """
+    tasks = list(getattr(executor, '_futures', ()))
+    tracker = getattr(executor, '_work_tracker', None)
+    deadline = time.monotonic() + timeout
+    while not all(t.done() or t.cancelled() for t in tasks) \
+            or (tracker is not None and not tracker.wait(0.0)):
+        if time.monotonic() > deadline:
+            logging.getLogger(__name__).error(
+                '%s: callbacks still running %.0f s after shutdown; destroying the nodes anyway',
+                name, timeout)
+            return False
+        time.sleep(0.005)
+    for task in tasks:
+        error = task.exception() if task.done() else None
+        if error is not None:
+            logging.getLogger(__name__).warning('%s: a callback raised %s at shutdown: %s',
+                                                name, type(error).__name__, error)
+    return True
+
+
 class InProcessLauncher:
     """Own an rclpy context and a multi-threaded executor spinning in a daemon thread.
 
@@ -94,6 +131,7 @@ class InProcessLauncher:
             executor = self._own.pop(id(node), None)
             if executor is not None:
                 executor.shutdown(timeout_sec=5.0)
+                drain(executor, f'ros-executor-{node.get_name()}', DRAIN_TIMEOUT)
             else:
                 self.executor.remove_node(node)
             node.destroy_node()
@@ -117,15 +155,19 @@ class InProcessLauncher:
     def close(self) -> None:
         """Stop spinning, then destroy every node and shut the context down.
 
-        The executor stops (and its thread ends) before any node is destroyed: destroying a
-        node whose timer or subscription the spinning thread was still waiting on aborted
-        the process inside rcl once (a fresh-clone test run, poke server teardown).
+        The executors stop, their threads end and the callbacks they handed to their thread
+        pools finish (:func:`drain`) before any node is destroyed: destroying a node whose
+        timer or subscription the spinning thread was still waiting on aborted the process
+        inside rcl once (a fresh-clone test run, poke server teardown), and a callback still
+        running on a pool thread met its destroyed node.
         """
         self._stopping = True
         for executor, _ in self._spinners:
             executor.shutdown(timeout_sec=5.0)
         for _, thread in self._spinners:
             thread.join(timeout=5.0)
+        for executor, thread in self._spinners:
+            drain(executor, thread.name, DRAIN_TIMEOUT)
         for node in list(self.nodes):
             self.nodes.remove(node)
             node.destroy_node()

@@ -1,14 +1,20 @@
 """The in-process launcher keeps spinning when a callback raises (issue 16, items 1 and 7).
 
 A ``MemoryError`` that escaped one service callback ended the executor's only thread: every
-node of ``pointforce cell`` stayed discoverable and never answered again.
+node of ``pointforce cell`` stayed discoverable and never answered again. And it stops cleanly:
+no node is destroyed under a callback still running on an executor's thread pool.
 """
+
+import logging
+import threading
+import time
 
 import pytest
 from rclpy.node import Node
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from pointforce_ros.bringup.launcher import InProcessLauncher
+from pointforce_ros.bringup.launcher import drain, DRAIN_TIMEOUT, InProcessLauncher
 
 pytestmark = pytest.mark.ros
 
@@ -55,3 +61,64 @@ def test_a_callback_that_raises_memory_error_does_not_stop_the_other_nodes(isola
         assert names == ({'ros-executor-faulty'} if isolated else {'ros-executor'})
         assert len(launcher.alive()) == (2 if isolated else 1)
     assert launcher.alive() == []
+
+
+class _Slow(Node):
+    """A node whose service works for ``seconds`` and then publishes (its node must exist)."""
+
+    def __init__(self, seconds, **kwargs):
+        super().__init__('slow', **kwargs)
+        self.started = threading.Event()
+        self.outcome = []
+        publisher = self.create_publisher(String, '~/done', 10)
+
+        def work(request, response):
+            self.started.set()
+            time.sleep(seconds)
+            try:
+                publisher.publish(String(data='done'))
+                self.outcome.append('published')
+            except Exception as exc:  # noqa: BLE001 - the test records what close() did
+                self.outcome.append(f'{type(exc).__name__}: {exc}')
+            response.success = True
+            return response
+        self.create_service(Trigger, '~/work', work)
+
+
+@pytest.mark.parametrize('isolated', [False, True])
+def test_close_waits_for_a_callback_in_flight_before_destroying_its_node(isolated):
+    # rclpy Jazzy's executor shutdown does not wait for the thread pool: the node used to be
+    # destroyed under the running callback (InvalidHandle, "never retrieved" at exit)
+    launcher = InProcessLauncher(threads=2)
+    with InProcessLauncher(threads=2) as clients:
+        slow = launcher.add(_Slow(0.8, context=launcher.context), isolated=isolated)
+        caller = clients.add(Node('caller', context=clients.context))
+        work = caller.create_client(Trigger, '/slow/work')
+        assert work.wait_for_service(timeout_sec=15)
+        work.call_async(Trigger.Request())
+        assert slow.started.wait(15)
+        start = time.monotonic()
+        launcher.close()
+        waited = time.monotonic() - start
+    assert slow.outcome == ['published']
+    assert 0.3 < waited < DRAIN_TIMEOUT
+    assert launcher.alive() == []
+
+
+def test_drain_gives_up_after_its_timeout_and_says_so(caplog):
+    launcher = InProcessLauncher(threads=2)
+    with InProcessLauncher(threads=2) as clients:
+        slow = launcher.add(_Slow(3.0, context=launcher.context), isolated=True)
+        caller = clients.add(Node('caller', context=clients.context))
+        work = caller.create_client(Trigger, '/slow/work')
+        assert work.wait_for_service(timeout_sec=15)
+        work.call_async(Trigger.Request())
+        assert slow.started.wait(15)
+        executor = launcher._own[id(slow)]
+        executor.shutdown(timeout_sec=0.0)
+        with caplog.at_level(logging.ERROR):
+            assert not drain(executor, 'ros-executor-slow', 0.2)
+        assert 'still running' in caplog.text
+        assert drain(executor, 'ros-executor-slow', 10.0)
+        launcher.close()
+    assert slow.outcome == ['published']

@@ -1,11 +1,13 @@
 """Shared node plumbing: the Jazzy ``main()`` pattern and described, bounded parameters."""
 
+import logging
+import time
 from typing import Callable, Dict, Optional, Sequence
 
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 
@@ -110,11 +112,48 @@ def qos_watch(node: Node, topic: str) -> SubscriptionEventCallbacks:
     return SubscriptionEventCallbacks(incompatible_qos=on_incompatible)
 
 
+DRAIN_TIMEOUT = 10.0
+"""Longest wait (s) for an executor's callbacks in flight when it stops (:func:`drain`): a
+poke in flight at Ctrl-C finishes (bounded by its force and depth limits, it ends retracted)
+before the arm connection closes, if it can within this."""
+
+
+def drain(executor: Executor, name: str, timeout: float) -> bool:
+    """Wait until the callbacks ``executor`` started have finished; True if they did in time.
+
+    rclpy Jazzy's ``Executor.shutdown`` marks itself shut down before it tests that mark, so it
+    never waits for the work in flight, and a ``MultiThreadedExecutor`` keeps running the
+    callbacks it handed to its thread pool. A node destroyed then was met by its own callback
+    (``InvalidHandle``: "cannot use Destroyable because destruction was requested", printed at
+    exit as "The following exception was never retrieved" in about half the demo runs). This
+    waits on the executor's own bookkeeping (the pool's handler tasks and its work tracker,
+    private attributes read defensively: an rclpy that fixes ``shutdown`` needs none of it),
+    then logs what a finished callback raised instead of leaving it to the garbage collector.
+    """
+    tasks = list(getattr(executor, '_futures', ()))
+    tracker = getattr(executor, '_work_tracker', None)
+    deadline = time.monotonic() + timeout
+    while not all(t.done() or t.cancelled() for t in tasks) \
+            or (tracker is not None and not tracker.wait(0.0)):
+        if time.monotonic() > deadline:
+            logging.getLogger(__name__).error(
+                '%s: callbacks still running %.0f s after shutdown; destroying the nodes anyway',
+                name, timeout)
+            return False
+        time.sleep(0.005)
+    for task in tasks:
+        error = task.exception() if task.done() else None
+        if error is not None:
+            logging.getLogger(__name__).warning('%s: a callback raised %s at shutdown: %s',
+                                                name, type(error).__name__, error)
+    return True
+
+
 def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
     """Spin one node the Jazzy way (ros2/demos): init, spin, shutdown on Ctrl-C or external."""
     use_package_dds_profile()   # before the first rclpy.init of the process
     rclpy.init(args=args)
-    node = None
+    node = executor = None
     try:
         node = node_factory()
         executor = MultiThreadedExecutor(num_threads=threads)
@@ -123,6 +162,9 @@ def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        if executor is not None:     # callbacks in flight finish before the node goes
+            executor.shutdown(timeout_sec=0.0)
+            drain(executor, node.get_name(), DRAIN_TIMEOUT)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

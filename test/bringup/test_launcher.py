@@ -14,7 +14,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from pointforce_ros.bringup.launcher import drain, DRAIN_TIMEOUT, InProcessLauncher
+from pointforce_ros.bringup.launcher import InProcessLauncher
+from pointforce_ros.nodes.common import drain, DRAIN_TIMEOUT
 
 pytestmark = pytest.mark.ros
 

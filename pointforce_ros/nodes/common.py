@@ -1,4 +1,8 @@
-"""Shared node plumbing: the Jazzy ``main()`` pattern and described, bounded parameters."""
+"""Shared node plumbing: the Jazzy ``main()`` pattern, parameters, a clean stop.
+
+Parameters are described and bounded; a stop lets the callbacks in flight finish
+(:func:`drain`).
+"""
 
 import logging
 import time

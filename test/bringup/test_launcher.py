@@ -86,18 +86,24 @@ class _Slow(Node):
         self.create_service(Trigger, '~/work', work)
 
 
+def _busy(launcher, clients, seconds, isolated):
+    """Add a ``_Slow`` node to ``launcher``, call its service and return once it is working."""
+    slow = launcher.add(_Slow(seconds, context=launcher.context), isolated=isolated)
+    caller = clients.add(Node('caller', context=clients.context))
+    work = caller.create_client(Trigger, '/slow/work')
+    assert work.wait_for_service(timeout_sec=15)
+    work.call_async(Trigger.Request())
+    assert slow.started.wait(15)
+    return slow
+
+
 @pytest.mark.parametrize('isolated', [False, True])
 def test_close_waits_for_a_callback_in_flight_before_destroying_its_node(isolated):
     # rclpy Jazzy's executor shutdown does not wait for the thread pool: the node used to be
     # destroyed under the running callback (InvalidHandle, "never retrieved" at exit)
     launcher = InProcessLauncher(threads=2)
     with InProcessLauncher(threads=2) as clients:
-        slow = launcher.add(_Slow(0.8, context=launcher.context), isolated=isolated)
-        caller = clients.add(Node('caller', context=clients.context))
-        work = caller.create_client(Trigger, '/slow/work')
-        assert work.wait_for_service(timeout_sec=15)
-        work.call_async(Trigger.Request())
-        assert slow.started.wait(15)
+        slow = _busy(launcher, clients, 0.8, isolated)
         start = time.monotonic()
         launcher.close()
         waited = time.monotonic() - start
@@ -109,12 +115,7 @@ def test_close_waits_for_a_callback_in_flight_before_destroying_its_node(isolate
 def test_drain_gives_up_after_its_timeout_and_says_so(caplog):
     launcher = InProcessLauncher(threads=2)
     with InProcessLauncher(threads=2) as clients:
-        slow = launcher.add(_Slow(3.0, context=launcher.context), isolated=True)
-        caller = clients.add(Node('caller', context=clients.context))
-        work = caller.create_client(Trigger, '/slow/work')
-        assert work.wait_for_service(timeout_sec=15)
-        work.call_async(Trigger.Request())
-        assert slow.started.wait(15)
+        slow = _busy(launcher, clients, 3.0, True)
         executor = launcher._own[id(slow)]
         executor.shutdown(timeout_sec=0.0)
         with caplog.at_level(logging.ERROR):

@@ -22,6 +22,9 @@ from rclpy.node import Node
 
 from pointforce_ros.nodes.common import drain, DRAIN_TIMEOUT
 
+SPIN_PERIOD = 0.1
+"""Seconds one ``spin_once`` waits for work; bounds how late a stop is noticed if no wake."""
+
 
 class InProcessLauncher:
     """Own an rclpy context and a multi-threaded executor spinning in a daemon thread.
@@ -37,33 +40,47 @@ class InProcessLauncher:
         self.nodes: List[Node] = []
         self.faults: List[Tuple[float, str, BaseException]] = []
         """(wall time, executor name, exception) of every exception a callback let escape."""
-        self._stopping = False
-        self._spinners: List[Tuple[Executor, threading.Thread]] = []
+        self._spinners: List[Tuple[Executor, threading.Thread, threading.Event]] = []
         self._own: dict = {}
         self._thread = self._start(self.executor, 'ros-executor')
 
     def _start(self, executor: Executor, name: str) -> threading.Thread:
-        thread = threading.Thread(target=self._spin, args=(executor, name), name=name,
+        stop = threading.Event()
+        thread = threading.Thread(target=self._spin, args=(executor, name, stop), name=name,
                                   daemon=True)
-        self._spinners.append((executor, thread))
+        self._spinners.append((executor, thread, stop))
         thread.start()
         return thread
 
-    def _spin(self, executor: Executor, name: str):
-        """Spin ``executor`` until shutdown; a callback's exception is recorded, not fatal."""
-        while not self._stopping and self.context.ok():
+    def _spin(self, executor: Executor, name: str, stop: threading.Event):
+        """Spin ``executor`` until ``stop``; a callback's exception is recorded, not fatal.
+
+        One ``spin_once`` at a time rather than ``spin()``: the loop ends on ``stop`` with the
+        executor still whole, so :meth:`_halt` can let the callbacks in flight finish before
+        ``Executor.shutdown`` destroys the guard condition they signal when they end.
+        """
+        while not stop.is_set() and self.context.ok() \
+                and not getattr(executor, '_is_shutdown', False):  # shut down from outside
             try:
-                executor.spin()
-                return
+                executor.spin_once(timeout_sec=SPIN_PERIOD)
             except ExternalShutdownException:
                 return
             except Exception as exc:  # noqa: BLE001 - supervise: record, log, spin on
-                if self._stopping or not self.context.ok():
+                if stop.is_set() or not self.context.ok():
                     return
                 self.faults.append((time.time(), name, exc))
                 logging.getLogger(__name__).error(
                     '%s: a callback raised %s: %s; spinning on', name, type(exc).__name__, exc)
                 time.sleep(0.01)  # a fault that repeats at once must not spin the CPU
+
+    @staticmethod
+    def _halt(executor: Executor, thread: threading.Thread, stop: threading.Event) -> None:
+        """Stop one spinner: no new callbacks, the ones in flight finish, then shut down."""
+        stop.set()
+        executor.wake()
+        thread.join(timeout=DRAIN_TIMEOUT)
+        drain(executor, thread.name, DRAIN_TIMEOUT)
+        executor.shutdown(timeout_sec=0.0)
 
     def add(self, node: Node, isolated: bool = False, threads: int = 4) -> Node:
         """Start spinning ``node``; returns it.
@@ -87,7 +104,7 @@ class InProcessLauncher:
 
     def alive(self) -> List[str]:
         """Names of the executor threads that still spin (all of them unless shut down)."""
-        return [thread.name for _, thread in self._spinners if thread.is_alive()]
+        return [thread.name for _, thread, _ in self._spinners if thread.is_alive()]
 
     def remove(self, node: Node) -> None:
         """Stop spinning ``node`` and destroy it (simulates a killed node)."""
@@ -95,8 +112,9 @@ class InProcessLauncher:
             self.nodes.remove(node)
             executor = self._own.pop(id(node), None)
             if executor is not None:
-                executor.shutdown(timeout_sec=5.0)
-                drain(executor, f'ros-executor-{node.get_name()}', DRAIN_TIMEOUT)
+                spinner = next(sp for sp in self._spinners if sp[0] is executor)
+                self._spinners.remove(spinner)
+                self._halt(*spinner)
             else:
                 self.executor.remove_node(node)
             node.destroy_node()
@@ -120,19 +138,19 @@ class InProcessLauncher:
     def close(self) -> None:
         """Stop spinning, then destroy every node and shut the context down.
 
-        The executors stop, their threads end and the callbacks they handed to their thread
-        pools finish (:func:`drain`) before any node is destroyed: destroying a node whose
-        timer or subscription the spinning thread was still waiting on aborted the process
-        inside rcl once (a fresh-clone test run, poke server teardown), and a callback still
-        running on a pool thread met its destroyed node.
+        Each spinning thread ends first, then the callbacks it handed to its pool finish
+        (:func:`drain`), then its executor shuts down, and only then are nodes destroyed.
+        Destroying a node whose timer or subscription the spinning thread was still waiting on
+        aborted the process inside rcl once (a fresh-clone test run, poke server teardown); a
+        callback still running on a pool thread met its destroyed node; and a callback queued
+        on the pool that started after ``Executor.shutdown`` failed signalling the executor's
+        guard condition, which ``shutdown`` destroys at once (``InvalidHandle`` in the demo's
+        last lines, the message it had taken dropped).
         """
-        self._stopping = True
-        for executor, _ in self._spinners:
-            executor.shutdown(timeout_sec=5.0)
-        for _, thread in self._spinners:
-            thread.join(timeout=5.0)
-        for executor, thread in self._spinners:
-            drain(executor, thread.name, DRAIN_TIMEOUT)
+        for spinner in self._spinners:
+            spinner[2].set()
+        for spinner in self._spinners:
+            self._halt(*spinner)
         for node in list(self.nodes):
             self.nodes.remove(node)
             node.destroy_node()

@@ -125,14 +125,18 @@ before the arm connection closes, if it can within this."""
 def drain(executor: Executor, name: str, timeout: float) -> bool:
     """Wait until the callbacks ``executor`` started have finished; True if they did in time.
 
-    rclpy Jazzy's ``Executor.shutdown`` marks itself shut down before it tests that mark, so it
-    never waits for the work in flight, and a ``MultiThreadedExecutor`` keeps running the
-    callbacks it handed to its thread pool. A node destroyed then was met by its own callback
-    (``InvalidHandle``: "cannot use Destroyable because destruction was requested", printed at
-    exit as "The following exception was never retrieved" in about half the demo runs). This
-    waits on the executor's own bookkeeping (the pool's handler tasks and its work tracker,
-    private attributes read defensively: an rclpy that fixes ``shutdown`` needs none of it),
-    then logs what a finished callback raised instead of leaving it to the garbage collector.
+    Call it after the executor stopped spinning and before ``Executor.shutdown``. rclpy Jazzy's
+    ``shutdown`` marks itself shut down before it tests that mark, so it never waits for the
+    work in flight, and it destroys the executor's guard condition at once, while a
+    ``MultiThreadedExecutor`` keeps running the callbacks it handed to its thread pool. A
+    handler that started after that failed signalling the destroyed guard condition
+    (``InvalidHandle``: "cannot use Destroyable because destruction was requested", the message
+    it had taken dropped), and a node destroyed next was met by its own running callback
+    (printed at exit as "The following exception was never retrieved" in about half the demo
+    runs). This waits on the executor's own bookkeeping (the pool's handler tasks and its work
+    tracker, private attributes read defensively: an rclpy that fixes ``shutdown`` needs none
+    of it), then logs what a finished callback raised instead of leaving it to the garbage
+    collector.
     """
     tasks = list(getattr(executor, '_futures', ()))
     tracker = getattr(executor, '_work_tracker', None)
@@ -167,8 +171,8 @@ def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
         pass
     finally:
         if executor is not None:     # callbacks in flight finish before the node goes
-            executor.shutdown(timeout_sec=0.0)
             drain(executor, node.get_name(), DRAIN_TIMEOUT)
+            executor.shutdown(timeout_sec=0.0)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -10,6 +10,7 @@ import threading
 import time
 
 import pytest
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -71,9 +72,11 @@ class _Slow(Node):
         super().__init__('slow', **kwargs)
         self.started = threading.Event()
         self.outcome = []
+        self.calls = 0
         publisher = self.create_publisher(String, '~/done', 10)
 
         def work(request, response):
+            self.calls += 1
             self.started.set()
             time.sleep(seconds)
             try:
@@ -83,7 +86,7 @@ class _Slow(Node):
                 self.outcome.append(f'{type(exc).__name__}: {exc}')
             response.success = True
             return response
-        self.create_service(Trigger, '~/work', work)
+        self.create_service(Trigger, '~/work', work, callback_group=ReentrantCallbackGroup())
 
 
 def _busy(launcher, clients, seconds, isolated):
@@ -124,3 +127,21 @@ def test_drain_gives_up_after_its_timeout_and_says_so(caplog):
         assert drain(executor, 'ros-executor-slow', 10.0)
         launcher.close()
     assert slow.outcome == ['published']
+
+
+def test_a_callback_queued_on_the_pool_at_close_still_runs_and_nothing_is_dropped(caplog):
+    # A handler queued behind a busy pool used to start after Executor.shutdown had destroyed
+    # the guard condition: InvalidHandle at its signal, the request it had taken dropped.
+    launcher = InProcessLauncher(threads=1)   # one pool thread: the second call waits in line
+    with InProcessLauncher(threads=2) as clients:
+        slow = _busy(launcher, clients, 0.8, False)
+        client = clients.nodes[-1].create_client(Trigger, '/slow/work')
+        assert client.wait_for_service(timeout_sec=15)
+        answer = client.call_async(Trigger.Request())
+        launcher.wait_for(lambda: len(getattr(launcher.executor, '_futures', [])) >= 2, 10,
+                          'the second call queued on the pool')
+        with caplog.at_level(logging.WARNING):
+            launcher.close()
+        clients.wait_for(answer.done, 10, 'the queued call answered')
+    assert slow.calls == 2 and slow.outcome == ['published', 'published']
+    assert 'InvalidHandle' not in caplog.text and 'raised' not in caplog.text

@@ -128,23 +128,28 @@ VARIANTS = {
 }
 
 
-def main():
+def print_table(variants, description, argv=None):
     """Print two lines per object: each variant's median and mean RMSE (N), ratio to ET."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument('--objects', nargs='+', default=list(OBJECTS))
     parser.add_argument('--sizes', nargs='+', type=int, default=[5, 10])
-    args = parser.parse_args()
-    print('object | ' + ' | '.join(f'{name} @{s}' for name in VARIANTS for s in args.sizes))
+    args = parser.parse_args(argv)
+    print('object | ' + ' | '.join(f'{name} @{s}' for name in variants for s in args.sizes))
     for name in args.objects:
         surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
         start = time.monotonic()
-        rows = learning_curve(curves, surface, VARIANTS, sizes=args.sizes, repeats=10, seed=0)
+        rows = learning_curve(curves, surface, variants, sizes=args.sizes, repeats=10, seed=0)
         for stat in ('median', 'mean'):
             val = {(r['model'], r['size']): r[stat] for r in rows}
             cells = [f"{val[(v, s)]:.3f} ({val[(v, s)] / val[('et', s)]:.2f})"
-                     for v in VARIANTS for s in args.sizes]
+                     for v in variants for s in args.sizes]
             print(f'{name} {stat} | ' + ' | '.join(cells)
                   + f'   [{time.monotonic() - start:.0f} s]', flush=True)
+
+
+def main():
+    """The spreading variants' table."""
+    print_table(VARIANTS, __doc__.splitlines()[0])
 
 
 if __name__ == '__main__':

@@ -129,6 +129,7 @@ def test_drain_gives_up_after_its_timeout_and_says_so(caplog):
     assert slow.outcome == ['published']
 
 
+@pytest.mark.filterwarnings('ignore:MultiThreadedExecutor is used with a single thread')
 def test_a_callback_queued_on_the_pool_at_close_still_runs_and_nothing_is_dropped(caplog):
     # A handler queued behind a busy pool used to start after Executor.shutdown had destroyed
     # the guard condition: InvalidHandle at its signal, the request it had taken dropped.

@@ -20,7 +20,7 @@ from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedE
                              SingleThreadedExecutor)
 from rclpy.node import Node
 
-from pointforce_ros.nodes.common import drain, DRAIN_TIMEOUT
+from pointforce_ros.nodes.common import stop_executor
 
 
 class InProcessLauncher:
@@ -39,15 +39,14 @@ class InProcessLauncher:
         """(wall time, executor name, exception) of every exception a callback let escape."""
         self._spinners: List[Tuple[Executor, threading.Thread, threading.Event]] = []
         self._own: dict = {}
-        self._thread = self._start(self.executor, 'ros-executor')
+        self._start(self.executor, 'ros-executor')
 
-    def _start(self, executor: Executor, name: str) -> threading.Thread:
+    def _start(self, executor: Executor, name: str) -> None:
         stop = threading.Event()
         thread = threading.Thread(target=self._spin, args=(executor, name, stop), name=name,
                                   daemon=True)
         self._spinners.append((executor, thread, stop))
         thread.start()
-        return thread
 
     def _spin(self, executor: Executor, name: str, stop: threading.Event):
         """Spin ``executor`` until ``stop``; a callback's exception is recorded, not fatal."""
@@ -64,31 +63,6 @@ class InProcessLauncher:
                 logging.getLogger(__name__).error(
                     '%s: a callback raised %s: %s; spinning on', name, type(exc).__name__, exc)
                 time.sleep(0.01)  # a fault that repeats at once must not spin the CPU
-
-    @staticmethod
-    def _halt(executor: Executor, thread: threading.Thread, stop: threading.Event) -> None:
-        """Stop one spinner: no new callbacks, the ones in flight finish, then shut down.
-
-        ``Executor.shutdown`` does two things at once: it ends ``spin()`` and it destroys the
-        executor's guard condition, which a callback queued on the pool signals when it starts
-        and ends. The first half alone (the shut-down mark ``spin()`` tests, set under the
-        executor's lock as ``shutdown`` sets it, and a wake) ends the spinning; the callbacks
-        in flight finish (:func:`drain`); then ``shutdown`` destroys the guard condition.
-        (A loop of ``spin_once`` with a timeout also ends on a flag, but it changes the
-        executor's wait path, a timer per wait: ``pointforce bench ros --quick`` lost replies
-        in two of its three runs with it, one of six with this, none of six before.)
-        """
-        stop.set()
-        lock = getattr(executor, '_shutdown_lock', None)
-        if lock is not None and hasattr(executor, '_is_shutdown'):
-            with lock:
-                executor._is_shutdown = True
-            executor.wake()
-        else:                    # an rclpy without these: its public shutdown
-            executor.shutdown(timeout_sec=0.0)
-        thread.join(timeout=DRAIN_TIMEOUT)
-        drain(executor, thread.name, DRAIN_TIMEOUT)
-        executor.shutdown(timeout_sec=0.0)
 
     def add(self, node: Node, isolated: bool = False, threads: int = 4) -> Node:
         """Start spinning ``node``; returns it.
@@ -122,7 +96,9 @@ class InProcessLauncher:
             if executor is not None:
                 spinner = next(sp for sp in self._spinners if sp[0] is executor)
                 self._spinners.remove(spinner)
-                self._halt(*spinner)
+                _, thread, stop = spinner
+                stop.set()
+                stop_executor(executor, thread.name, thread)
             else:
                 self.executor.remove_node(node)
             node.destroy_node()
@@ -146,8 +122,9 @@ class InProcessLauncher:
     def close(self) -> None:
         """Stop spinning, then destroy every node and shut the context down.
 
-        Each spinning thread ends first, then the callbacks it handed to its pool finish
-        (:func:`drain`), then its executor shuts down, and only then are nodes destroyed.
+        Each spinning thread ends first, then the callbacks it handed to its pool finish, then
+        its executor shuts down (:func:`~pointforce_ros.nodes.common.stop_executor`), and only
+        then are nodes destroyed.
         Destroying a node whose timer or subscription the spinning thread was still waiting on
         aborted the process inside rcl once (a fresh-clone test run, poke server teardown); a
         callback still running on a pool thread met its destroyed node; and a callback queued
@@ -155,10 +132,10 @@ class InProcessLauncher:
         guard condition, which ``shutdown`` destroys at once (``InvalidHandle`` in the demo's
         last lines, the message it had taken dropped).
         """
-        for spinner in self._spinners:
-            spinner[2].set()
-        for spinner in self._spinners:
-            self._halt(*spinner)
+        for _, _, stop in self._spinners:
+            stop.set()
+        for executor, thread, _ in self._spinners:
+            stop_executor(executor, thread.name, thread)
         for node in list(self.nodes):
             self.nodes.remove(node)
             node.destroy_node()

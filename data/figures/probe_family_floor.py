@@ -33,6 +33,7 @@ whose lateral force stays small there). Not a figure of the product; the closing
 (session 21) quotes its table. About 2-4 minutes per object.
 
 Usage: python data/figures/probe_family_floor.py [--objects thin_layer plush] [--out FILE]
+       [--data FOLDER]
 """
 
 import argparse
@@ -69,10 +70,10 @@ def true_response(name: str, surface, curves) -> BakedResponse:
     return BakedResponse(depths=depths, forces=table, slopes=slopes)
 
 
-def object_floor(name: str) -> dict:
+def object_floor(name: str, data=HERE) -> dict:
     """Score the grid on one object's trials with the true point response (see module)."""
-    captured, curves, _ = load_poke_fixture(name)
-    trials, _, _ = load_probe_fixture(name)
+    captured, curves, _ = load_poke_fixture(name, data)
+    trials, _, _ = load_probe_fixture(name, data)
     top = captured.normals[:, 2] >= np.cos(np.radians(WALL_DEG))
     surface = Surface(points=captured.points[top], normals=captured.normals[top],
                       colors=captured.colors[top])
@@ -153,11 +154,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--objects', nargs='+', default=list(OBJECTS), choices=OBJECTS)
     parser.add_argument('--out', default=str(HERE / 'probe_family_floor.json'))
+    parser.add_argument('--data', default=str(HERE), help='folder of the cached fixtures')
     args = parser.parse_args(argv)
     records = []
     for name in args.objects:
         print(f'[floor] {name}: {len(C_GRID) * len(L_GRID)} (c, L) pairs ...', flush=True)
-        records.append(object_floor(name))
+        records.append(object_floor(name, args.data))
     Path(args.out).write_text(json.dumps(records, indent=1))
     print('| object | peak [N] | oracle (c / L mm) | oracle RMSE | oracle, scaled (c / L mm, '
           'scale): RMSE | other trials RMSE | other trials, averaged | cylinder / line over the '

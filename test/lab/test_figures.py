@@ -240,7 +240,8 @@ def test_half_goal_is_unreachable_when_the_floor_is_above_it():
 def test_probe_figure_scores_each_trial_with_c_from_the_other_trials_only():
     surface, curves, _ = figures.load_poke_fixture('dome', say=lambda m: None)
     trials, _, _ = figures.load_probe_fixture('dome', say=lambda m: None)
-    assert len(trials) == 2
+    assert len(trials) >= 2
+    trials = trials[:2]   # two line trials: each is scored with c from the other alone
     kw = dict(repeats=1, paper_draws=0, c_grid=[0.001], say=lambda m: None)
     res = figures.figure_probes(curves, surface, trials, **kw)
     per = res['c']['per_trial']

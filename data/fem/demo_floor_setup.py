@@ -12,8 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.bringup.demo import (_ground_truth, demo_query_set,
-                                         true_force_below_observed)
+from pointforce_ros.bringup.demo import _ground_truth, demo_query_set, true_point_response
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.response.baked import BakedResponse
@@ -72,14 +71,11 @@ class DemoFloor(DemoQueries):
         """The TRUE point response below the captured surface at the learned model's depths.
 
         The live FEM force with the tip where the learned model puts it
-        (:func:`~pointforce_ros.bringup.demo.true_force_below_observed`); the slope past the
+        (:func:`~pointforce_ros.bringup.demo.true_point_response`); the slope past the
         last depth continues the last interval's.
         """
-        surface, depths = self.served.surface, self.served.response.depths
-        table = np.stack([true_force_below_observed(self.spec, self.live, surface.points, d)
-                          for d in depths], axis=1)
-        slopes = (table[:, -1] - table[:, -2]) / (depths[-1] - depths[-2])
-        return BakedResponse(depths=depths, forces=table, slopes=slopes)
+        return true_point_response(self.spec, self.live, self.served.surface.points,
+                                   self.served.response.depths)
 
     def response(self, which: str):
         """``'true'``: :meth:`true_response`; ``'learned'``: the demo's learned response."""

@@ -42,11 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.bringup.demo import true_force_below_observed
+from pointforce_ros.bringup.demo import true_point_response
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.lab.figures import (bake_depths, load_poke_fixture, load_probe_fixture,
                                         trial_poses)
-from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.objects import load_object
 from pointforce_ros.types import Surface
@@ -59,17 +58,6 @@ WALL_DEG = 45.0
 """Surface points whose normal is further than this from vertical are side walls, degrees."""
 
 
-def true_response(name: str, surface, curves) -> BakedResponse:
-    """The live FEM point response below ``surface`` on the figures' bake grid."""
-    spec = load_object(name)
-    live = LiveContact.load(spec.name, build=False)
-    depths = bake_depths(curves)
-    table = np.stack([true_force_below_observed(spec, live, surface.points, d)
-                      for d in depths], axis=1)
-    slopes = (table[:, -1] - table[:, -2]) / (depths[-1] - depths[-2])
-    return BakedResponse(depths=depths, forces=table, slopes=slopes)
-
-
 def object_floor(name: str, data=HERE) -> dict:
     """Score the grid on one object's trials with the true point response (see module)."""
     captured, curves, _ = load_poke_fixture(name, data)
@@ -77,7 +65,9 @@ def object_floor(name: str, data=HERE) -> dict:
     top = captured.normals[:, 2] >= np.cos(np.radians(WALL_DEG))
     surface = Surface(points=captured.points[top], normals=captured.normals[top],
                       colors=captured.colors[top])
-    response = true_response(name, surface, curves)
+    spec = load_object(name)
+    response = true_point_response(spec, LiveContact.load(spec.name, build=False),
+                                   surface.points, bake_depths(curves))
     kinds = [t['kind'] for t in trials]
     peak = max(float(np.max(np.linalg.norm(t['force'], axis=1))) for t in trials)
     rows = []
@@ -116,24 +106,21 @@ def object_floor(name: str, data=HERE) -> dict:
     err, factor = scaled(best)
     record['oracle_scaled'] = dict(c_mm=best['c_mm'], L_mm=best['L_mm'], rmse_N=err,
                                    scale=factor)
-    held = []
+    held, averaged = [], []
     for i in everything:
         others = [j for j in everything if j != i]
-        pick = min(rows, key=lambda r: rmse(r, others))
+        count = sum(len(trials[j]['force']) for j in others)
+        sse = np.array([rmse(r, others) ** 2 * count for r in rows])
+        pick = rows[int(np.argmin(sse))]
         held.append(np.asarray(pick['sq'][i]))
         record.setdefault('other_trials', []).append(
             dict(kind=kinds[i], c_mm=pick['c_mm'], L_mm=pick['L_mm'],
                  rmse_N=float(np.sqrt(np.mean(pick['sq'][i]))),
                  last_ratio=pick['last_ratio'][i]))
-    record['other_trials_rmse_N'] = float(np.sqrt(np.mean(np.concatenate(held))))
-    averaged = []
-    for i in everything:
-        others = [j for j in everything if j != i]
-        count = sum(len(trials[j]['force']) for j in others)
-        sse = np.array([rmse(r, others) ** 2 * count for r in rows])
         weight = np.exp(-0.5 * (sse - sse.min()) / (sse.min() / count))
         mean = sum(w * r['pred'][i] for w, r in zip(weight, rows)) / weight.sum()
         averaged.append(np.sum((mean - trials[i]['force']) ** 2, axis=1))
+    record['other_trials_rmse_N'] = float(np.sqrt(np.mean(np.concatenate(held))))
     record['other_trials_averaged_rmse_N'] = float(np.sqrt(np.mean(np.concatenate(averaged))))
     lines = [i for i, k in enumerate(kinds) if k == 'line']
     cylinders = [i for i, k in enumerate(kinds) if k == 'cylinder']

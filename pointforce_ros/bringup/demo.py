@@ -36,6 +36,7 @@ from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
 from pointforce_ros.errors import DeviceFault, ModelNotReady, PointforceError
 from pointforce_ros.model.serving import WrenchServer
+from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.fem.probes import cylinder_probe, paddle_probe, pose_for_push, sphere_probe
 from pointforce_ros.types import PokeGoal
@@ -375,6 +376,19 @@ def true_force_below_observed(spec, live, points: np.ndarray, depth: float) -> n
         d = depth - (z - float(spec.top_height(x, y)))
         out[k] = live.normal_force(x, y, d) if d > 0 else 0.0
     return out
+
+
+def true_point_response(spec, live, points: np.ndarray, depths: np.ndarray) -> BakedResponse:
+    """Return the TRUE point response below ``points`` baked at ``depths`` (metres, ascending).
+
+    :func:`true_force_below_observed` at every depth; the slope past the last depth continues
+    the last interval's. What the offline studies score the contact simulator with in place of
+    a learned point model.
+    """
+    depths = np.asarray(depths, dtype=float)
+    table = np.stack([true_force_below_observed(spec, live, points, d) for d in depths], axis=1)
+    slopes = (table[:, -1] - table[:, -2]) / (depths[-1] - depths[-2])
+    return BakedResponse(depths=depths, forces=table, slopes=slopes)
 
 
 def point_model_check(spec, live, surface, response, depth: float = 0.003,

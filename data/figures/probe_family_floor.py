@@ -23,8 +23,8 @@ law. Per object it reports:
   their deepest step divided by the lines' (1 where a member of the family fits both kinds);
   the range over the grid.
 
-The live table's 3 mm mesh is stiffer than the trials' 1.5 mm full solves (README, FEM ground
-truth: 16-21 % against 1 mm), which scales lines and cylinders alike: the ratio column and the
+The live table's 3 mm mesh is stiffer than the trials' 1.5 mm full solves (docs/STATUS.md,
+FEM ground truth: 16-21 % against 1 mm), which scales lines and cylinders alike: the ratio column and the
 scaled oracle do not depend on it, the other RMSE columns do. The live table is a vertical
 poke below the top surface, so the captured surface's side walls (normals more than
 ``WALL_DEG`` from vertical) have no true point response and are left out of the simulator's

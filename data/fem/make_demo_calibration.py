@@ -11,7 +11,14 @@ A second push with a rod (``--probe rod``, :func:`~pointforce_ros.bringup.demo.
 calibration_rod_push`) writes ``demo_calibration_rod_<object>.npz``: with the sphere it fixes
 both ``c`` and the tail decay length ``L``.
 
-Usage: python data/fem/make_demo_calibration.py [--object lamb] [--probe sphere|rod] (minutes)
+``--site DX,DY --out NAME`` moves the rod (its axis along y) to ``(DX, DY)`` from the centre and
+writes ``NAME`` in this folder instead: a push for studies, not read by the demo
+(``demo_floor_rod_over_bone_lamb.npz``: ``--object lamb --probe rod --site 0.03,0 --out
+demo_floor_rod_over_bone_lamb.npz``, across the bone 15 mm beyond query site 2, 3 min;
+``demo_floor_law.py --extra-push``).
+
+Usage: python data/fem/make_demo_calibration.py [--object lamb] [--probe sphere|rod]
+       [--site DX,DY --out NAME] (minutes)
 """
 
 import argparse
@@ -23,6 +30,7 @@ import numpy as np
 from pointforce_ros.sim.fem.indentation import probe_wrench_full
 from pointforce_ros.sim.objects import load_object
 from pointforce_ros.bringup.demo import CALIBRATIONS
+from pointforce_ros.sim.fem.probes import pose_for_push
 
 HERE = Path(__file__).resolve().parent
 
@@ -32,10 +40,20 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--object', default='lamb')
     parser.add_argument('--probe', default='sphere', choices=sorted(CALIBRATIONS))
+    parser.add_argument('--site', default=None, help='rod only: DX,DY from the centre, m')
+    parser.add_argument('--out', default=None, help='file name (with --site)')
     args = parser.parse_args()
     spec = load_object(args.object)
     pattern, push = CALIBRATIONS[args.probe]
+    if (args.site is None) != (args.out is None) or (args.site and args.probe != 'rod'):
+        parser.error('--site and --out go together, with --probe rod')
     mesh, poses, depths = push(spec)
+    if args.site:
+        dx, dy = (float(v) for v in args.site.split(','))
+        top = np.asarray(spec.top_point(spec.centre[0] + dx, spec.centre[1] + dy))
+        poses = [pose_for_push(top - np.array([0.0, 0.0, d]), [0.0, 0.0, -1.0], np.pi / 2)
+                 for d in depths]
+        pattern = args.out
     start = time.monotonic()
     force = []
     for k, pose in enumerate(poses):

@@ -174,11 +174,13 @@ def shape(law, gamma, cand, c, decay, t):
     raise ValueError(law)
 
 
-def force_z(response, cand, G, weight=None, shift=0.0):
+def force_z(response, cand, G, weight=None, shift=0.0, shared=False):
     """Fz of one candidate set with shape matrix ``G``.
 
     ``weight``: (n,) ``w_i`` of the compliance-weighted coupling (``Kpd``): the LCP's matrix
     is ``W^-1 G W`` (``W = diag(w)``), solved as ``0 <= G z - W e _|_ z >= 0``, ``x = z / w``.
+    ``shift``: metres each contact's force is read deeper on the response (``Dpd``); with
+    ``shared``, times the share of its dent its neighbours make (``Spd``).
     """
     if cand is None:
         return 0.0
@@ -189,8 +191,8 @@ def force_z(response, cand, G, weight=None, shift=0.0):
     except NotConverged:     # a law whose G is not positive definite
         return float('nan')
     x = z / w
-    if shift < 0:     # Spd: the shift scaled by the share of the dent the neighbours make
-        shift = -shift * np.clip(1.0 - x / np.maximum(e, 1e-9), 0.0, 1.0)
+    if shared:
+        shift = shift * np.clip(1.0 - x / np.maximum(e, 1e-9), 0.0, 1.0)
     return lcp_force_z(response, nbr, d + shift, x, nq, a)
 
 
@@ -300,7 +302,8 @@ def main():
     def predict(cands, law, gamma, c, decay):
         if law == 'Spd':     # Dpd, the shift times the neighbours' share of the dent
             return np.array([force_z(response, cc, shape('Lpd', 1.0, cc, c, decay, t),
-                                     shift=-gamma) if cc else 0.0 for cc in cands])
+                                     shift=gamma, shared=True) if cc else 0.0
+                             for cc in cands])
         if law == 'Dpd':     # Lpd, each contact's force at an operating point gamma deeper
             return np.array([force_z(response, cc, shape('Lpd', 1.0, cc, c, decay, t),
                                      shift=gamma) if cc else 0.0 for cc in cands])

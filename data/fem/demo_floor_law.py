@@ -294,10 +294,11 @@ def main():
           + '; t at sites: ' + ', '.join(f'{k} {v:.2f}' for k, v in sites.items()))
     rows = []
 
-    k3 = np.asarray(response.force(np.arange(len(surface)), np.where(
-        np.isfinite(response.onsets()), response.onsets(), 0.0) + 0.003))
-    k_ref = float(np.median(k3[k3 > 0]))
-    k3 = np.clip(k3, 0.05 * k_ref, None)
+    if 'Kpd' in args.laws.split(','):     # the point force 3 mm past the onset, for Kpd
+        k3 = np.asarray(response.force(np.arange(len(surface)), np.where(
+            np.isfinite(response.onsets()), response.onsets(), 0.0) + 0.003))
+        k_ref = float(np.median(k3[k3 > 0]))
+        k3 = np.clip(k3, 0.05 * k_ref, None)
 
     def predict(cands, law, gamma, c, decay):
         if law == 'Spd':     # Dpd, the shift times the neighbours' share of the dent

@@ -30,7 +30,6 @@ import numpy as np
 from pointforce_ros.sim.fem.indentation import probe_wrench_full
 from pointforce_ros.sim.objects import load_object
 from pointforce_ros.bringup.demo import CALIBRATIONS
-from pointforce_ros.sim.fem.probes import pose_for_push
 
 HERE = Path(__file__).resolve().parent
 
@@ -47,13 +46,11 @@ def main():
     pattern, push = CALIBRATIONS[args.probe]
     if (args.site is None) != (args.out is None) or (args.site and args.probe != 'rod'):
         parser.error('--site and --out go together, with --probe rod')
-    mesh, poses, depths = push(spec)
     if args.site:
-        dx, dy = (float(v) for v in args.site.split(','))
-        top = np.asarray(spec.top_point(spec.centre[0] + dx, spec.centre[1] + dy))
-        poses = [pose_for_push(top - np.array([0.0, 0.0, d]), [0.0, 0.0, -1.0], np.pi / 2)
-                 for d in depths]
+        mesh, poses, depths = push(spec, tuple(float(v) for v in args.site.split(',')))
         pattern = args.out
+    else:
+        mesh, poses, depths = push(spec)
     start = time.monotonic()
     force = []
     for k, pose in enumerate(poses):

@@ -147,17 +147,17 @@ def calibration_push(spec):
     return sphere_probe(0.02), poses, np.array(CALIBRATION_DEPTHS)
 
 
-def calibration_rod_push(spec):
+def calibration_rod_push(spec, site=ROD_SITE):
     """Return the demo's second calibration push, a rod: ``(mesh, poses, depths)``.
 
     A cylinder of radius 10 mm and :data:`ROD_LENGTH`, its axis along y, pushed straight down
-    at :data:`ROD_SITE` to :data:`ROD_DEPTHS`. The sphere shares displacement over a small
-    disc, the rod over a line several times longer: the two together determine both ``c`` and
-    the tail's decay length ``L`` (one push with one probe fixes only a curve of ``(c, L)``
-    pairs).
+    at ``site`` (default :data:`ROD_SITE`; ``(dx, dy)`` from the centre, metres) to
+    :data:`ROD_DEPTHS`. The sphere shares displacement over a small disc, the rod over a line
+    several times longer: the two together determine both ``c`` and the tail's decay length
+    ``L`` (one push with one probe fixes only a curve of ``(c, L)`` pairs).
     """
     cx, cy = spec.centre
-    top = np.asarray(spec.top_point(cx + ROD_SITE[0], cy + ROD_SITE[1]))
+    top = np.asarray(spec.top_point(cx + site[0], cy + site[1]))
     down = np.array([0.0, 0.0, -1.0])
     poses = [pose_for_push(top + down * d, down, np.pi / 2) for d in ROD_DEPTHS]
     return cylinder_probe(0.01, ROD_LENGTH), poses, np.array(ROD_DEPTHS)

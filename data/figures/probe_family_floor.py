@@ -19,6 +19,9 @@ law. Per object it reports:
   every grid member's, weighted by ``exp(-SSE / (2 s^2))`` on the other trials (``SSE`` their
   summed squared force error, ``s^2`` the best member's mean square): an average over the
   members the other trials cannot tell apart instead of the one that fits them best.
+- ``other trials, scaled`` (session 23): as ``other trials`` with the force scale too chosen
+  on the other trials (least squares at each grid member, the member with the smallest
+  scaled error kept). With the learned point response: ``probe_scale.py``.
 - ``cylinder / line``: for each ``(c, L)``, the cylinders' mean predicted-over-true force at
   their deepest step divided by the lines' (1 where a member of the family fits both kinds);
   the range over the grid.
@@ -30,7 +33,8 @@ poke below the top surface, so the captured surface's side walls (normals more t
 ``WALL_DEG`` from vertical) have no true point response and are left out of the simulator's
 surface here (a paddle that overhangs an edge then finds no wall to touch, as in the truth,
 whose lateral force stays small there). Not a figure of the product; the closing note of issue 17
-(session 21) quotes its table. About 2-4 minutes per object.
+(session 21) quotes its table; session 23 added the scaled column and ``c`` of 0.1 and 0.2 mm
+(no best member changed), table in ``probe_family_floor.log``. About 2-4 minutes per object.
 
 Usage: python data/figures/probe_family_floor.py [--objects thin_layer plush] [--out FILE]
        [--data FOLDER]
@@ -52,7 +56,7 @@ from pointforce_ros.types import Surface
 
 HERE = Path(__file__).resolve().parent
 OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
-C_GRID = (0.0005, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.012, 0.02)
+C_GRID = (0.0001, 0.0002, 0.0005, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.012, 0.02)
 L_GRID = (0.002, 0.003, 0.004, 0.006, 0.008, 0.012, 0.02, np.inf)
 WALL_DEG = 45.0
 """Surface points whose normal is further than this from vertical are side walls, degrees."""
@@ -120,6 +124,22 @@ def object_floor(name: str, data=HERE) -> dict:
         weight = np.exp(-0.5 * (sse - sse.min()) / (sse.min() / count))
         mean = sum(w * r['pred'][i] for w, r in zip(weight, rows)) / weight.sum()
         averaged.append(np.sum((mean - trials[i]['force']) ** 2, axis=1))
+    scaled_held = []
+    for i in everything:
+        others = [j for j in everything if j != i]
+        t_o = np.vstack([trials[j]['force'] for j in others])
+        fits = []
+        for r in rows:
+            p_o = np.vstack([r['pred'][j] for j in others])
+            s = float(np.sum(p_o * t_o) / max(np.sum(p_o * p_o), 1e-30))
+            fits.append((float(np.sum((s * p_o - t_o) ** 2)), s, r))
+        sse, s, pick = min(fits, key=lambda f: f[0])
+        sq = np.sum((s * pick['pred'][i] - trials[i]['force']) ** 2, axis=1)
+        scaled_held.append(sq)
+        record.setdefault('other_trials_scaled', []).append(
+            dict(kind=kinds[i], c_mm=pick['c_mm'], L_mm=pick['L_mm'], scale=s,
+                 rmse_N=float(np.sqrt(np.mean(sq)))))
+    record['other_trials_scaled_rmse_N'] = float(np.sqrt(np.mean(np.concatenate(scaled_held))))
     record['other_trials_rmse_N'] = float(np.sqrt(np.mean(np.concatenate(held))))
     record['other_trials_averaged_rmse_N'] = float(np.sqrt(np.mean(np.concatenate(averaged))))
     lines = [i for i, k in enumerate(kinds) if k == 'line']
@@ -149,9 +169,9 @@ def main(argv=None) -> int:
         records.append(object_floor(name, args.data))
     Path(args.out).write_text(json.dumps(records, indent=1))
     print('| object | peak [N] | oracle (c / L mm) | oracle RMSE | oracle, scaled (c / L mm, '
-          'scale): RMSE | other trials RMSE | other trials, averaged | cylinder / line over the '
-          'grid |')
-    print('| --- | --- | --- | --- | --- | --- | --- | --- |')
+          'scale): RMSE | other trials RMSE | other trials, averaged | other trials, scaled | '
+          'cylinder / line over the grid |')
+    print('| --- | --- | --- | --- | --- | --- | --- | --- | --- |')
     for r in records:
         peak = r['peak_N']
         ratio = r.get('cylinder_over_line')
@@ -164,7 +184,9 @@ def main(argv=None) -> int:
               f'{r["other_trials_rmse_N"]:.3f} N '
               f'({100 * r["other_trials_rmse_N"] / peak:.1f} %) | '
               f'{r["other_trials_averaged_rmse_N"]:.3f} N '
-              f'({100 * r["other_trials_averaged_rmse_N"] / peak:.1f} %) | {span} |')
+              f'({100 * r["other_trials_averaged_rmse_N"] / peak:.1f} %) | '
+              f'{r["other_trials_scaled_rmse_N"]:.3f} N '
+              f'({100 * r["other_trials_scaled_rmse_N"] / peak:.1f} %) | {span} |')
     print(f'[floor] wrote {args.out}')
     return 0
 

@@ -373,7 +373,8 @@ def main():
                 mine.append(dict(rws[int(np.argmax(wts))], how='averaged over L',
                                  weights=wts.round(3).tolist(),
                                  rmse_pct=float(100 * np.sqrt(np.mean(err ** 2)) / peak),
-                                 below=int(np.sum(err < 0)), ratios=(pred / true).round(3).tolist()))
+                                 below=int(np.sum(err < 0)),
+                                 ratios=(pred / true).round(3).tolist()))
             if args.floor:
                 grid = [row(law, gamma, c, decay, 'grid')
                         for c, decay in itertools.product(C_GRID, DECAY_GRID)]
@@ -383,8 +384,9 @@ def main():
             rows += mine
             for r in mine:
                 print(f'{law:8s} {gamma:6.3g} {r["how"]:22s}: c {r["c_mm"]:.1f} mm L '
-                      f'{r["L_mm"]} mm, scale {r["scale"]:.3f}, cal {100 * r["cal_rel"]:.1f} % ({r["cal_rmse_N"]:.2f} '
-                      f'N), queries {r["rmse_pct"]:.1f} %, {r["below"]} below; '
+                      f'{r["L_mm"]} mm, scale {r["scale"]:.3f}, cal {100 * r["cal_rel"]:.1f} % '
+                      f'({r["cal_rmse_N"]:.2f} N), queries {r["rmse_pct"]:.1f} %, '
+                      f'{r["below"]} below; '
                       + ' '.join(f'{v:.2f}' for v in r['ratios']), flush=True)
     if args.select_gamma:
         # the exponent chosen with (c, L) on the calibration pushes alone: the fitted row of

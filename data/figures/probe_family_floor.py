@@ -27,8 +27,8 @@ law. Per object it reports:
   the range over the grid.
 
 The live table's 3 mm mesh is stiffer than the trials' 1.5 mm full solves (docs/STATUS.md,
-FEM ground truth: 16-21 % against 1 mm), which scales lines and cylinders alike: the ratio column and the
-scaled oracle do not depend on it, the other RMSE columns do. The live table is a vertical
+FEM ground truth: 16-21 % against 1 mm), which scales lines and cylinders alike: the ratio column
+and the scaled columns do not depend on it, the other RMSE columns do. The live table is a vertical
 poke below the top surface, so the captured surface's side walls (normals more than
 ``WALL_DEG`` from vertical) have no true point response and are left out of the simulator's
 surface here (a paddle that overhangs an edge then finds no wall to touch, as in the truth,
@@ -99,10 +99,10 @@ def object_floor(name: str, data=HERE) -> dict:
     best = min(rows, key=lambda r: rmse(r, everything))
     record['oracle'] = dict(c_mm=best['c_mm'], L_mm=best['L_mm'],
                             rmse_N=rmse(best, everything), last_ratio=best['last_ratio'])
-    truth = np.vstack([t['force'] for t in trials])
-
-    def scaled(row):
-        p = np.vstack(row['pred'])
+    def scaled(row, pick=everything):
+        # the force scale best on the trials `pick` (least squares) and the RMSE it leaves
+        p = np.vstack([row['pred'][i] for i in pick])
+        truth = np.vstack([trials[i]['force'] for i in pick])
         s = float(np.sum(p * truth) / max(np.sum(p * p), 1e-30))
         return float(np.sqrt(np.mean(np.sum((s * p - truth) ** 2, axis=1)))), s
 
@@ -127,13 +127,8 @@ def object_floor(name: str, data=HERE) -> dict:
     scaled_held = []
     for i in everything:
         others = [j for j in everything if j != i]
-        t_o = np.vstack([trials[j]['force'] for j in others])
-        fits = []
-        for r in rows:
-            p_o = np.vstack([r['pred'][j] for j in others])
-            s = float(np.sum(p_o * t_o) / max(np.sum(p_o * p_o), 1e-30))
-            fits.append((float(np.sum((s * p_o - t_o) ** 2)), s, r))
-        sse, s, pick = min(fits, key=lambda f: f[0])
+        pick = min(rows, key=lambda r: scaled(r, others)[0])
+        s = scaled(pick, others)[1]
         sq = np.sum((s * pick['pred'][i] - trials[i]['force']) ** 2, axis=1)
         scaled_held.append(sq)
         record.setdefault('other_trials_scaled', []).append(

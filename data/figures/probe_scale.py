@@ -23,15 +23,14 @@ they cannot tell apart, as ``probe_family_floor.py`` averages the unscaled famil
 Result (session 23, 10 draws, median force RMSE, % of the object's peak; ``probe_scale.log``,
 about 1 min in all), plain -> scaled -> averaged: plush 7.1 -> 5.3 -> 5.2 %, vest 16.3 -> 14.3
 -> 11.8 %, lamb 7.0 -> 7.1 -> 6.8 %, dome 3.9 -> 3.6 -> 3.4 %, thin_layer 7.4 -> 5.8 -> 5.8 %;
-the other trials choose ``c`` 0.5-2 mm and ``s`` 0.16-0.55. With the vest's side walls left
+the other trials choose ``c`` 0.5-2 mm and ``s`` 0.16-0.56. With the vest's side walls left
 out as well (``--wall-deg 45``): 16.2 -> 12.9 -> 11.6 %. Vest stays over figure 2's 10 %, and
 not because its point model is wrong: the 30-poke model reads within 1-4 % of the true
 response under every trial's footprint (0.5-6 mm below the surface), but along the ridge the
-other trials cannot resolve it picks ``L`` = none for the first line (3.1 N RMSE on that line)
-where the true response picks 32 mm; with the picks the true response makes, the 30-poke model
-scores 7.9 %, and the true response with the learned response's picks 11.5 % (walls out, this
-grid; the true response with its own picks 6.5 %). Averaging over the ridge recovers part of
-that.
+other trials cannot resolve it picks ``L`` = none for the first line where the true response
+picks 32 mm; with the picks the true response makes, the 30-poke model scores 7.9 %, and the
+true response with the learned response's picks 11.5 % (walls out, this grid; the true
+response with its own picks 6.5 %; ``--swap``). Averaging over the ridge recovers part of that.
 
 On the demo, whose calibration has two pushes, ``(c, L, s)`` over-fits them
 (``data/fem/demo_floor_law.py --scale``: 9.2-13.6 % and 8-9 of 9 below on the 17 stored lamb
@@ -180,6 +179,10 @@ def swap_check(name: str, data, wall_deg: float = 45.0) -> None:
                   f'{np.median(force["learned"][inside] / force["true"][inside]):.2f}')
     sims = {k: ContactSimulator(surface, r, DEFAULT_C) for k, r in responses.items()}
     picks = {k: _members(sim, trials) for k, sim in sims.items()}
+    for j, t in enumerate(trials):
+        print(f'[scale] {name} trial {j} ({t["kind"]}): (c, L, s) picked with the '
+              + ', '.join(f'{k} response {m[j]["scaled"][0][0]}, {m[j]["scaled"][0][1]:.3f}'
+                          for k, m in picks.items()))
     peak = max(float(np.linalg.norm(t['force'], axis=1).max()) for t in trials)
     for by, members in picks.items():
         for scored, sim in sims.items():

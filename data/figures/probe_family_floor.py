@@ -62,13 +62,23 @@ WALL_DEG = 45.0
 """Surface points whose normal is further than this from vertical are side walls, degrees."""
 
 
+def top_surface(surface: Surface, wall_deg: float = WALL_DEG) -> Surface:
+    """``surface`` less its side walls (normals more than ``wall_deg`` from vertical)."""
+    top = surface.normals[:, 2] >= np.cos(np.radians(wall_deg))
+    return Surface(points=surface.points[top], normals=surface.normals[top],
+                   colors=surface.colors[top])
+
+
+def least_squares_scale(pred: np.ndarray, truth: np.ndarray) -> float:
+    """The one factor ``s`` minimising ``sum((s pred - truth) ** 2)``."""
+    return float(np.sum(pred * truth) / max(np.sum(pred * pred), 1e-30))
+
+
 def object_floor(name: str, data=HERE) -> dict:
     """Score the grid on one object's trials with the true point response (see module)."""
     captured, curves, _ = load_poke_fixture(name, data)
     trials, _, _ = load_probe_fixture(name, data)
-    top = captured.normals[:, 2] >= np.cos(np.radians(WALL_DEG))
-    surface = Surface(points=captured.points[top], normals=captured.normals[top],
-                      colors=captured.colors[top])
+    surface = top_surface(captured)
     spec = load_object(name)
     response = true_point_response(spec, LiveContact.load(spec.name, build=False),
                                    surface.points, bake_depths(curves))
@@ -89,7 +99,7 @@ def object_floor(name: str, data=HERE) -> dict:
             rows.append(dict(c_mm=1e3 * c, L_mm=None if np.isinf(decay) else 1e3 * decay,
                              sq=sq, pred=pred, last_ratio=last))
     record = {'object': name, 'kinds': kinds, 'peak_N': peak,
-              'wall_points_left_out': int(np.sum(~top)), 'grid': [
+              'wall_points_left_out': len(captured) - len(surface), 'grid': [
                   {k: v for k, v in r.items() if k not in ('sq', 'pred')} for r in rows]}
 
     def rmse(row, pick):
@@ -103,7 +113,7 @@ def object_floor(name: str, data=HERE) -> dict:
         # the force scale best on the trials `pick` (least squares) and the RMSE it leaves
         p = np.vstack([row['pred'][i] for i in pick])
         truth = np.vstack([trials[i]['force'] for i in pick])
-        s = float(np.sum(p * truth) / max(np.sum(p * p), 1e-30))
+        s = least_squares_scale(p, truth)
         return float(np.sqrt(np.mean(np.sum((s * p - truth) ** 2, axis=1)))), s
 
     best = min(rows, key=lambda r: scaled(r)[0])

@@ -54,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from probe_family_floor import least_squares_scale, top_surface  # this folder
 from pointforce_ros.bringup.demo import true_point_response
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.lab.figures import (bake_depths, DEFAULT_C, load_poke_fixture,
@@ -61,7 +62,6 @@ from pointforce_ros.lab.figures import (bake_depths, DEFAULT_C, load_poke_fixtur
 from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.objects import load_object
-from pointforce_ros.types import Surface
 
 HERE = Path(__file__).resolve().parent
 OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
@@ -84,7 +84,7 @@ def _fit_on(grid, trials, pick):
 
     def fit(key, scaled):
         p = np.vstack([grid[key][i] for i in pick])
-        s = float(np.sum(p * truth) / max(np.sum(p * p), 1e-30)) if scaled else 1.0
+        s = least_squares_scale(p, truth) if scaled else 1.0
         return float(np.sum((s * p - truth) ** 2)), s
 
     fits = {key: fit(key, True) for key in grid}
@@ -131,9 +131,7 @@ def object_scale(name: str, draws: int, data, seed: int = 0, wall_deg: float = 0
     surface, curves, _ = load_poke_fixture(name, data, say=lambda s: None)
     trials, _, _ = load_probe_fixture(name, data, say=lambda s: None)
     if wall_deg:
-        top = surface.normals[:, 2] >= np.cos(np.radians(wall_deg))
-        surface = Surface(points=surface.points[top], normals=surface.normals[top],
-                          colors=surface.colors[top])
+        surface = top_surface(surface, wall_deg)
     depths = bake_depths(curves)
     everything = ContactGpModel().fit(list(curves), surface).bake(surface, depths)
     members = _members(ContactSimulator(surface, everything, DEFAULT_C), trials)
@@ -176,9 +174,7 @@ def swap_check(name: str, data, wall_deg: float = 45.0) -> None:
     """
     captured, curves, _ = load_poke_fixture(name, data, say=lambda s: None)
     trials, _, _ = load_probe_fixture(name, data, say=lambda s: None)
-    top = captured.normals[:, 2] >= np.cos(np.radians(wall_deg))
-    surface = Surface(points=captured.points[top], normals=captured.normals[top],
-                      colors=captured.colors[top])
+    surface = top_surface(captured, wall_deg)
     depths = bake_depths(curves)
     spec = load_object(name)
     responses = {'learned': ContactGpModel().fit(list(curves), surface).bake(surface, depths),

@@ -13,7 +13,7 @@ planner queries answered by the simulator against their FEM truth (held out: nev
 Runs under machine load where the live demo's emulator stalls; no interval coverage (that
 needs the contact service).
 
-Usage: python data/fem/demo_floor_pokes.py out/demo [--object lamb] [--seeds 0 1 2]
+Usage: python data/fem/demo_floor_pokes.py out/demo [--object lamb] [--seeds 0 1 2] [--pokes 8]
 """
 
 import argparse
@@ -107,6 +107,7 @@ def main():
                         'the query and calibration tips (the demo); queries: round the query '
                         'tips only; footprint: the query and calibration contact footprints')
     parser.add_argument('--tag', default='', help='suffix of the JSON record')
+    parser.add_argument('--pokes', type=int, default=8, help='pokes per replay (the demo: 8)')
     args = parser.parse_args()
     demo = load_demo_queries(args.object)
     spec, live, queries, gt = demo.spec, demo.live, demo.queries, demo.gt
@@ -114,11 +115,11 @@ def main():
     runs = []
     for seed in args.seeds:
         for mode in args.modes:
-            r = run(spec, live, surface, queries, gt, mode != 'none', seed,
+            r = run(spec, live, surface, queries, gt, mode != 'none', seed, args.pokes,
                     calibration_region=mode in ('all', 'footprint'),
                     footprint=mode == 'footprint')
             runs.append(r)
-            print(f'seed {seed} region {mode:7s}: point model '
+            print(f'seed {seed} region {mode:7s} {args.pokes} pokes: point model '
                   + ', '.join(f'{k} {v:.2f}' for k, v in r['ratios'].items())
                   + f'; c {r["c_mm"]:.2f} mm L {r["L_mm"]:.0f} mm; queries RMSE '
                   f'{r["rmse_pct"]:.1f} %, {r["below"]} of 9 below', flush=True)

@@ -95,11 +95,50 @@ def object_rows(name: str, data=HERE, seed: int = 0) -> list:
     return rows
 
 
+def full_loo_errors(name: str, data=HERE, seed: int = 0) -> dict:
+    """Per held-out trial ``j``: the others' leave-one-out errors with ``(c, L)`` BOTH refitted.
+
+    ``calibrate_shape`` refits ``c`` on the others at the joint ``L`` (fitted with the trial it
+    then predicts); here each inner fit chooses its own ``L`` from :data:`DECAY_GRID` too. The
+    fit on trials ``all - {j, k}`` serves both ``(j, k)`` and ``(k, j)``.
+    """
+    from pointforce_ros.contact.identify import (_relative_error,
+                                                 identify_shape_constant_from_probes)
+    surface, curves, _ = load_poke_fixture(name, data)
+    trials, _, _ = load_probe_fixture(name, data)
+    rng = np.random.default_rng([int(seed), 17])          # coverage.py's draw
+    train = [curves[i] for i in rng.choice(len(curves), size=PROBE_TRAIN_POKES, replace=False)]
+    baked = ContactGpModel().fit(train, surface).bake(surface, bake_depths(curves))
+    nominal = ContactSimulator(surface, baked, DEFAULT_C)
+    pushes = [_push(t) for t in trials]
+    n = len(trials)
+    fits = {}
+    out = {}
+    for j in range(n):
+        errors = []
+        for k in range(n):
+            if k == j:
+                continue
+            key = frozenset((j, k))
+            if key not in fits:
+                fit = identify_shape_constant_from_probes(
+                    nominal, [p for i, p in enumerate(pushes) if i not in key],
+                    decays=DECAY_GRID)
+                fits[key] = nominal.with_shape_constant(fit.c, fit.decay)
+            errors.append(_relative_error(fits[key], pushes[k]))
+        out[j] = errors
+        print(f'[share] {name} trial {j}: full leave-one-out errors of the others '
+              + ', '.join(f'{e:.0%}' for e in errors), flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--objects', nargs='+', default=list(OBJECTS), choices=OBJECTS)
     parser.add_argument('--cache', default=str(CACHE))
     parser.add_argument('--analyse', action='store_true')
+    parser.add_argument('--full-loo', action='store_true', help="add each trial's inner "
+                        "errors with (c, L) both refitted to the cache")
     args = parser.parse_args(argv)
     path = Path(args.cache)
     cache = json.loads(path.read_text()) if path.exists() else {}
@@ -108,7 +147,12 @@ def main(argv=None) -> int:
         analyse(cache)
         return 0
     for name in args.objects:
-        cache[name] = object_rows(name)
+        if args.full_loo:
+            errors = full_loo_errors(name)
+            for row in cache[name]:
+                row['inner_full'] = errors[row['trial']]
+        else:
+            cache[name] = object_rows(name)
         path.write_text(json.dumps(cache))
     return 0
 

@@ -47,18 +47,12 @@ from probe_family_floor import least_squares_scale      # this folder
 from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
-from pointforce_ros.lab.figures import (bake_depths, DEFAULT_C, load_poke_fixture,
-                                        load_probe_fixture, PROBE_TRAIN_POKES, trial_poses)
+from pointforce_ros.lab.figures import DEFAULT_C, trial_poses
 from pointforce_ros.model.files import ContactModel
 from pointforce_ros.response.baked import ONSET_FORCE
-from pointforce_ros.response.ours import ContactGpModel
-from share_prior import HERE, OBJECTS       # this folder
+from share_prior import coverage_setup, HERE, OBJECTS, push_of       # this folder
 
 C_GRID = (0.0002, 0.0005, 0.001, 0.002, 0.004, 0.008, 0.012, 0.02)
-
-
-def _push(trial):
-    return trial['mesh'], trial_poses(trial), trial['direction'], trial['force']
 
 
 def _along(sim, trial) -> np.ndarray:
@@ -100,12 +94,7 @@ def _loo(grid, truth, pick, scaled) -> float:
 
 
 def object_coverage(name: str, seed: int = 0) -> dict:
-    surface, curves, _ = load_poke_fixture(name, HERE)
-    trials, _, _ = load_probe_fixture(name, HERE)
-    rng = np.random.default_rng([int(seed), 17])          # coverage.py's draw
-    train = [curves[i] for i in rng.choice(len(curves), size=PROBE_TRAIN_POKES, replace=False)]
-    baked = ContactGpModel().fit(train, surface).bake(surface, bake_depths(curves))
-    nominal = ContactSimulator(surface, baked, DEFAULT_C)
+    surface, trials, baked, nominal = coverage_setup(name, HERE, seed)
     truth = [np.asarray(t['force'], float) @ -np.asarray(t['direction'], float) for t in trials]
     grid = {(c, d): [_along(nominal.with_shape_constant(c, d), t) for t in trials]
             for c in C_GRID for d in DECAY_GRID}
@@ -125,7 +114,7 @@ def object_coverage(name: str, seed: int = 0) -> dict:
                        f's {s:.2f}')
             response = baked if s == 1.0 else scaled_response(baked, s)
             sim = nominal if s == 1.0 else ContactSimulator(surface, response, DEFAULT_C)
-            cal = calibrate_shape(sim, [_push(trials[i]) for i in others], decays=decays)
+            cal = calibrate_shape(sim, [push_of(trials[i]) for i in others], decays=decays)
             model = ContactModel(surface=surface, response=response, shape_constant=cal.fit.c,
                                  version=1, shape_decay=cal.fit.decay, meta=dict(cal.sources()))
             u = wrench_uncertainty(model, trial['mesh'], trial_poses(trial), trial['direction'],

@@ -58,14 +58,18 @@ def analyse(cache) -> None:
     rules = {'today': lambda name: None}
     rules['prior (loo objects)'] = lambda name: fit_prior(
         [[r['error'] for r in cache[o]] for o in names if o != name])
+    full = all('inner_full' in r for rows in cache.values() for r in rows)
+    if full:
+        rules['full leave-one-out'] = 'full'
     for label, prior_of in rules.items():
         zs, widths = [], []
         print(f'[share] rule {label}')
         for name in names:
-            prior = prior_of(name)
+            prior = None if prior_of == 'full' else prior_of(name)
             zo, wo = [], []
             for row in cache[name]:
-                rel = share(row['inner'], row['in_sample'], prior)
+                inner = row['inner_full'] if prior_of == 'full' else row['inner']
+                rel = share(inner, row['in_sample'], prior)
                 z, w = z_normal(row, rel)
                 zo.append(z)
                 wo.append(w)

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from pointforce_ros.contact.identify import (calibrate_shape, shape_fit_covariance,
-                                             small_sample_factor)
+from pointforce_ros.contact.identify import (_relative_error, calibrate_shape,
+                                             identify_shape_constant_from_probes,
+                                             shape_fit_covariance, small_sample_factor)
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.errors import InvalidInput
@@ -74,12 +75,42 @@ def test_a_push_the_others_do_not_explain_sets_the_share_and_the_spread_of_c():
                                           relative_std=cal.relative_std)
 
 
+def test_with_three_pushes_the_held_out_push_does_not_choose_the_decay_length_it_is_scored_at():
+    # a sphere push 30 % stiffer than the true (c, L) = (4, 20) mm gives: the joint fit keeps
+    # L = 20 mm, but the sphere and the rod alone choose no tail, and the paddle predicted
+    # with that is missed by more than at the L it helped choose
+    start, pokes = _truth_and_pokes()
+    mesh, poses, approach, force = pokes[0]
+    pokes[0] = (mesh, poses, approach, 1.3 * force)
+    decays = (DECAY, np.inf)
+    cal = calibrate_shape(start, pokes, decays=decays)
+    assert cal.fit.decay == DECAY
+    assert len(cal.held_out_decays) == 3
+    for i, (c, error) in enumerate(cal.held_out):
+        others = pokes[:i] + pokes[i + 1:]
+        fit = identify_shape_constant_from_probes(start, others, decays=decays)
+        assert c == pytest.approx(fit.c, rel=1e-9) and cal.held_out_decays[i] == fit.decay
+        assert error == pytest.approx(
+            _relative_error(start.with_shape_constant(fit.c, fit.decay), pokes[i]), rel=1e-9)
+    assert cal.held_out_decays[1] == np.inf
+    at_joint = identify_shape_constant_from_probes(start, [pokes[0], pokes[2]],
+                                                   decays=(cal.fit.decay,))
+    joint_error = _relative_error(start.with_shape_constant(at_joint.c, cal.fit.decay),
+                                  pokes[1])
+    assert cal.held_out[1][1] > joint_error + 0.01
+    errors = np.array([e for _, e in cal.held_out])
+    assert cal.relative_std == pytest.approx(np.sqrt(np.mean(errors ** 2))
+                                             * small_sample_factor(3))
+
+
 def test_two_pushes_predict_each_other_and_one_push_falls_back_to_the_fit_residual():
     start, pokes = _truth_and_pokes()
     mesh, poses, approach, force = pokes[0]
     pokes[0] = (mesh, poses, approach, force * np.array([1.1, 0.95]))
-    pair = calibrate_shape(start, pokes[:2], decays=(DECAY,))
+    pair = calibrate_shape(start, pokes[:2], decays=(DECAY, np.inf))
     assert [c for c, _ in pair.held_out] == [pair.per_push[1], pair.per_push[0]]
+    # one push cannot choose L: each is predicted at the joint fit's
+    assert pair.held_out_decays == (pair.fit.decay, pair.fit.decay)
     one = calibrate_shape(start, pokes[:1], decays=(DECAY,))
     assert one.per_push == () and np.all(np.isnan(one.held_out))
     assert one.relative_std == one.in_sample_std > 0

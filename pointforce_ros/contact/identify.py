@@ -449,8 +449,8 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
     covariance understate the error on a new probe: ``c`` absorbs the point model's error
     under the pushes it was fitted to, and a line and a cylinder want different ``c`` (on the
     figure objects the fits from one object's probe trials scatter by a factor 2-4 in ``c``,
-    far more than the joint fit's covariance says). So, at the joint decay length ``L`` (one
-    push rarely determines ``L``: ``c`` and ``L`` trade off along a ridge):
+    far more than the joint fit's covariance says). So (one push rarely determines ``L``:
+    ``c`` and ``L`` trade off along a ridge):
 
     * each push is predicted by ``(c, L)`` refitted on the other pushes, and
       ``relative_std`` is the root mean square of those held-out relative errors. With three
@@ -459,8 +459,8 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
       2's probe trials, each scored from its object's other four: 84 % of 76 steps inside
       the 90 % intervals, 89.5 % with ``L`` refitted; ``data/figures/share_prior.py``). With
       two, one push cannot choose ``L``: ``c`` alone is refitted at the joint ``L``;
-    * ``c`` is fitted to each push alone, and their spread is added to the covariance of
-      ``log c`` (:class:`ShapeCalibration`).
+    * ``c`` is fitted to each push alone at the joint ``L``, and their spread is added to the
+      covariance of ``log c`` (:class:`ShapeCalibration`).
 
     Everything comes from the calibration pushes alone. ``n`` pushes cost one fit over the
     decay lengths and ``n`` fits of ``c`` alone, and ``n`` more fits over the decay lengths
@@ -505,9 +505,7 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
             return float('nan')
 
     def refit(subset) -> Tuple[float, float]:
-        # (c, L) of the other pushes: L too where they are enough to choose it (module above)
-        if len(subset) < 2:
-            return c_alone(subset), fit.decay
+        # (c, L) of two or more other pushes, over the joint fit's decay lengths
         try:
             other = identify_shape_constant_from_probes(simulator, subset, c_bounds, decays)
         except NotConverged:
@@ -526,7 +524,7 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
         error = (_relative_error(simulator.with_shape_constant(c, decay), poke)
                  if np.isfinite(c) else float('nan'))
         held_out.append((c, error))
-        held_out_decays.append(decay)
+        held_out_decays.append(decay if np.isfinite(c) else float('nan'))
     errors = np.array([e for _, e in held_out if np.isfinite(e)])
     relative = max(float(np.sqrt(np.mean(errors ** 2))) * small_sample_factor(len(errors))
                    if len(errors) else 0.0, in_sample)

@@ -5,6 +5,7 @@ from scipy.optimize import minimize
 from scipy.special import gammaln
 from scipy.stats import t as student_t
 
+from pointforce_ros.contact.identify import small_sample_factor
 from pointforce_ros.contact.uncertainty import Z90
 
 
@@ -32,15 +33,19 @@ def share(inner, in_sample: float, prior=None) -> float:
     e = np.asarray(inner, dtype=float)
     n = len(e)
     ms = float(np.mean(e ** 2)) if n else 0.0
-    if prior is None:
-        return max(np.sqrt(ms) * student_t.ppf(0.95, n) / Z90 if n else 0.0, in_sample)
+    if prior is None:          # calibrate_shape's rule
+        return max(np.sqrt(ms) * small_sample_factor(n) if n else 0.0, in_sample)
     nu0, s0 = prior
     s2 = (nu0 * s0 ** 2 + n * ms) / (nu0 + n)
     return max(np.sqrt(s2) * student_t.ppf(0.95, nu0 + n) / Z90, in_sample)
 
 
-def z_normal(row, rel: float) -> np.ndarray:
-    """Normalised error along the push of each step of one cached trial under share ``rel``."""
+def z_normal(row, rel: float) -> tuple:
+    """``(z, width)`` of each step of one cached trial under share ``rel``.
+
+    ``z``: the error along the push over its standard deviation; ``width``: the 90 % interval
+    of the force vector over the true force.
+    """
     w = np.asarray(row['wrench'])
     std = np.sqrt(np.asarray(row['std0']) ** 2 + (rel * np.abs(w)) ** 2)[:, :3]
     a = np.asarray(row['approach'])
@@ -55,21 +60,20 @@ def analyse(cache) -> None:
     print('[share] per object: held-out errors of its trials (each from the others)')
     for name in names:
         print(f'  {name}: ' + ', '.join(f'{r["error"]:.0%}' for r in cache[name]))
-    rules = {'today': lambda name: None}
-    rules['prior (loo objects)'] = lambda name: fit_prior(
-        [[r['error'] for r in cache[o]] for o in names if o != name])
-    full = all('inner_full' in r for rows in cache.values() for r in rows)
-    if full:
-        rules['full leave-one-out'] = 'full'
-    for label, prior_of in rules.items():
+    # label: (the inner errors used, the prior of an object or None)
+    rules = {'today': ('inner', lambda name: None),
+             'prior (loo objects)': ('inner', lambda name: fit_prior(
+                 [[r['error'] for r in cache[o]] for o in names if o != name]))}
+    if all('inner_full' in r for rows in cache.values() for r in rows):
+        rules['full leave-one-out'] = ('inner_full', lambda name: None)
+    for label, (key, prior_of) in rules.items():
         zs, widths = [], []
         print(f'[share] rule {label}')
         for name in names:
-            prior = None if prior_of == 'full' else prior_of(name)
+            prior = prior_of(name)
             zo, wo = [], []
             for row in cache[name]:
-                inner = row['inner_full'] if prior_of == 'full' else row['inner']
-                rel = share(inner, row['in_sample'], prior)
+                rel = share(row[key], row['in_sample'], prior)
                 z, w = z_normal(row, rel)
                 zo.append(z)
                 wo.append(w)

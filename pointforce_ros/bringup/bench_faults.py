@@ -69,7 +69,8 @@ from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import LATCHED
 from pointforce_ros.pokes.store import PokeStore, read_poke_bag
 from pointforce_ros.shapes import icosphere
-from pointforce_ros.sim.rtde.process import loopback_hosts, REPO_ROOT, start_emulator
+from pointforce_ros.sim.rtde.process import (child_pids, loopback_hosts, process_alive, REPO_ROOT,
+                                             start_emulator)
 from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
 from pointforce_ros.sim.session import halfspace_object, simulate_campaign
 from pointforce_ros.types import Mesh, PokeGoal, Pose, Surface
@@ -97,7 +98,7 @@ def _set(obj, axis, value):
 def mutations(rng) -> List[Callable]:
     """Callables that each break a ContactWrench request in their own way (seeded choices).
 
-    The same families as ``test/nodes/test_malformed_requests.py``.
+    ``test/nodes/test_malformed_requests.py`` draws its 600 requests from them too.
     """
     axes = ('x', 'y', 'z')
 
@@ -720,43 +721,18 @@ def cell_sigterm(bench: Bench) -> dict:
                 break
         if not line.startswith('[cell] running'):
             return dict(started=False)
-        emulators = _children(cell.pid, 'pointforce_ros.sim.rtde.emulator')
+        emulators = child_pids(cell.pid, 'pointforce_ros.sim.rtde.emulator')
         cell.send_signal(signal.SIGTERM)
         code = cell.wait(30)
         deadline = time.monotonic() + 10
-        while any(_alive(p) for p in emulators) and time.monotonic() < deadline:
+        while any(process_alive(p) for p in emulators) and time.monotonic() < deadline:
             time.sleep(0.1)
         return dict(started=True, exit_code=code,
-                    orphan_emulators=sum(_alive(p) for p in emulators))
+                    orphan_emulators=sum(process_alive(p) for p in emulators))
     finally:
         if cell.poll() is None:
             cell.kill()
             cell.wait(10)
-
-
-def _children(pid: int, needle: str) -> List[int]:
-    found = []
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/stat') as fh:
-                parent = int(fh.read().rsplit(')', 1)[1].split()[1])
-            with open(f'/proc/{entry}/cmdline', 'rb') as fh:
-                command = fh.read().replace(b'\0', b' ').decode(errors='replace')
-        except (OSError, ValueError, IndexError):
-            continue
-        if parent == pid and needle in command:
-            found.append(int(entry))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f'/proc/{pid}/stat') as fh:
-            return fh.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
 
 
 # --------------------------------------------------------------------------- the bench

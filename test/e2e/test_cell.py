@@ -16,6 +16,7 @@ from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.shapes import icosphere
+from pointforce_ros.sim.rtde.process import child_pids, process_alive
 from pointforce_ros.types import PokeGoal, Pose
 
 pytestmark = [pytest.mark.e2e, pytest.mark.ros]
@@ -54,32 +55,6 @@ def test_capture_poke_learn_and_query_on_the_simulated_cell(tmp_path):
 
 
 # --------------------------------------------------------------------------- supervision
-
-
-def _children(pid, needle):
-    """Pids of live processes whose parent is ``pid`` and whose command line has ``needle``."""
-    found = []
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/stat') as fh:
-                parent = int(fh.read().rsplit(')', 1)[1].split()[1])
-            with open(f'/proc/{entry}/cmdline', 'rb') as fh:
-                command = fh.read().replace(b'\0', b' ').decode(errors='replace')
-        except (OSError, ValueError, IndexError):
-            continue
-        if parent == pid and needle in command:
-            found.append(int(entry))
-    return found
-
-
-def _alive(pid):
-    try:
-        with open(f'/proc/{pid}/stat') as fh:
-            return fh.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
 
 
 def test_a_dead_emulator_is_restarted_then_the_cell_degrades_and_keeps_serving(tmp_path):
@@ -128,16 +103,16 @@ def test_a_stop_signal_ends_the_cell_and_leaves_no_emulator(tmp_path, stop):
             if line.startswith('[cell] running') or not line:
                 break
         assert lines[-1].startswith('[cell] running'), ''.join(lines)
-        emulators = _children(cell.pid, 'pointforce_ros.sim.rtde.emulator')
+        emulators = child_pids(cell.pid, 'pointforce_ros.sim.rtde.emulator')
         assert len(emulators) == 1
         cell.send_signal(stop)
         assert cell.wait(30) == 0
         rest = cell.stdout.read()
         assert '[cell] stopping' in rest
         deadline = time.monotonic() + 10
-        while _alive(emulators[0]) and time.monotonic() < deadline:
+        while process_alive(emulators[0]) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not _alive(emulators[0]), 'the emulator outlived the cell'
+        assert not process_alive(emulators[0]), 'the emulator outlived the cell'
     finally:
         if cell.poll() is None:
             cell.kill()
@@ -160,18 +135,18 @@ def test_a_sigkilled_cell_leaves_no_emulator(tmp_path):
             if line.startswith('[cell] running') or not line:
                 break
         assert lines[-1].startswith('[cell] running'), ''.join(lines)
-        emulators = _children(cell.pid, 'pointforce_ros.sim.rtde.emulator')
-        assert len(emulators) == 1 and _alive(emulators[0])
+        emulators = child_pids(cell.pid, 'pointforce_ros.sim.rtde.emulator')
+        assert len(emulators) == 1 and process_alive(emulators[0])
         cell.kill()
         assert cell.wait(10) == -signal.SIGKILL
         deadline = time.monotonic() + 10
-        while _alive(emulators[0]) and time.monotonic() < deadline:
+        while process_alive(emulators[0]) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not _alive(emulators[0]), 'the emulator outlived the SIGKILLed cell'
+        assert not process_alive(emulators[0]), 'the emulator outlived the SIGKILLed cell'
     finally:
         if cell.poll() is None:
             cell.kill()
             cell.wait(10)
         for pid in emulators:   # never leave one behind, even when the test fails
-            if _alive(pid):
+            if process_alive(pid):
                 os.kill(pid, signal.SIGKILL)

@@ -18,87 +18,19 @@ from rclpy.parameter import Parameter
 
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
+from pointforce_ros.bringup.bench_faults import ABSURD, good_request, HUGE, PLATE
+from pointforce_ros.bringup.bench_faults import mutations as request_mutations
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.pokes.limits import PokeLimits
 from pointforce_ros.shapes import icosphere
-from pointforce_ros.types import Mesh, PokeGoal, Pose, Surface
+from pointforce_ros.types import PokeGoal, Pose, Surface
 
 pytestmark = pytest.mark.ros
 SPHERE = icosphere(0.02, 2)
-PLATE = Mesh(vertices=[[-1.45, -1.45, 0], [1.45, -1.45, 0], [1.45, 1.45, 0], [-1.45, 1.45, 0]],
-             triangles=[[0, 2, 1], [0, 3, 2]])
-HUGE = [float('nan'), float('inf'), -float('inf'), 1e9, -1e9, 1e20, 1e300, -1e308]
-ABSURD = 1e3   # N and N m: the sphere on the 60 mm patch gives a few newtons
-
-
-def _good():
-    pose = Pose(position=[0.5, 0.0, 0.057])
-    return ContactWrench.Request(mesh=mesh_to_msg(SPHERE), pose=pose_to_msg(pose),
-                                 approach=Vector3(x=0.0, y=0.0, z=-1.0),
-                                 torque_centre=to_point(pose.position))
-
-
-def _set(obj, axis, value):
-    setattr(obj, axis, float(value))
-
-
-def _mutations(rng):
-    """Callables that break a single request, each in its own way (seeded choices)."""
-    axes = ('x', 'y', 'z')
-
-    def position(r):
-        _set(r.pose.position, rng.choice(axes), rng.choice(HUGE + [11.0, -12.0]))
-
-    def inside(r):
-        r.pose.position.z = float(rng.choice([0.04 - 0.5, 0.04 - 1.0, -0.3]))
-
-    def orientation(r):
-        q = r.pose.orientation
-        q.x, q.y, q.z, q.w = [float(v) for v in rng.choice(
-            [[2, 0, 0, 0], [0.5, 0, 0, 0.5], [np.nan, 0, 0, 1], [np.inf, 0, 0, 0],
-             [0, 0, 0, 1e9]])]
-
-    def approach(r):
-        a = r.approach
-        a.x, a.y, a.z = [float(v) for v in rng.choice(
-            [[0, 0, 0], [np.nan, 0, -1], [0, 0, -2], [1, 1, 1], [0, 0, -np.inf], [1e300, 0, 0]])]
-
-    def centre(r):
-        _set(r.torque_centre, rng.choice(axes), rng.choice(HUGE + [7.0, -6.5]))
-
-    def vertex(r):
-        if not len(r.mesh.vertices):
-            return r.mesh.triangles.clear() if len(r.mesh.triangles) else None
-        v = r.mesh.vertices[int(rng.integers(len(r.mesh.vertices)))]
-        _set(v, rng.choice(axes), rng.choice(HUGE))
-
-    def scale(r):
-        k = float(rng.choice([1e3, 1e6, 1e12]))
-        for v in r.mesh.vertices:
-            v.x, v.y, v.z = v.x * k, v.y * k, v.z * k
-
-    def triangles(r):
-        choice = int(rng.integers(4))
-        if choice == 0:
-            r.mesh.triangles = []
-        elif choice == 1:
-            r.mesh.vertices = []
-        elif choice == 2 and len(r.mesh.triangles):
-            r.mesh.triangles[int(rng.integers(len(r.mesh.triangles)))].vertex_indices = [
-                0, 1, int(rng.integers(10 ** 3, 2 ** 32))]
-        else:
-            for v in r.mesh.vertices:
-                v.x, v.y, v.z = 0.0, 0.0, 0.0
-
-    def plate(r):
-        r.mesh = mesh_to_msg(Mesh(vertices=PLATE.vertices * float(rng.choice([1.0, 100.0])),
-                                  triangles=PLATE.triangles))
-        r.pose.position.z = float(rng.choice([0.045 - 0.2, -1e9]))
-
-    return [position, inside, orientation, approach, centre, vertex, scale, triangles, plate]
+"""The valid query's probe (the bench's ``good_request`` presses the same sphere)."""
 
 
 def _check(response, failures, label):
@@ -125,12 +57,12 @@ def node(ros_graph, tmp_path):
 
 def test_600_malformed_contact_requests_are_refused_and_nothing_changes(node):
     rng = np.random.default_rng(16)
-    mutations = _mutations(rng)
-    before = node._on_single(_good(), ContactWrench.Response())
+    mutations = request_mutations(rng)
+    before = node._on_single(good_request(), ContactWrench.Response())
     assert before.success, before.message
     failures, slowest, refused = [], 0.0, 0
     for i in range(520):
-        request = _good()
+        request = good_request()
         picks = rng.choice(len(mutations), size=int(rng.integers(1, 4)), replace=False)
         for k in picks:
             mutations[k](request)
@@ -154,7 +86,7 @@ def test_600_malformed_contact_requests_are_refused_and_nothing_changes(node):
         else:   # one bad pose among good ones, at a random place
             bad = request.poses[int(rng.integers(len(request.poses)))]
             if kind == 2:
-                _set(bad.position, rng.choice(('x', 'y', 'z')), rng.choice(HUGE))
+                setattr(bad.position, rng.choice(('x', 'y', 'z')), float(rng.choice(HUGE)))
             else:
                 bad.position.z = -0.96
         start = time.perf_counter()
@@ -165,7 +97,7 @@ def test_600_malformed_contact_requests_are_refused_and_nothing_changes(node):
             failures.append(f'batch {i} (kind {kind}): malformed batch answered')
         elif not response.message:
             failures.append(f'batch {i}: refusal without a reason')
-    after = node._on_single(_good(), ContactWrench.Response())
+    after = node._on_single(good_request(), ContactWrench.Response())
     print(f'600 malformed contact requests: {refused} refused, slowest {1e3 * slowest:.0f} ms')
     assert not failures, failures[:5]
     assert refused == 600 and node.requests_failed == 600

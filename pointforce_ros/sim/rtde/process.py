@@ -16,7 +16,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Iterator, Optional, Sequence
+from typing import Iterator, List, Optional, Sequence
 
 from pointforce_ros.sim.rtde.client import EmulatorControl
 from pointforce_ros.errors import DeviceFault
@@ -154,3 +154,34 @@ def start_emulator(log_dir, *, hosts: Optional[Iterator[str]] = None,
     tail = handle.log()[-2000:] if handle is not None else ''
     raise DeviceFault(f'rtde_emulator did not become ready within {ready_timeout} s '
                       f'(exit code {handle.process.returncode if handle else None}):\n{tail}')
+
+
+def child_pids(pid: int, needle: str) -> List[int]:
+    """Pids of the processes whose parent is ``pid`` and whose command line holds ``needle``.
+
+    Read from ``/proc`` (Linux): how a supervisor's check finds the emulators a cell started
+    (``pointforce bench faults`` and the cell's end-to-end tests look for orphans with it).
+    """
+    found = []
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat') as fh:
+                parent = int(fh.read().rsplit(')', 1)[1].split()[1])
+            with open(f'/proc/{entry}/cmdline', 'rb') as fh:
+                command = fh.read().replace(b'\0', b' ').decode(errors='replace')
+        except (OSError, ValueError, IndexError):
+            continue
+        if parent == pid and needle in command:
+            found.append(int(entry))
+    return found
+
+
+def process_alive(pid: int) -> bool:
+    """Whether ``pid`` is a running process (a zombie, or no such pid, is not)."""
+    try:
+        with open(f'/proc/{pid}/stat') as fh:
+            return fh.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False

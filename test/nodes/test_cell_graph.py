@@ -38,6 +38,8 @@ from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
 from pointforce_ros.sim.session import halfspace_object, simulate_campaign
 from pointforce_ros.types import PokeGoal, Surface
 
+from idle_arm import IdleArm  # noqa: I100 - the test helper beside this file
+
 pytestmark = pytest.mark.ros
 PRODUCT = {'cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench'}
 
@@ -106,7 +108,7 @@ def test_two_namespaced_cells_on_one_domain_keep_their_own_data(ros_graph, tmp_p
     assert '/cloud_capture/surface' not in names
 
 
-class StreamingArm:
+class StreamingArm(IdleArm):
     """Stands in for UrArm and streams its samples through the driver's sample callback.
 
     Pushes ``samples`` samples into a 1000 N/m spring 8 mm below the stand-off, with wall-clock
@@ -114,23 +116,12 @@ class StreamingArm:
     """
 
     def __init__(self, host, samples=120):
+        super().__init__(host)
         self.samples = samples
         self.callbacks = []
 
     def add_sample_callback(self, callback):
         self.callbacks.append(callback)
-
-    def is_connected(self):
-        return True
-
-    def close(self):
-        pass
-
-    def latest(self):
-        return None
-
-    def tare(self):
-        pass
 
     def push_until(self, standoff, direction, *, force_limit, travel_limit, speed,
                    approach_speed, retract_speed, cancel, max_force, max_travel,

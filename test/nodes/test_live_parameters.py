@@ -27,6 +27,7 @@ from pointforce_ros.nodes.stiffness_learner import LATCHED
 from pointforce_ros.types import PokeGoal
 
 from test_cell_graph import _learner_with_model  # noqa: I100 - the same learner fixture
+from idle_arm import IdleArm  # noqa: I100 - the test helper beside this file
 
 pytestmark = pytest.mark.ros
 
@@ -127,26 +128,12 @@ def test_learner_marker_settings_redraw_and_its_paths_are_read_only(ros_graph, t
         assert not result.successful and 'read-only' in result.reason, name
 
 
-class RecordingArm:
+class RecordingArm(IdleArm):
     """A connected arm whose push takes 0.8 s and records the limits it was given."""
 
     def __init__(self, host):
+        super().__init__(host)
         self.pushes = []
-
-    def add_sample_callback(self, callback):
-        pass
-
-    def is_connected(self):
-        return True
-
-    def close(self):
-        pass
-
-    def latest(self):
-        return None
-
-    def tare(self):
-        pass
 
     def push_until(self, standoff, direction, **kwargs):
         self.pushes.append(kwargs)

@@ -28,6 +28,8 @@ from pointforce_ros.pokes.limits import PokeLimits
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.types import PokeGoal, Pose, Surface
 
+from idle_arm import IdleArm  # noqa: I100 - the test helper beside this file
+
 pytestmark = pytest.mark.ros
 SPHERE = icosphere(0.02, 2)
 """The valid query's probe (the bench's ``good_request`` presses the same sphere)."""
@@ -110,18 +112,10 @@ def test_600_malformed_contact_requests_are_refused_and_nothing_changes(node):
     assert got == want   # bit-identical
 
 
-class _NoArm:
+class _NoArm(IdleArm):
     def __init__(self, host):
+        super().__init__(host)
         self.pushes = 0
-
-    def add_sample_callback(self, callback):
-        pass
-
-    def is_connected(self):
-        return True
-
-    def close(self):
-        pass
 
 
 def _goals(rng):

@@ -20,28 +20,14 @@ from pointforce_ros.nodes.deformation_force import DeformationForceNode
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import StiffnessLearnerNode
 
+from idle_arm import IdleArm  # noqa: I100 - the test helper beside this file
+
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS = ROOT / 'config' / 'nodes.yaml'
 LAUNCH = ROOT / 'launch' / 'cell.launch.py'
 BUILT_IN = {'use_sim_time', 'start_type_description_service'}
 """Parameters rclpy declares on every node."""
-
-
-class IdleArm:
-    """An arm that is connected and never moves (the poke server connects at start-up)."""
-
-    def __init__(self, host):
-        self.host = host
-
-    def add_sample_callback(self, callback):
-        pass
-
-    def is_connected(self):
-        return True
-
-    def close(self):
-        pass
 
 
 NODES = {'cloud_capture': (CloudCaptureNode, {}),

@@ -25,28 +25,19 @@ from pointforce_ros.nodes.poke_server import PokeServerNode, REQUESTS
 from pointforce_ros.pokes.store import load_recovery, PokeStore
 from pointforce_ros.types import PokeGoal
 
+from idle_arm import IdleArm  # noqa: I100 - the test helper beside this file
+
 pytestmark = pytest.mark.ros
 
 
-class ScriptedArm:
+class ScriptedArm(IdleArm):
     """Stands in for UrArm: ``samples`` samples into a 1000 N/m spring over ``duration`` s."""
 
     def __init__(self, host, duration=0.6, samples=150):
+        super().__init__(host)
         self.duration, self.samples = duration, samples
         self.pushes = 0
         self.tares = 0
-
-    def add_sample_callback(self, callback):
-        pass
-
-    def is_connected(self):
-        return True
-
-    def close(self):
-        pass
-
-    def latest(self):
-        return None
 
     def tare(self):
         self.tares += 1

@@ -26,7 +26,7 @@ import numpy as np
 from demo_floor_setup import load_demo_queries  # this folder
 from pointforce_ros.bringup.demo import (_calibration_pokes, CALIBRATION_OFFSET, CALIBRATIONS,
                                          planner_region, point_model_check)
-from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID
+from pointforce_ros.contact.identify import calibrate_shape, decay_grid
 from pointforce_ros.model.files import load_surface
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.serving import WrenchServer
@@ -81,7 +81,8 @@ def run(spec, live, surface, queries, gt, region: bool, seed: int, pokes: int = 
         server.load(learner.current_model_path())
         sim = server.simulator()
         vectors = _calibration_pokes(spec, vectors=True)
-        cal = calibrate_shape(sim, [vectors['sphere'], vectors['rod']], decays=DECAY_GRID)
+        cal = calibrate_shape(sim, [vectors['sphere'], vectors['rod']],
+                              decays=decay_grid(sim.surface))
         fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
         pred = np.array([fitted.query(m, p, a, ctr).wrench.force[2]
                          for _, m, p, a, ctr in queries])

@@ -30,7 +30,7 @@ from pointforce_ros.bringup.camera_check import camera_force_checks
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.bringup.domain import private_domain
 from pointforce_ros.contact.sampling import sample_mesh_surface
-from pointforce_ros.contact.identify import (calibrate_shape, DECAY_GRID,
+from pointforce_ros.contact.identify import (calibrate_shape, decay_grid,
                                              identify_shape_constant_from_probe)
 from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
@@ -229,7 +229,7 @@ def _calibrate(cell, spec):
             # (c, L) and the spread of a new probe's answer from the pushes alone: each push
             # predicted by c refitted on the other, and the pushes' own c scattered
             cal = calibrate_shape(simulator, [vectors['sphere'], vectors['rod']],
-                                  decays=DECAY_GRID)
+                                  decays=decay_grid(simulator.surface))
             c_and_l, cov, rel, lat = cal.fit, cal.shape_cov, cal.relative_std, cal.lateral_std
             decay = (f'{1e3 * c_and_l.decay:.0f} mm' if np.isfinite(c_and_l.decay)
                      else "none (the paper's g)")

@@ -39,7 +39,8 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 import numpy as np
 
-from pointforce_ros.contact.identify import DECAY_GRID, shape_fits_from_probes
+from pointforce_ros.contact.identify import (best_capped_fit, DECAY_GRID,
+                                             shape_fits_from_probes)
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.deformation.fem import CorotationalFem
 from pointforce_ros.deformation.mesh import TetMesh, volume_mesh_from_surface
@@ -318,7 +319,7 @@ def semi_empirical_shapes(curves, surface: Surface, trials, say=print) -> List[t
         except PointforceError as exc:
             say(f'[wide]   c for trial {j} not identified ({exc}); default')
             fits = []
-        best = min(fits, key=lambda f: f.rmse) if fits else None
+        best = best_capped_fit(fits, surface)      # the tail within DECAY_CAP thicknesses
         shapes.append((float(best.c), float(best.decay)) if best else (DEFAULT_C, np.inf))
     return shapes
 

@@ -23,7 +23,7 @@ from typing import Callable, Dict, Mapping, Optional, Sequence
 
 import numpy as np
 
-from pointforce_ros.contact.identify import calibrate_shape, DECAY_GRID, shape_fit_covariance
+from pointforce_ros.contact.identify import calibrate_shape, decay_grid, shape_fit_covariance
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.contact.uncertainty import uncertainty_sources, wrench_uncertainty, Z90
 from pointforce_ros.errors import InvalidInput, PointforceError
@@ -85,7 +85,7 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
     for j, trial in enumerate(trials):
         others = [_push(t) for i, t in enumerate(trials) if i != j]
         try:
-            cal = calibrate_shape(nominal, others, decays=DECAY_GRID)
+            cal = calibrate_shape(nominal, others, decays=decay_grid(surface))
         except (PointforceError, ValueError) as exc:
             say(f'[coverage]   trial {j}: (c, L) not identified from the others ({exc})')
             continue

@@ -48,8 +48,8 @@ from pointforce_ros.paths import share_path
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.types import Mesh, Pose, Surface
-from pointforce_ros.contact.identify import (DECAY_GRID, dent_profile, identify_shape_constant,
-                                             shape_fits_from_probes)
+from pointforce_ros.contact.identify import (best_capped_fit, DECAY_GRID, dent_profile,
+                                             identify_shape_constant, shape_fits_from_probes)
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.errors import NotConverged, PointforceError
 from pointforce_ros.lab.baseline import AutoEtBaseline, EtBaseline
@@ -776,7 +776,9 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     ``failed_paper_queries``; ``et_our_sim`` is that combination on every query).
 
     ``ours`` identifies ``c`` together with the decay length of the shape function's tail
-    (:data:`~pointforce_ros.contact.identify.DECAY_GRID`); ``ours_no_decay`` is ``c`` alone,
+    (:data:`~pointforce_ros.contact.identify.DECAY_GRID`, no longer than
+    :data:`~pointforce_ros.contact.identify.DECAY_CAP` times the object's thickness:
+    :func:`~pointforce_ros.contact.identify.decay_grid`); ``ours_no_decay`` is ``c`` alone,
     the paper's ``g`` (the error before that effect was added).
 
     Returns:
@@ -824,7 +826,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         if fits and not paper:
             say(f'[figures]   c alone for trial {j} not identified; using {DEFAULT_C} m')
         c_trial.append(float(paper[0]) if paper else DEFAULT_C)
-        best = min(fits, key=lambda f: f.rmse) if fits else None
+        best = best_capped_fit(fits, surface)      # the tail within DECAY_CAP thicknesses
         shape_trial.append((float(best.c), float(best.decay)) if best else (DEFAULT_C, np.inf))
     say('[figures]   c from the other trials [mm]: '
         + ', '.join(f'{1e3 * c:.2f}' for c in c_trial) + '; with the tail\'s decay length: '

@@ -4,13 +4,15 @@ import numpy as np
 import pytest
 
 from pointforce_ros.contact import ContactSimulator
-from pointforce_ros.contact.identify import (DECAY_GRID, dent_profile, identify_shape_constant,
+from pointforce_ros.contact.identify import (DECAY_GRID, decay_grid, dent_profile,
+                                             identify_shape_constant,
                                              identify_shape_constant_from_probe,
-                                             identify_shape_constant_from_probes)
+                                             identify_shape_constant_from_probes,
+                                             object_thickness)
 from pointforce_ros.lab.synthetic_contact import grid_surface, linear_response
 from pointforce_ros.errors import InvalidInput, NotConverged
 from pointforce_ros.shapes import box, cylinder
-from pointforce_ros.types import Pose
+from pointforce_ros.types import Pose, Surface
 
 DOWN = np.array([0.0, 0.0, -1.0])
 
@@ -132,3 +134,41 @@ def test_undetermined_and_bad_input():
         identify_shape_constant(r, r + 1e-3, c_bounds=(0.1, 0.01))
     with pytest.raises(InvalidInput, match='non-finite'):
         identify_shape_constant(r, np.full(50, np.nan))
+
+
+def _block_with_walls(top, support=0.0):
+    """A flat top at height ``top`` and two side walls down to ``support`` (normals +-x)."""
+    flat = grid_surface(half=0.03, step=0.002, z=top)
+    zs = np.arange(support + 0.001, top, 0.002)
+    wall = np.array([(x, y, z) for x in (-0.031, 0.031) for y in np.arange(-0.03, 0.031, 0.002)
+                     for z in zs])
+    normals = np.where(wall[:, :1] > 0, [[1.0, 0.0, 0.0]], [[-1.0, 0.0, 0.0]])
+    return Surface(points=np.vstack([flat.points, wall]),
+                   normals=np.vstack([flat.normals, normals]))
+
+
+def test_the_decay_grid_stops_at_one_and_a_half_thicknesses_of_the_object():
+    surface = _block_with_walls(0.030)       # side walls outnumber the top's points below it
+    assert object_thickness(surface) == pytest.approx(0.030)
+    grid = decay_grid(surface)
+    assert grid == tuple(v for v in DECAY_GRID if v <= 0.045)       # 1.5 thicknesses
+    assert np.inf not in grid and 0.064 not in grid and 0.032 in grid
+    # a table that is not at z = 0: the thickness is measured from it
+    raised = _block_with_walls(0.050, support=0.020)
+    assert object_thickness(raised, support_z=0.020) == pytest.approx(0.030)
+    assert decay_grid(raised, support_z=0.020) == grid
+    assert 0.064 in decay_grid(raised)                   # 50 mm above z = 0: 75 mm cap
+    # a thin layer keeps the shortest lengths; a cap below all of them keeps the shortest one
+    assert decay_grid(_block_with_walls(0.004)) == (0.004, 0.002)
+    assert decay_grid(_block_with_walls(0.002), decays=(0.008, 0.004)) == (0.004,)
+
+
+def test_the_decay_grid_is_whole_where_the_thickness_is_unknown():
+    down = Surface(points=np.array([[0.0, 0.0, 0.03], [0.01, 0.0, 0.03]]),
+                   normals=np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]))
+    assert np.isnan(object_thickness(down))
+    assert decay_grid(down) == tuple(DECAY_GRID)
+    below = grid_surface(half=0.01, step=0.002, z=-0.01)    # under the support plane
+    assert np.isnan(object_thickness(below))
+    assert decay_grid(below) == tuple(DECAY_GRID)
+    assert decay_grid(_block_with_walls(0.030), cap=None) == tuple(DECAY_GRID)

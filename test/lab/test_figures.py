@@ -5,12 +5,16 @@ import dataclasses
 import numpy as np
 import pytest
 
+from pointforce_ros.contact import ContactSimulator
+from pointforce_ros.contact.identify import (best_capped_fit, DECAY_GRID, object_thickness,
+                                             shape_fits_from_probes)
 from pointforce_ros.lab import figures
 from pointforce_ros.sim.fem.probes import paddle_probe, pose_for_push
 from pointforce_ros.sim.objects import load_object
 from pointforce_ros.lab.synthetic_contact import grid_surface
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
+from pointforce_ros.response.ours import ContactGpModel
 
 
 def _rows(ours, et, auto):
@@ -328,3 +332,28 @@ def test_the_capped_diagnostic_caps_at_the_largest_training_force_and_nowhere_el
     assert over.any() and not over.all()
     np.testing.assert_allclose(cut[~over], raw[~over])
     np.testing.assert_allclose(cut[over], capped.cap)
+
+
+def test_the_vest_line_the_others_fit_with_an_endless_tail_is_predicted_within_the_cap():
+    # Figure 2's vest: the four other trials fit an infinite tail best, and the first line
+    # trial, predicted with it, is 28 % of the peak off; the decay length is capped at 1.5
+    # thicknesses of the object (best_capped_fit, what the figure and the coverage study use)
+    surface, curves, _ = figures.load_poke_fixture('vest', say=lambda m: None)
+    trials, _, _ = figures.load_probe_fixture('vest', say=lambda m: None)
+    response = ContactGpModel().fit(list(curves), surface).bake(surface,
+                                                                figures.bake_depths(curves))
+    calibration = ContactSimulator(surface, response, figures.DEFAULT_C)
+    others = [(t['mesh'], figures.trial_poses(t), t['direction'], t['force']) for t in trials[1:]]
+    fits = shape_fits_from_probes(calibration, others, c_bounds=(1e-4, 0.1), decays=DECAY_GRID)
+    free = min(fits, key=lambda f: f.rmse)
+    capped = best_capped_fit(fits, surface)
+    assert not np.isfinite(free.decay)
+    assert np.isfinite(capped.decay) and capped.decay <= 1.5 * object_thickness(surface)
+
+    def error(fit):
+        pred = calibration.with_shape_constant(fit.c, fit.decay).query_batch(
+            trials[0]['mesh'], figures.trial_poses(trials[0]), trials[0]['direction'],
+            trials[0]['torque_centre']).wrenches[:, :3]
+        return float(np.sqrt(np.mean(np.sum((pred - trials[0]['force']) ** 2, axis=1))))
+
+    assert error(capped) < 0.6 * error(free), (error(capped), error(free))

@@ -22,7 +22,7 @@ and the demo's calibration now offer decay lengths up to 1.5 thicknesses
 (:func:`~pointforce_ros.contact.identify.decay_grid`, ``DECAY_CAP``); the ``grid`` column here
 is the figure before that.
 
-Usage: python data/figures/decay_cap.py [--objects vest lamb] [--caps 1.5 2] [--draws 10]
+Usage: python data/figures/decay_cap.py [--objects vest lamb] [--caps 1.5 2] [--draws 10] [--fine]
 """
 
 import argparse
@@ -66,17 +66,25 @@ def picks(calibration, trials, decays):
     return out
 
 
-def object_caps(name, caps, draws, seed=0, data=HERE):
-    """Figure 2's ``ours`` for the full grid and each cap; prints and returns the medians."""
+def object_caps(name, caps, draws, seed=0, data=HERE, fine=False):
+    """Figure 2's ``ours`` for the full grid and each cap; prints and returns the medians.
+
+    ``fine``: the grid with its geometric midpoints added (steps of sqrt 2).
+    """
     surface, curves, _ = load_poke_fixture(name, data, say=lambda s: None)
     trials, _, _ = load_probe_fixture(name, data, say=lambda s: None)
     h = thickness(surface)
     depths = bake_depths(curves)
     calibration = ContactSimulator(
         surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C)
-    grids = {'grid': tuple(DECAY_GRID)}
+    full = tuple(DECAY_GRID)
+    if fine:
+        finite = sorted(L for L in DECAY_GRID if np.isfinite(L))
+        full = tuple(sorted(set(full) | {float(np.sqrt(a * b)) for a, b in
+                                          zip(finite[:-1], finite[1:])}, reverse=True))
+    grids = {'grid': full}
     for k in caps:
-        grids[f'L <= {k:g} h'] = tuple(L for L in DECAY_GRID if L <= k * h + 1e-9)
+        grids[f'L <= {k:g} h'] = tuple(L for L in full if L <= k * h + 1e-9)
     shapes = {key: picks(calibration, trials, g) for key, g in grids.items()}
     for key, sh in shapes.items():
         print(f'[cap] {name} (h = {1e3 * h:.1f} mm) {key}: (c, L) per trial [mm] '
@@ -111,10 +119,11 @@ def main():
     parser.add_argument('--objects', nargs='+', default=list(OBJECTS), choices=OBJECTS)
     parser.add_argument('--caps', nargs='+', type=float, default=[1.5, 2.0])
     parser.add_argument('--draws', type=int, default=10)
+    parser.add_argument('--fine', action='store_true', help='decay grid in steps of sqrt 2')
     args = parser.parse_args()
     started = time.monotonic()
     for name in args.objects:
-        object_caps(name, args.caps, args.draws)
+        object_caps(name, args.caps, args.draws, fine=args.fine)
     print(f'[cap] done in {time.monotonic() - started:.0f} s')
 
 

@@ -25,7 +25,7 @@ Usage: python data/figures/feature_variants.py [--objects dome thin_layer] [--si
 import contextlib
 
 import numpy as np
-from spread_variants import print_table   # this script's folder is on sys.path
+from spread_variants import PickByLoo, print_table   # this script's folder is on sys.path
 
 import pointforce_ros.response.gp as gp
 from pointforce_ros.lab.baseline import EtBaseline
@@ -71,28 +71,17 @@ class HeightWeighted:
             return self.model.predict(features, d)
 
 
-class HeightByLoo:
+def chosen_law_score(wrapper) -> float:
+    """Leave-one-poke-out RMSE of the law (and mean mode) the wrapped model chose."""
+    m = wrapper.model
+    return m.law_scores.get(m.law, m.law_scores.get(f'{m.law}/{m.mean}', 0.0))
+
+
+class HeightByLoo(PickByLoo):
     """Ours with the height weight of ``ks`` whose fit has the lowest leave-one-poke-out error."""
 
     def __init__(self, ks=(1.0, 4.0)):
-        self.ks = ks
-
-    def fit(self, curves, surface):
-        """Fit one model per weight and keep one; returns ``self``."""
-        best = None
-        for k in self.ks:
-            model = HeightWeighted(k).fit(curves, surface)
-            m = model.model
-            score = m.law_scores.get(m.law, m.law_scores.get(f'{m.law}/{m.mean}', 0.0))
-            if best is None or score < best[0]:
-                best = (score, model)
-        self.model = best[1]
-        self.poke_ids = self.model.poke_ids
-        return self
-
-    def predict(self, features, d):
-        """The kept model's force (N)."""
-        return self.model.predict(features, d)
+        super().__init__([lambda k=k: HeightWeighted(k) for k in ks], chosen_law_score)
 
 
 VARIANTS = {

@@ -40,16 +40,24 @@ from pointforce_ros.response.ours import ContactGpModel
 OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
 
 
-class PickDecorrelation:
-    """Fit ours with and without decorrelation; keep the lower leave-one-poke-out error."""
+def law_loo_score(model) -> float:
+    """The lowest leave-one-poke-out RMSE of ``model``'s laws (0 where none was scored)."""
+    laws = [v for k, v in model.law_scores.items() if '/' not in k and '+' not in k]
+    return min(laws) if laws else 0.0
+
+
+class PickByLoo:
+    """Fit every candidate; keep the one whose ``score`` (leave-one-poke-out) is lowest."""
+
+    def __init__(self, factories, score=law_loo_score):
+        self.factories, self.score = list(factories), score
 
     def fit(self, curves, surface):
-        """Fit both and keep one; returns ``self``."""
+        """Fit each and keep one; returns ``self``."""
         best = None
-        for decorrelate in (True, False):
-            model = ContactGpModel(decorrelate=decorrelate).fit(curves, surface)
-            laws = [v for k, v in model.law_scores.items() if '/' not in k and '+' not in k]
-            score = min(laws) if laws else 0.0
+        for factory in self.factories:
+            model = factory().fit(curves, surface)
+            score = self.score(model)
             if best is None or score < best[0]:
                 best = (score, model)
         self.model = best[1]
@@ -59,6 +67,14 @@ class PickDecorrelation:
     def predict(self, features, d):
         """The kept model's force (N)."""
         return self.model.predict(features, d)
+
+
+class PickDecorrelation(PickByLoo):
+    """Fit ours with and without decorrelation; keep the lower leave-one-poke-out error."""
+
+    def __init__(self):
+        super().__init__([lambda: ContactGpModel(decorrelate=True),
+                          lambda: ContactGpModel(decorrelate=False)])
 
 
 class MeasuredReference(ContactGpModel):

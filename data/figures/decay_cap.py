@@ -23,6 +23,7 @@ and the demo's calibration now offer decay lengths up to 1.5 thicknesses
 is the figure before that.
 
 Usage: python data/figures/decay_cap.py [--objects vest lamb] [--caps 1.5 2] [--draws 10] [--fine]
+       [--law fixed]
 """
 
 import argparse
@@ -66,17 +67,19 @@ def picks(calibration, trials, decays):
     return out
 
 
-def object_caps(name, caps, draws, seed=0, data=HERE, fine=False):
+def object_caps(name, caps, draws, seed=0, data=HERE, fine=False, law=None):
     """Figure 2's ``ours`` for the full grid and each cap; prints and returns the medians.
 
-    ``fine``: the grid with its geometric midpoints added (steps of sqrt 2).
+    ``fine``: the grid with its geometric midpoints added (steps of sqrt 2); ``law``: the
+    simulator's decay law (``None``: its default).
     """
     surface, curves, _ = load_poke_fixture(name, data, say=lambda s: None)
     trials, _, _ = load_probe_fixture(name, data, say=lambda s: None)
     h = thickness(surface)
     depths = bake_depths(curves)
     calibration = ContactSimulator(
-        surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C)
+        surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C,
+        decay_law=law)
     full = tuple(DECAY_GRID)
     if fine:
         finite = sorted(L for L in DECAY_GRID if np.isfinite(L))
@@ -97,7 +100,7 @@ def object_caps(name, caps, draws, seed=0, data=HERE, fine=False):
     for _ in range(int(draws)):
         pick = rng.choice(len(curves), size=PROBE_TRAIN_POKES, replace=False)
         model = ContactGpModel().fit([curves[i] for i in pick], surface)
-        sim = ContactSimulator(surface, model.bake(surface, depths), DEFAULT_C)
+        sim = ContactSimulator(surface, model.bake(surface, depths), DEFAULT_C, decay_law=law)
         for key, sh in shapes.items():
             pred = [_simulate_ours(sim.with_shape_constant(c, L), [t])[0]
                     for (c, L), t in zip(sh, trials)]
@@ -120,10 +123,12 @@ def main():
     parser.add_argument('--caps', nargs='+', type=float, default=[1.5, 2.0])
     parser.add_argument('--draws', type=int, default=10)
     parser.add_argument('--fine', action='store_true', help='decay grid in steps of sqrt 2')
+    parser.add_argument('--law', choices=('fixed', 'penetration'), default=None,
+                        help="the simulator's decay law (default: its own)")
     args = parser.parse_args()
     started = time.monotonic()
     for name in args.objects:
-        object_caps(name, args.caps, args.draws, fine=args.fine)
+        object_caps(name, args.caps, args.draws, fine=args.fine, law=args.law)
     print(f'[cap] done in {time.monotonic() - started:.0f} s')
 
 

@@ -34,6 +34,11 @@ def test_learning_goals_uses_the_better_baseline_and_judges_each_goal():
     assert g['ratio_10'] == pytest.approx(0.2 / 0.3)
     assert g['half_at_10'] is False
     assert g['three_vs_ten'] is False                     # 0.5 > 0.3
+    assert g['issue17_at_5'] is True and g['issue17_at_10'] is True     # 0.60, 0.67 <= 0.9
+    rows = _rows(ours=[2.0, 0.5, 0.48, 0.29, 0.1], et=[3.0, 2.0, 1.0, 0.5, 0.4],
+                 auto=[3.0, 2.0, 0.5, 0.3, 0.3])
+    g = figures.learning_goals(rows)
+    assert g['issue17_at_5'] is False and g['issue17_at_10'] is False   # 0.96, 0.97 > 0.9
     rows = _rows(ours=[2.0, 0.25, 0.2, 0.1, 0.1], et=[3.0, 2.0, 1.0, 0.5, 0.4],
                  auto=[3.0, 2.0, 1.0, 0.3, 0.3])
     g = figures.learning_goals(rows)

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A stored demo's last model with ``(c, L)`` from its two pushes, over the whole decay grid and capped.
+"""A stored demo's last model, ``(c, L)`` from its two pushes over the whole decay grid and capped.
 
 Session 26 capped the shape function's tail decay length at 1.5 thicknesses of the object
 (:func:`~pointforce_ros.contact.identify.decay_grid`). This replays a ``pointforce demo --out
@@ -53,9 +53,10 @@ def main():
                          for _, m, p, a, ctr in demo.queries])
         vector = float(np.sqrt(np.mean(np.sum((pred - true) ** 2, axis=1))))
         fz = pred[:, 2] - true[:, 2]
-        print(f'{label}: c {1e3 * cal.fit.c:.2f} mm, L {1e3 * cal.fit.decay:.0f} mm, pushes fitted '
-              f'within {cal.fit.rmse:.3f} N; queries {100 * vector / big:.1f} % of {big:.2f} N '
-              f'(Fz {100 * np.sqrt(np.mean(fz ** 2)) / np.max(np.abs(true[:, 2])):.1f} %, '
+        fz_pct = 100 * np.sqrt(np.mean(fz ** 2)) / np.max(np.abs(true[:, 2]))
+        print(f'{label}: c {1e3 * cal.fit.c:.2f} mm, L {1e3 * cal.fit.decay:.0f} mm, pushes '
+              f'fitted within {cal.fit.rmse:.3f} N; queries {100 * vector / big:.1f} % of '
+              f'{big:.2f} N (Fz {fz_pct:.1f} %, '
               f'{int(np.sum(fz < 0))} of 9 below); Fz pred / true '
               f'{np.round(pred[:, 2] / true[:, 2], 2).tolist()}', flush=True)
 

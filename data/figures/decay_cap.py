@@ -83,8 +83,8 @@ def object_caps(name, caps, draws, seed=0, data=HERE, fine=False, law=None):
     full = tuple(DECAY_GRID)
     if fine:
         finite = sorted(L for L in DECAY_GRID if np.isfinite(L))
-        full = tuple(sorted(set(full) | {float(np.sqrt(a * b)) for a, b in
-                                          zip(finite[:-1], finite[1:])}, reverse=True))
+        middles = {float(np.sqrt(a * b)) for a, b in zip(finite[:-1], finite[1:])}
+        full = tuple(sorted(set(full) | middles, reverse=True))
     grids = {'grid': full}
     for k in caps:
         grids[f'L <= {k:g} h'] = tuple(L for L in full if L <= k * h + 1e-9)

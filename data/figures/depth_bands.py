@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Where ours loses to ET on figure 1's measured samples: error by depth past the onset (session 26).
+"""Where ours loses to ET on figure 1's measured samples: the error by depth past the onset.
 
 For each object and training size, 10 random subsets of the committed 30-poke fixture (seed 0,
 a fresh generator per size, so the 10-poke subsets are not figure 1's), ours

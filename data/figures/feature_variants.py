@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Figure 1's point-poke table for two more ways of reading the surface features (a study, session 26).
+"""Figure 1's point-poke table for two more readings of the surface features (a study).
 
 The same draws and output as ``spread_variants.py`` (seed 0, 10 random training subsets per
 size from the committed 30-poke fixtures, held-out pokes scored on their measured contact

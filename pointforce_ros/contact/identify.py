@@ -77,7 +77,7 @@ def decay_grid(surface: Surface, decays: Sequence[float] = DECAY_GRID,
     shortest one.
     """
     decays = tuple(float(v) for v in decays)
-    h = object_thickness(surface, support_z) if len(surface) else float('nan')
+    h = object_thickness(surface, support_z)
     if cap is None or not np.isfinite(h) or not decays:
         return decays
     kept = tuple(v for v in decays if v <= cap * h)

@@ -82,10 +82,11 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
     nominal = ContactSimulator(surface, baked, DEFAULT_C)
     rows = {'normal': [], 'force': [], 'torque': [], 'pred': [], 'std': [], 'true': [],
             'kinds': [], 'relative_std': []}
+    decays = decay_grid(surface)        # the tail within DECAY_CAP thicknesses of the object
     for j, trial in enumerate(trials):
         others = [_push(t) for i, t in enumerate(trials) if i != j]
         try:
-            cal = calibrate_shape(nominal, others, decays=decay_grid(surface))
+            cal = calibrate_shape(nominal, others, decays=decays)
         except (PointforceError, ValueError) as exc:
             say(f'[coverage]   trial {j}: (c, L) not identified from the others ({exc})')
             continue

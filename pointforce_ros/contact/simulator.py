@@ -181,6 +181,10 @@ class BatchContactResult:
         centres_of_pressure: (B, 3) metres, where the force acts: the contacts' positions
             weighted by their force (the torque centre where a pose has no contact force);
             ``None`` unless asked for (``query_batch(..., centre_of_pressure=True)``).
+        pressure_spreads: (B, 3, 3) square metres, the second moment of the contacts'
+            positions about the centre of pressure, weighted by their force (how far the
+            force is spread; zero where a pose has no contact force); with
+            ``centres_of_pressure``.
 
     """
 
@@ -191,6 +195,7 @@ class BatchContactResult:
     torque_centres: np.ndarray
     frame: str = 'base'
     centres_of_pressure: Optional[np.ndarray] = None
+    pressure_spreads: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         """Return the number of poses ``B``."""
@@ -443,6 +448,7 @@ class ContactSimulator:
         umax = np.zeros(n)
         resid = np.zeros(n)
         cop = centres.copy() if centre_of_pressure else None
+        spread = np.zeros((n, 3, 3)) if centre_of_pressure else None
         chunk = max(int(chunk), 1)
         with single_threaded_blas():
             for s in range(0, n, chunk):
@@ -452,10 +458,11 @@ class ContactSimulator:
                 out[sl], count[sl] = run['wrench'], run['count']
                 umax[sl], resid[sl] = run['umax'], run['residual']
                 if centre_of_pressure and 'f' in run:
-                    _centres_of_pressure(run, cop[sl])
+                    _centres_of_pressure(run, cop[sl], spread[sl])
         return BatchContactResult(wrenches=out, contact_count=count, max_displacement=umax,
                                   lcp_residual=resid, torque_centres=centres.copy(),
-                                  frame=self.surface.frame, centres_of_pressure=cop)
+                                  frame=self.surface.frame, centres_of_pressure=cop,
+                                  pressure_spreads=spread)
 
     def surface_displacement(self, contact_points: np.ndarray, actual: np.ndarray,
                              penetrations: Optional[np.ndarray] = None) -> np.ndarray:
@@ -787,18 +794,25 @@ def _force_torque(f: np.ndarray, nq: np.ndarray, arm: np.ndarray) -> np.ndarray:
         arm[:, 0] * force[:, 1] - arm[:, 1] * force[:, 0]])])
 
 
-def _centres_of_pressure(run: dict, out: np.ndarray) -> None:
+def _centres_of_pressure(run: dict, out: np.ndarray, spread: np.ndarray) -> None:
     """Write each pose's force-weighted contact position into ``out`` (B, 3), in place.
 
     ``run`` is a detailed :meth:`ContactSimulator._run` (``b``, ``p``, ``f``); a pose without
-    contact force keeps its row of ``out``.
+    contact force keeps its row of ``out`` (and its zero ``spread``). ``spread`` (B, 3, 3)
+    gets the force-weighted second moment of the positions about that centre.
     """
     weight = np.maximum(run['f'], 0.0)
-    total = np.bincount(run['b'], weights=weight, minlength=len(out))
-    moment = np.stack([np.bincount(run['b'], weights=weight * run['p'][:, k],
+    b = run['b']
+    total = np.bincount(b, weights=weight, minlength=len(out))
+    moment = np.stack([np.bincount(b, weights=weight * run['p'][:, k],
                                    minlength=len(out)) for k in range(3)], axis=1)
     held = total > 0.0
     out[held] = moment[held] / total[held, None]
+    arm = run['p'] - out[b]
+    for i in range(3):
+        for j in range(i, 3):
+            m = np.bincount(b, weights=weight * arm[:, i] * arm[:, j], minlength=len(out))
+            spread[held, i, j] = spread[held, j, i] = m[held] / total[held]
 
 
 def _deepest_per_key(key: np.ndarray, d: np.ndarray) -> Optional[np.ndarray]:

@@ -71,8 +71,14 @@ def test_relative_part_and_bad_input():
     model = patch_contact_model()                   # no std in the table: no response part
     mesh, poses, centre = _queries()[0]
     out = wrench_uncertainty(model, mesh, poses, DOWN, centre, relative_std=0.05)
-    assert set(out.parts) == {'relative'}
-    np.testing.assert_allclose(out.std, 0.05 * np.abs(out.wrench))
+    assert set(out.parts) == {'relative', 'centre'}
+    np.testing.assert_allclose(out.std[:, :3], 0.05 * np.abs(out.wrench[:, :3]))
+    np.testing.assert_allclose(out.std ** 2, out.parts['relative'] ** 2
+                               + out.parts['centre'] ** 2, rtol=1e-12)
+    alone = wrench_uncertainty(model, mesh, poses, DOWN, centre, relative_std=0.05,
+                               centre=False)
+    assert set(alone.parts) == {'relative'}
+    np.testing.assert_allclose(alone.std, 0.05 * np.abs(alone.wrench))
     with pytest.raises(InvalidInput, match='shape_cov'):
         wrench_uncertainty(model, mesh, poses, DOWN, centre, shape_cov=[[1.0, 2.0], [0.0, 1]])
     with pytest.raises(InvalidInput, match='relative_std'):
@@ -137,15 +143,52 @@ def test_the_centre_of_pressure_is_where_the_force_acts():
         lever = np.cross(r, out.wrenches[:, :3])
         np.testing.assert_allclose(out.wrenches[:, 3:5], lever[:, :2],
                                    atol=0.02 * np.abs(lever[:, :2]).max() + 1e-9)
-        for pose, cop in zip(poses, out.centres_of_pressure):
+        for pose, cop, spread in zip(poses, out.centres_of_pressure, out.pressure_spreads):
             assert np.linalg.norm(cop[:2] - np.asarray(pose.position)[:2]) < 0.02
-        assert sim.query_batch(mesh, poses, DOWN, centre).centres_of_pressure is None
+            # the spread is the contacts' force-weighted second moment about that centre
+            one = sim.query(mesh, pose, DOWN, centre)
+            arm = one.rigid_points_in_contact - cop
+            w = one.contact_forces / one.contact_forces.sum()
+            np.testing.assert_allclose(spread, np.einsum('k,ki,kj->ij', w, arm, arm),
+                                       rtol=1e-6, atol=1e-12)
+            assert np.all(np.linalg.eigvalsh(spread) > -1e-15)
+        plain = sim.query_batch(mesh, poses, DOWN, centre)
+        assert plain.centres_of_pressure is None and plain.pressure_spreads is None
     # no contact: the centre of pressure is the torque centre (no lever)
     mesh, poses, centre = _queries()[0]
     lifted = [Pose(position=np.asarray(p.position) + [0, 0, 0.05]) for p in poses]
     out = sim.query_batch(mesh, lifted, DOWN, centre, centre_of_pressure=True)
     assert np.all(out.wrenches == 0.0)
     np.testing.assert_allclose(out.centres_of_pressure, np.broadcast_to(centre, (2, 3)))
+    assert np.all(out.pressure_spreads == 0.0)
+
+
+def test_a_relative_discrepancy_moves_the_centre_of_pressure_by_its_share_of_the_spread():
+    # A pressure off by a share rel of itself is off in where it acts, too: each contact's force
+    # f_k times 1 + g . (q_k - cop), a linear gradient of that relative size along each
+    # principal axis of the contact (g ~ N(0, rel^2 M^+), M the force's second moment across
+    # the approach), keeps the total and turns the torque. Monte Carlo over such gradients,
+    # applied to the contacts' own forces, normals and positions, against the part.
+    model = patch_contact_model()
+    sim = ContactSimulator(model.surface, model.response, model.shape_constant)
+    rng = np.random.default_rng(17)
+    plane = np.eye(3) - np.outer(DOWN, DOWN)
+    for mesh, poses, centre in _queries():
+        out = wrench_uncertainty(model, mesh, poses, DOWN, centre, relative_std=0.1)
+        np.testing.assert_allclose(out.parts['centre'][:, :3], 0.0)
+        for i, pose in enumerate(poses):
+            one = sim.query(mesh, pose, DOWN, centre)
+            f, q, n = one.contact_forces, one.rigid_points_in_contact, one.contact_normals
+            cop = (f @ q) / f.sum()
+            arm = (q - cop) @ plane
+            spread = np.einsum('k,ki,kj->ij', f / f.sum(), arm, arm)
+            g = rng.multivariate_normal(np.zeros(3), 0.1 ** 2 * np.linalg.pinv(spread), 4000)
+            df = f[None, :] * (g @ arm.T)                               # (draws, K)
+            torque = np.einsum('dk,kj->dj', df, np.cross(q - centre, n))
+            mc = torque.std(axis=0)
+            assert np.all(mc[:2] > 1e-5)                       # mN m: a real part, not noise
+            np.testing.assert_allclose(out.parts['centre'][i, 3:5], mc[:2], rtol=0.08)
+            assert out.parts['centre'][i, 5] <= 0.1 * mc[:2].max() + 1e-9
 
 
 def test_shape_covariance_shrinks_with_more_informative_pushes():

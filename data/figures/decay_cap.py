@@ -22,8 +22,13 @@ and the demo's calibration now offer decay lengths up to 1.5 thicknesses
 (:func:`~pointforce_ros.contact.identify.decay_grid`, ``DECAY_CAP``); the ``grid`` column here
 is the figure before that.
 
+Session 27, ``--near flat`` (the flat-topped near field ``(1 + r / c) exp(-r / c)`` on every
+trial, ``decay_cap_flat.log``): with the cap vest 11.7 -> 8.4 %, plush 9.7 -> 8.5 %, lamb 7.5 ->
+6.9 %, dome 4.5 -> 3.4 %, thin_layer 8.3 -> see the log; figure 2 now chooses the near field
+per trial from the other trials (:func:`~pointforce_ros.contact.identify.choose_near`).
+
 Usage: python data/figures/decay_cap.py [--objects vest lamb] [--caps 1.5 2] [--draws 10] [--fine]
-       [--law fixed]
+       [--law fixed] [--near flat]
 """
 
 import argparse
@@ -67,11 +72,12 @@ def picks(calibration, trials, decays):
     return out
 
 
-def object_caps(name, caps, draws, seed=0, data=HERE, fine=False, law=None):
+def object_caps(name, caps, draws, seed=0, data=HERE, fine=False, law=None, near='paper'):
     """Figure 2's ``ours`` for the full grid and each cap; prints and returns the medians.
 
     ``fine``: the grid with its geometric midpoints added (steps of sqrt 2); ``law``: the
-    simulator's decay law (``None``: its default).
+    simulator's decay law (``None``: its default); ``near``: the shape function's near field
+    (``'paper'`` or ``'flat'``, every trial; figure 2 chooses it per trial).
     """
     surface, curves, _ = load_poke_fixture(name, data, say=lambda s: None)
     trials, _, _ = load_probe_fixture(name, data, say=lambda s: None)
@@ -79,7 +85,7 @@ def object_caps(name, caps, draws, seed=0, data=HERE, fine=False, law=None):
     depths = bake_depths(curves)
     calibration = ContactSimulator(
         surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C,
-        decay_law=law)
+        decay_law=law, near=near)
     full = tuple(DECAY_GRID)
     if fine:
         finite = sorted(L for L in DECAY_GRID if np.isfinite(L))
@@ -100,7 +106,8 @@ def object_caps(name, caps, draws, seed=0, data=HERE, fine=False, law=None):
     for _ in range(int(draws)):
         pick = rng.choice(len(curves), size=PROBE_TRAIN_POKES, replace=False)
         model = ContactGpModel().fit([curves[i] for i in pick], surface)
-        sim = ContactSimulator(surface, model.bake(surface, depths), DEFAULT_C, decay_law=law)
+        sim = ContactSimulator(surface, model.bake(surface, depths), DEFAULT_C, decay_law=law,
+                               near=near)
         for key, sh in shapes.items():
             pred = [_simulate_ours(sim.with_shape_constant(c, L), [t])[0]
                     for (c, L), t in zip(sh, trials)]
@@ -125,10 +132,12 @@ def main():
     parser.add_argument('--fine', action='store_true', help='decay grid in steps of sqrt 2')
     parser.add_argument('--law', choices=('fixed', 'penetration'), default=None,
                         help="the simulator's decay law (default: its own)")
+    parser.add_argument('--near', choices=('paper', 'flat'), default='paper',
+                        help="the shape function's near field on every trial")
     args = parser.parse_args()
     started = time.monotonic()
     for name in args.objects:
-        object_caps(name, args.caps, args.draws, fine=args.fine, law=args.law)
+        object_caps(name, args.caps, args.draws, fine=args.fine, law=args.law, near=args.near)
     print(f'[cap] done in {time.monotonic() - started:.0f} s')
 
 

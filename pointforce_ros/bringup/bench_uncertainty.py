@@ -33,7 +33,8 @@ def main(out: str) -> None:
             wall.append(time.perf_counter() - t)
             cpu.append(time.process_time() - c)
     sim = ContactSimulator(model.surface, model.response, model.shape_constant,
-                           decay=model.shape_decay, decay_law=model.shape_decay_law)
+                           decay=model.shape_decay, decay_law=model.shape_decay_law,
+                           near=model.shape_near)
     plain = []
     for _ in range(5):
         for name, mesh, pose, a, tc in queries:

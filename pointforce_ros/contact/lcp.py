@@ -41,7 +41,37 @@ from scipy.linalg import lapack
 from pointforce_ros.errors import InvalidInput, NotConverged
 
 
-def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray:
+NEARS = ('paper', 'flat')
+"""Near fields of the shape function (:func:`shape_function` ``near``): ``'paper'``, the seed's
+``c / (c + r)`` (a dent with a point at its centre and a ``1 / r`` fall, the elastic half-space's
+Green's function with a core of size ``c``), or ``'flat'``, ``(1 + r / c) exp(-r / c)`` (a
+flat-topped dent that falls off over about ``2 c``: what a surface whose skin spreads a load,
+or a layer on a support, shows; the Matern kernel of smoothness 3/2, positive definite in any
+dimension). The tail factor ``exp(-r / decay)`` applies to either."""
+
+
+def check_near(value, name: str = 'near') -> str:
+    """Return ``value`` as a near field of :data:`NEARS`.
+
+    Raises:
+        InvalidInput: not one of :data:`NEARS` (the message starts with ``name``).
+
+    """
+    if value not in NEARS:
+        raise InvalidInput(f'{name}: must be one of {NEARS}, got {value!r}')
+    return str(value)
+
+
+def _near(r: np.ndarray, c: float, near: str) -> np.ndarray:
+    """Return the near field of ``r`` (a new array): ``c / (c + r)`` or ``(1 + r/c) e^(-r/c)``."""
+    if near == 'flat':
+        t = np.asarray(r, dtype=np.float64) / c
+        return (1.0 + t) * np.exp(-t)
+    return c / (c + np.asarray(r, dtype=np.float64))
+
+
+def shape_function(r: np.ndarray, c: float, decay: float = np.inf,
+                   near: str = 'paper') -> np.ndarray:
     """Return ``g(r) = c / (c + r) * exp(-r / decay)`` for distances ``r`` >= 0.
 
     With ``decay = inf`` (the default) this is the paper's ``g(r) = c / (c + r)`` (eq. 2). A
@@ -51,9 +81,15 @@ def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray
     force comes out too low. ``g`` stays a positive mixture of exponential kernels
     (``c exp(-t c) exp(-(t + 1 / decay) r)`` over ``t``), so ``G`` stays positive definite.
     ``r``, ``c`` and ``decay`` share one length unit (metres at every public interface);
-    ``g(0) = 1``.
+    ``g(0) = 1``. ``near='flat'``: ``(1 + r / c) exp(-r / c)`` in place of ``c / (c + r)``
+    (:data:`NEARS`).
     """
     r = np.asarray(r, dtype=np.float64)
+    if near != 'paper':
+        g = _near(r, c, check_near(near))
+        if np.isfinite(decay):
+            g *= np.exp(r * (-1.0 / decay))
+        return g
     g = c + r
     if isinstance(g, np.ndarray):
         np.divide(c, g, out=g)   # c / (c + r) with one temporary
@@ -65,7 +101,7 @@ def shape_function(r: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray
 
 
 def varying_shape_function(r: np.ndarray, c: float, decay_i: np.ndarray,
-                           decay_j: np.ndarray) -> np.ndarray:
+                           decay_j: np.ndarray, near: str = 'paper') -> np.ndarray:
     """Return ``g_ij`` with a decay length per point: :func:`shape_function` generalised.
 
     ``g_ij = c / (c + r) * (2 L_i L_j / (L_i^2 + L_j^2)) ** 1.5 * exp(-r / L_ij)`` with
@@ -80,23 +116,26 @@ def varying_shape_function(r: np.ndarray, c: float, decay_i: np.ndarray,
         decay_i: decay lengths of the rows' points, metres (> 0, finite), broadcasting with
             ``r`` (for a matrix: a column ``(m, 1)``).
         decay_j: those of the columns' points (for a matrix: a row ``(1, m)``).
+        near: the near field in place of ``c / (c + r)`` (:data:`NEARS`; positive definite
+            too, so the product stays so).
 
     """
     r = np.asarray(r, dtype=np.float64)
     li = np.asarray(decay_i, dtype=np.float64)
     lj = np.asarray(decay_j, dtype=np.float64)
     s2 = 0.5 * (li * li + lj * lj)
-    g = c / (c + r)
+    g = _near(r, c, near)
     g *= (li * lj / s2) ** 1.5
     g *= np.exp(-r / np.sqrt(s2))
     return g
 
 
-def _shape_in_place(r2: np.ndarray, c: float, decay: float) -> np.ndarray:
+def _shape_in_place(r2: np.ndarray, c: float, decay: float,
+                    near: str = 'paper') -> np.ndarray:
     """Return :func:`shape_function` of ``sqrt(r2)``, overwriting ``r2`` (squared distances)."""
     r = np.sqrt(r2, out=r2)
-    if np.isfinite(decay):
-        return shape_function(r, c, decay)
+    if np.isfinite(decay) or near != 'paper':
+        return shape_function(r, c, decay, near)
     r += c
     return np.divide(c, r, out=r)   # c / (c + r), as shape_function rounds it
 
@@ -117,11 +156,12 @@ def check_decay(value, name: str = 'decay') -> float:
     return out
 
 
-def shape_matrix(points: np.ndarray, c: float, decay: float = np.inf) -> np.ndarray:
+def shape_matrix(points: np.ndarray, c: float, decay: float = np.inf,
+                 near: str = 'paper') -> np.ndarray:
     """(m, m) matrix ``G_ij = g(|q_i - q_j|)`` of candidate points ``points`` (m, 3), metres."""
     points = np.asarray(points, dtype=np.float64)
     diff = points[:, None, :] - points[None, :, :]
-    return shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), c, decay)
+    return shape_function(np.sqrt(np.einsum('ijk,ijk->ij', diff, diff)), c, decay, near)
 
 
 class PointShapeStack:
@@ -143,17 +183,19 @@ class PointShapeStack:
         decay: decay length of the shape function, metres (> 0 or ``inf``).
         decays: optional (B, m) decay length per point, metres (> 0, finite; padding rows
             any positive value): :func:`varying_shape_function` instead of ``decay``.
+        near: the shape function's near field (:data:`NEARS`).
 
     """
 
     def __init__(self, points: np.ndarray, c: float, decay: float = np.inf,
-                 decays: Optional[np.ndarray] = None):
+                 decays: Optional[np.ndarray] = None, near: str = 'paper'):
         points = np.asarray(points, dtype=np.float64)
         B, m = points.shape[:2]
         self.points = points
         self.c = float(c)
         self.decay = float(decay)
         self.decays = None if decays is None else np.asarray(decays, dtype=np.float64)
+        self.near = check_near(near)
         sq = np.einsum('bij,bij->bi', points, points)
         self._left = np.empty((B, m, 5))     # [q, |q|^2, 1]
         self._left[..., :3] = points
@@ -185,8 +227,8 @@ class PointShapeStack:
         if self.decays is not None:
             lengths = self.decays[problems[:, None], order]
             return varying_shape_function(np.sqrt(r2, out=r2), self.c, lengths[:, :, None],
-                                          lengths[:, None, :k])
-        return _shape_in_place(r2, self.c, self.decay)
+                                          lengths[:, None, :k], self.near)
+        return _shape_in_place(r2, self.c, self.decay, self.near)
 
     def dense(self) -> np.ndarray:
         """Return the whole stack (B, m, m)."""
@@ -453,7 +495,7 @@ def _solve_points(G: PointShapeStack, d: np.ndarray, valid: np.ndarray, F: np.nd
             break
     if len(todo):
         dense = PointShapeStack(G.points[todo], G.c, G.decay,
-                                None if G.decays is None else G.decays[todo]).dense()
+                                None if G.decays is None else G.decays[todo], G.near).dense()
         _not_converged((dense @ x[todo][:, :, None])[:, :, 0] - d[todo], x[todo], valid[todo],
                        max_iter)
     x = np.maximum(x, 0.0)

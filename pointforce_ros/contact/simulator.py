@@ -58,8 +58,8 @@ from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from pointforce_ros.contact.lcp import (bpp_dense, check_decay, lcp_residual, PointShapeStack,
-                                        shape_function, solve_lcp_batch)
+from pointforce_ros.contact.lcp import (bpp_dense, check_decay, check_near, lcp_residual,
+                                        PointShapeStack, shape_function, solve_lcp_batch)
 from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.contact import single_pose
 from pointforce_ros.errors import InvalidInput, NotConverged
@@ -304,17 +304,19 @@ class ContactSimulator:
             on the same models (7 of 9 still below the truth: the cylinders beside the bone
             stay at 0.77-0.85). The foam block stayed at 8.6-9.1 % (true response) and went
             from 4.5-7.2 % to 4.2-6.1 % (learned) (``data/fem/demo_floor_law.py``).
+        near: the shape function's near field, ``'paper'`` (``c / (c + r)``, the default) or
+            ``'flat'`` (``(1 + r / c) exp(-r / c)``; :data:`~pointforce_ros.contact.lcp.NEARS`).
 
     Raises:
         InvalidInput: a response whose length differs from the surface's, a non-positive
-            ``c``/``spacing``/``max_gap``/``decay``, an unknown ``decay_law``, or a surface
-            with fewer than 3 points.
+            ``c``/``spacing``/``max_gap``/``decay``, an unknown ``decay_law`` or ``near``, or
+            a surface with fewer than 3 points.
 
     """
 
     def __init__(self, surface: Surface, response, c: float, spacing: float = 0.003,
                  max_gap: Optional[float] = None, decay: float = np.inf,
-                 decay_law: Optional[str] = None):
+                 decay_law: Optional[str] = None, near: str = 'paper'):
         if not isinstance(surface, Surface):
             raise InvalidInput(f'ContactSimulator: surface must be a types.Surface, got '
                                f'{type(surface).__name__}')
@@ -330,6 +332,7 @@ class ContactSimulator:
         self.c = _positive('c', c)
         self.decay = check_decay(decay)
         self.decay_law = check_decay_law(DECAY_LAW if decay_law is None else decay_law)
+        self.near = check_near(near)
         self.spacing = _positive('spacing', spacing)
         self.max_gap = None if max_gap is None else _positive('max_gap', max_gap)
         self._points = surface.points
@@ -354,8 +357,9 @@ class ContactSimulator:
         self._meshes: Dict[Tuple[int, float], Tuple[Mesh, np.ndarray]] = {}
 
     def with_shape_constant(self, c: float, decay: Optional[float] = None,
-                            decay_law: Optional[str] = None) -> 'ContactSimulator':
-        """Return a simulator identical but for ``c`` (``decay``, ``decay_law`` unless ``None``).
+                            decay_law: Optional[str] = None,
+                            near: Optional[str] = None) -> 'ContactSimulator':
+        """Return a simulator identical but for ``c`` (and each other argument not ``None``).
 
         The copy shares the cached spatial structures.
 
@@ -369,6 +373,8 @@ class ContactSimulator:
             other.decay = check_decay(decay)
         if decay_law is not None:
             other.decay_law = check_decay_law(decay_law)
+        if near is not None:
+            other.near = check_near(near)
         return other
 
     # ----------------------------------------------------------------------------- public API
@@ -477,9 +483,9 @@ class ContactSimulator:
         for s in range(0, len(contact_points), 256):
             r = cdist(self._points, contact_points[s:s + 256])
             if lengths is None:
-                g = shape_function(r, self.c, self.decay)
+                g = shape_function(r, self.c, self.decay, self.near)
             else:
-                g = shape_function(r, self.c) * np.exp(-r / lengths[s:s + 256])
+                g = shape_function(r, self.c, near=self.near) * np.exp(-r / lengths[s:s + 256])
             out += g @ actual[s:s + 256]
         return out
 
@@ -681,8 +687,8 @@ class ContactSimulator:
             local, rot.T @ frame, pos @ frame, np.ascontiguousarray(rot), proj.floor,
             proj.origin, proj.cell, proj.last, proj.bound, *self._cells(proj), proj.tree.data,
             proj.index, proj.max_gap, pos, self._table, self.c, self.decay,
-            self.decay_law == 'penetration', DECAY_REFERENCE, DECAY_FLOOR, WARM_START,
-            MAX_PIVOTING, PIVOTING_TOL)
+            self.decay_law == 'penetration', self.near == 'flat', DECAY_REFERENCE, DECAY_FLOOR,
+            WARM_START, MAX_PIVOTING, PIVOTING_TOL)
         if len(keep) == 0:
             return empty
         if status == single_pose.SINGULAR:      # the dense solver's own fallback decides
@@ -744,7 +750,7 @@ class ContactSimulator:
             lengths = self.decay_lengths(dp)
             if lengths is not None:
                 lengths[~valid] = self.decay     # padding: any positive length
-            G = PointShapeStack(qp, self.c, self.decay, lengths)
+            G = PointShapeStack(qp, self.c, self.decay, lengths, self.near)
             top = np.where(valid, dp, -np.inf).max(axis=1, keepdims=True)
             up = np.empty_like(dp)
             xp, res, _ = solve_lcp_batch(G, dp, valid, free=valid & (dp >= WARM_START * top),

@@ -279,10 +279,10 @@ def bpp(G, d, free, max_iter, tol):
     return np.maximum(x, 0.0), max_iter, NOT_CONVERGED
 
 
-@numba.njit((_IM, _M, _V, _M, float64, float64, boolean, float64, float64, float64, int64,
-             float64), **_JIT)
-def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, floor_share,
-                 warm_start, max_iter, tol):
+@numba.njit((_IM, _M, _V, _M, float64, float64, boolean, boolean, float64, float64, float64,
+             int64, float64), **_JIT)
+def solve_single(nbr, posed, pos, table, c, decay, penetration_law, flat, reference,
+                 floor_share, warm_start, max_iter, tol):
     """Solve steps 2 (after the search), 3 and 4 of one pose: candidates, dedupes, LCP.
 
     Args:
@@ -294,6 +294,8 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
         c, decay: shape-function constant and tail length (``inf``: no tail), metres.
         penetration_law: decay lengths grow with each contact's penetration
             (``decay * max(e, floor_share * reference) / reference``); False: one ``decay``.
+        flat: the flat-topped near field ``(1 + r / c) exp(-r / c)`` instead of the paper's
+            ``c / (c + r)`` (:data:`~pointforce_ros.contact.lcp.NEARS`).
         warm_start: the first free set: penetration >= ``warm_start`` x the deepest.
         max_iter, tol: the pivoting's limits (as :func:`bpp`).
 
@@ -390,7 +392,7 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
             dy = q[i, 1] - q[j, 1]
             dz = q[i, 2] - q[j, 2]
             r = math.sqrt(dx * dx + dy * dy + dz * dz)
-            g = c / (c + r)
+            g = (1.0 + r / c) * math.exp(-r / c) if flat else c / (c + r)
             if varying:
                 s2 = 0.5 * (lengths[i] * lengths[i] + lengths[j] * lengths[j])
                 g *= (lengths[i] * lengths[j] / s2) ** 1.5
@@ -415,9 +417,10 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, reference, f
 
 
 @numba.njit((_M, _M, _V, _M, float64, _V, float64, _I, _M, _I, _I, _M, _I, float64, _V, _M,
-             float64, float64, boolean, float64, float64, float64, int64, float64), **_JIT)
+             float64, float64, boolean, boolean, float64, float64, float64, int64, float64),
+            **_JIT)
 def single_query(local, to_frame, offset, rot, floor, origin, cell, last, bound, starts, members,
-                 facing, facing_index, max_gap, pos, table, c, decay, penetration_law,
+                 facing, facing_index, max_gap, pos, table, c, decay, penetration_law, flat,
                  reference, floor_share, warm_start, max_iter, tol):
     """Solve steps 1-4 of one pose in one call.
 
@@ -437,7 +440,7 @@ def single_query(local, to_frame, offset, rot, floor, origin, cell, last, bound,
         for j in range(3):
             nbr[k, j] = facing_index[nn[k, j]]
             near[k, j] = posed[rows[k], j]
-    out = solve_single(nbr, near, pos, table, c, decay, penetration_law, reference,
+    out = solve_single(nbr, near, pos, table, c, decay, penetration_law, flat, reference,
                        floor_share, warm_start, max_iter, tol)
     return (nbr,) + out
 

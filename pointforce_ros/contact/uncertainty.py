@@ -104,9 +104,10 @@ class _Perturbed:
     def __init__(self, model: ContactModel, spacing: float):
         response = model.response
         law = getattr(model, 'shape_decay_law', None)   # None: the simulator's default
+        near = getattr(model, 'shape_near', 'paper')
         self.nominal = ContactSimulator(model.surface, response, model.shape_constant,
                                         spacing=spacing, decay=model.shape_decay,
-                                        decay_law=law)
+                                        decay_law=law, near=near)
         self.raised = None
         if response.std is not None:
             # raised where the table is a contact force only (above the onset force): the
@@ -125,7 +126,7 @@ class _Perturbed:
                                    version=response.version, meta=response.meta)
             self.raised = ContactSimulator(model.surface, raised, model.shape_constant,
                                            spacing=spacing, decay=model.shape_decay,
-                                           decay_law=law)
+                                           decay_law=law, near=near)
 
 
 _CACHE: Dict[int, Tuple[object, float, _Perturbed]] = {}

@@ -24,6 +24,7 @@ from typing import Callable, Dict, Mapping, Optional, Sequence
 import numpy as np
 
 from pointforce_ros.contact.identify import calibrate_shape, decay_grid, shape_fit_covariance
+from pointforce_ros.contact.lcp import NEARS
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.contact.uncertainty import uncertainty_sources, wrench_uncertainty, Z90
 from pointforce_ros.errors import InvalidInput, PointforceError
@@ -42,7 +43,8 @@ def _push(trial: Mapping) -> tuple:
 
 def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequence[Mapping],
                    n_train: int = PROBE_TRAIN_POKES, seed: int = 0,
-                   say: Callable[[str], None] = print, sources: str = 'calibrated') -> Dict:
+                   say: Callable[[str], None] = print, sources: str = 'calibrated',
+                   nears: Sequence[str] = NEARS) -> Dict:
     """Score the 90 % intervals of every probe-trial step of one object (module docstring).
 
     Args:
@@ -56,6 +58,8 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
         sources: ``'calibrated'`` (the default: what
             :meth:`~pointforce_ros.contact.identify.ShapeCalibration.sources` gives) or
             ``'fit_only'`` (the joint fit's own covariance and relative residual).
+        nears: the near fields the other trials choose from, as figure 2's
+            (:func:`~pointforce_ros.contact.identify.choose_near`).
 
     Returns:
         ``{'normal': (S,) normalised error err/std of the force along the push, 'force': (S, 3)
@@ -86,16 +90,18 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
     for j, trial in enumerate(trials):
         others = [_push(t) for i, t in enumerate(trials) if i != j]
         try:
-            cal = calibrate_shape(nominal, others, decays=decays)
+            cal = calibrate_shape(nominal, others, decays=decays, nears=nears)
         except (PointforceError, ValueError) as exc:
             say(f'[coverage]   trial {j}: (c, L) not identified from the others ({exc})')
             continue
         fit = cal.fit
         meta = cal.sources() if sources == 'calibrated' else uncertainty_sources(
-            shape_cov=shape_fit_covariance(nominal, others, fit),
+            shape_cov=shape_fit_covariance(nominal.with_shape_constant(nominal.c,
+                                                                       near=cal.near),
+                                           others, fit),
             relative_std=cal.in_sample_std, lateral_std=cal.lateral_std)
         model = ContactModel(surface=surface, response=baked, shape_constant=fit.c, version=1,
-                             shape_decay=fit.decay, meta=meta)
+                             shape_decay=fit.decay, meta=meta, shape_near=cal.near)
         out = wrench_uncertainty(model, trial['mesh'], trial_poses(trial), trial['direction'],
                                  trial['torque_centre'])
         pred, std = out.wrench[:, :3], np.maximum(out.std[:, :3], 1e-12)
@@ -113,8 +119,8 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
         rows['relative_std'] += [meta.get('relative_std', 0.0)] * len(true)
         say(f'[coverage]   trial {j} ({trial["kind"]}): c {1e3 * fit.c:.2f} mm, L '
             + (f'{1e3 * fit.decay:.0f} mm' if np.isfinite(fit.decay) else 'none')
-            + f', relative std {meta.get("relative_std", 0.0):.0%} (in-sample '
-            f'{cal.in_sample_std:.0%}); covered '
+            + f', {cal.near} near field, relative std '
+            f'{meta.get("relative_std", 0.0):.0%} (in-sample {cal.in_sample_std:.0%}); covered '
             f'{np.mean(np.abs(rows["normal"][-1]) <= Z90):.0%} of {len(true)} steps')
     if not rows['normal']:
         raise InvalidInput('probe_coverage: no trial could be calibrated from the others')

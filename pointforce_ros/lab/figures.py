@@ -48,8 +48,10 @@ from pointforce_ros.paths import share_path
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.types import Mesh, Pose, Surface
-from pointforce_ros.contact.identify import (best_capped_fit, DECAY_GRID, dent_profile,
-                                             identify_shape_constant, shape_fits_from_probes)
+from pointforce_ros.contact.identify import (best_capped_fit, choose_near, DECAY_GRID,
+                                             decay_grid, dent_profile, identify_shape_constant,
+                                             shape_fits_from_probes)
+from pointforce_ros.contact.lcp import NEARS
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.errors import NotConverged, PointforceError
 from pointforce_ros.lab.baseline import AutoEtBaseline, EtBaseline
@@ -765,7 +767,8 @@ def identify_c_dent(dent: Mapping, r_min: float = 0.003):
 def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequence[Mapping],
                   dent: Optional[Mapping] = None, repeats: int = 10, seed: int = 0,
                   n_train: int = PROBE_TRAIN_POKES, c_grid: Optional[Sequence[float]] = None,
-                  paper_draws: int = 3, say: Callable[[str], None] = print) -> Dict:
+                  paper_draws: int = 3, say: Callable[[str], None] = print,
+                  nears: Sequence[str] = NEARS) -> Dict:
     """Figures 2 and 3 for one object (see the module docstring).
 
     Every trial is scored, each with ``c`` identified from the object's *other* trials
@@ -786,11 +789,14 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     (:data:`~pointforce_ros.contact.identify.DECAY_GRID`, no longer than
     :data:`~pointforce_ros.contact.identify.DECAY_CAP` times the object's thickness:
     :func:`~pointforce_ros.contact.identify.decay_grid`); ``ours_no_decay`` is ``c`` alone,
-    the paper's ``g`` (the error before that effect was added).
+    the paper's ``g`` (the error before that effect was added). The near field of ``ours``
+    (``nears``, :data:`~pointforce_ros.contact.lcp.NEARS`) is chosen per trial by the other
+    trials, each predicted from the rest (:func:`~pointforce_ros.contact.identify.
+    choose_near`); ``('paper',)`` keeps the seed's ``c / (c + r)``.
 
     Returns:
         dict with ``c`` (``dent``, ``probe``: median of ``per_trial``, the leave-one-out
-        values, ``with_decay``: the leave-one-out ``(c, decay)`` pairs, ``default``),
+        values, ``with_decay``: the leave-one-out ``(c, decay, near field)``, ``default``),
         ``rmse`` ({method: {force,
         torque, force_line, force_cylinder}} medians), ``peak_force`` (N), ``c_curve``
         ({c: [force RMSE per draw]}), ``failed_paper_queries``, ``eval_trials``.
@@ -833,11 +839,23 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         if fits and not paper:
             say(f'[figures]   c alone for trial {j} not identified; using {DEFAULT_C} m')
         c_trial.append(float(paper[0]) if paper else DEFAULT_C)
+        # the near field the other trials predict each other best with, then (c, L) under it
+        near, _ = choose_near(calibration, others, decay_grid(surface), nears=nears)
+        if near != calibration.near:
+            try:
+                fits = shape_fits_from_probes(calibration.with_shape_constant(
+                    calibration.c, near=near), others, c_bounds=(1e-4, 0.1), decays=DECAY_GRID)
+            except PointforceError as exc:
+                say(f'[figures]   (c, L) for trial {j} not identified under the {near} near '
+                    f'field ({exc}); the paper\'s')
+                near = calibration.near
         best = best_capped_fit(fits, surface)      # the tail within DECAY_CAP thicknesses
-        shape_trial.append((float(best.c), float(best.decay)) if best else (DEFAULT_C, np.inf))
+        shape_trial.append((float(best.c), float(best.decay), near) if best
+                           else (DEFAULT_C, np.inf, calibration.near))
     say('[figures]   c from the other trials [mm]: '
-        + ', '.join(f'{1e3 * c:.2f}' for c in c_trial) + '; with the tail\'s decay length: '
-        + ', '.join(f'{1e3 * c:.2f} / {1e3 * L:.0f}' for c, L in shape_trial))
+        + ', '.join(f'{1e3 * c:.2f}' for c in c_trial) + '; with the tail\'s decay length '
+        '(and near field): '
+        + ', '.join(f'{1e3 * c:.2f} / {1e3 * L:.0f} ({n})' for c, L, n in shape_trial))
     for rep in range(int(repeats)):
         pick = rng.choice(len(curves), size=n_train, replace=False)
         train = [curves[i] for i in pick]
@@ -845,8 +863,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
         sim = ContactSimulator(surface, ours.bake(surface, depths), DEFAULT_C)
         et = EtBaseline().fit(train, surface)
         et_sim = ContactSimulator(surface, et.bake(surface, depths), DEFAULT_C)
-        preds = {'ours': [_simulate_ours(sim.with_shape_constant(c, decay), [t])[0]
-                          for (c, decay), t in zip(shape_trial, trials)],
+        preds = {'ours': [_simulate_ours(sim.with_shape_constant(c, decay, near=n), [t])[0]
+                          for (c, decay, n), t in zip(shape_trial, trials)],
                  'ours_no_decay': [_simulate_ours(sim.with_shape_constant(c), [t])[0]
                                    for c, t in zip(c_trial, trials)],
                  'ours_default_c': _simulate_ours(sim, trials),
@@ -1179,7 +1197,8 @@ def markdown_report(result: Mapping) -> str:
         dent = _fmt(None if c['dent'] is None else 1e3 * c['dent'], 2)
         probe = ', '.join(f'{1e3 * v:.2f}' for v in c['per_trial'])
         pairs = ', '.join(f'{1e3 * v:.2f} / ' + (f'{1e3 * L:.0f}' if np.isfinite(L) else 'inf')
-                          for v, L in c.get('with_decay', []))
+                          + (f' {rest[0]}' if rest and rest[0] != 'paper' else '')
+                          for v, L, *rest in c.get('with_decay', []))
         no_decay = res['rmse'].get('ours_no_decay', {}).get('force')
         lines.append(f"| {name} | {dent} | {probe} | {pairs or '-'} | "
                      f"{_fmt(res['rmse']['ours_default_c']['force'])} / {_fmt(no_decay)} / "

@@ -31,7 +31,7 @@ from typing import Callable, List, Mapping, Optional, Tuple
 
 import numpy as np
 
-from pointforce_ros.contact.lcp import check_decay
+from pointforce_ros.contact.lcp import check_decay, check_near
 from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, uncertainty_sources
 from pointforce_ros.errors import DataError, InvalidInput
@@ -67,10 +67,14 @@ class ContactModel:
             every contact, or ``'penetration'``, each contact's length grows with its
             penetration. A file without it was written under ``'fixed'``, and is read so: a
             calibration keeps the law it was identified under.
+        shape_near: the shape function's near field
+            (:data:`~pointforce_ros.contact.lcp.NEARS`): ``'paper'``, ``c / (c + r)`` (a file
+            without it), or ``'flat'``, ``(1 + r / c) exp(-r / c)``.
 
     Raises:
         InvalidInput: surface and table of different sizes, ``c <= 0``, ``shape_decay``
-            neither a positive length nor ``inf``, or an unknown ``shape_decay_law``.
+            neither a positive length nor ``inf``, or an unknown ``shape_decay_law`` or
+            ``shape_near``.
 
     """
 
@@ -82,6 +86,7 @@ class ContactModel:
     effects: Mapping = field(default_factory=dict)
     meta: Mapping = field(default_factory=dict)
     shape_decay_law: str = DECAY_LAW
+    shape_near: str = 'paper'
 
     def __post_init__(self):
         if len(self.surface) != len(self.response):
@@ -92,6 +97,7 @@ class ContactModel:
                                f'{self.shape_constant}')
         check_decay(self.shape_decay, 'ContactModel.shape_decay')
         check_decay_law(self.shape_decay_law, 'ContactModel.shape_decay_law')
+        check_near(self.shape_near, 'ContactModel.shape_near')
 
 
 def atomic_write(path, write: Callable, binary: bool = True) -> Path:
@@ -137,6 +143,8 @@ def _header(model: ContactModel) -> dict:
     }
     if model.shape_decay_law != 'fixed':   # absent means 'fixed' (files from before the law)
         header['shape_decay_law'] = model.shape_decay_law
+    if model.shape_near != 'paper':       # absent means 'paper' (files from before the field)
+        header['shape_near'] = model.shape_near
     return header
 
 
@@ -274,7 +282,8 @@ def load_model(path) -> ContactModel:
                              version=int(header['version']),
                              shape_decay=float(header.get('shape_decay') or float('inf')),
                              effects=header.get('effects', {}), meta=header.get('meta', {}),
-                             shape_decay_law=header.get('shape_decay_law', 'fixed'))
+                             shape_decay_law=header.get('shape_decay_law', 'fixed'),
+                             shape_near=header.get('shape_near', 'paper'))
     except DataError:
         raise
     except Exception as exc:  # noqa: BLE001 - zipfile, zlib, numpy, json: many error types
@@ -372,7 +381,8 @@ def latest_model_path(directory) -> Optional[Path]:
 
 
 def save_shape(directory, shape_constant: float, shape_decay: float = float('inf'),
-               uncertainty: Optional[Mapping] = None, decay_law: str = DECAY_LAW) -> Path:
+               uncertainty: Optional[Mapping] = None, decay_law: str = DECAY_LAW,
+               near: str = 'paper') -> Path:
     """Persist the shape function set at run time beside the models (``shape.json``, atomic).
 
     Args:
@@ -382,10 +392,11 @@ def save_shape(directory, shape_constant: float, shape_decay: float = float('inf
         uncertainty: the wrench's uncertainty sources from the same calibration
             (:func:`~pointforce_ros.contact.uncertainty.uncertainty_sources`; ``None``: none).
         decay_law: the decay law ``(c, L)`` were identified under (:class:`ContactModel`).
+        near: the near field ``(c, L)`` were identified with (:class:`ContactModel`).
 
     Raises:
         InvalidInput: ``c`` not finite and positive, ``L`` neither positive nor ``inf``,
-            malformed uncertainty sources or an unknown decay law.
+            malformed uncertainty sources or an unknown decay law or near field.
         OSError: the file cannot be written.
 
     """
@@ -393,9 +404,10 @@ def save_shape(directory, shape_constant: float, shape_decay: float = float('inf
         raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
     decay = check_decay(shape_decay, 'shape_decay')
     check_decay_law(decay_law)
+    check_near(near)
     body = {'shape_constant': float(shape_constant),
             'shape_decay': float(decay) if np.isfinite(decay) else None,
-            'shape_decay_law': decay_law,
+            'shape_decay_law': decay_law, 'shape_near': near,
             'uncertainty': uncertainty_sources(**dict(uncertainty or {}))}
     return atomic_write(Path(directory) / SHAPE, lambda fh: json.dump(body, fh), binary=False)
 
@@ -444,6 +456,26 @@ def load_shape_law(directory) -> str:
         return check_decay_law(law, 'shape_decay_law')
     except InvalidInput as exc:
         raise DataError(f'{path}: unknown decay law: {exc}') from exc
+
+
+def load_shape_near(directory) -> str:
+    """Return the near field of ``shape.json`` (:func:`save_shape`); ``'paper'`` without one.
+
+    Raises:
+        DataError: the file exists but cannot be read or names an unknown near field.
+
+    """
+    path = Path(directory) / SHAPE
+    if not path.is_file():
+        return 'paper'
+    try:
+        near = json.loads(path.read_text()).get('shape_near', 'paper')
+    except (OSError, ValueError, AttributeError) as exc:
+        raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
+    try:
+        return check_near(near, 'shape_near')
+    except InvalidInput as exc:
+        raise DataError(f'{path}: unknown near field: {exc}') from exc
 
 
 def load_shape_uncertainty(directory) -> dict:

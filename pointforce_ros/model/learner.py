@@ -26,7 +26,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pointforce_ros.contact.lcp import check_decay
+from pointforce_ros.contact.lcp import check_decay, check_near
 from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import correct_surface, effects_from_dict
@@ -99,6 +99,8 @@ class OnlineLearner:
         shape_decay_law: how the decay length applies (``'fixed'`` or ``'penetration'``,
             :class:`~pointforce_ros.contact.simulator.ContactSimulator`), stored in each
             model; ``None``: the simulator's default.
+        shape_near: the shape function's near field (``'paper'`` or ``'flat'``,
+            :data:`~pointforce_ros.contact.lcp.NEARS`), stored in each model.
         depths: (K,) bake grid, metres.
         model_factory: makes an empty force-response model (ours by default).
         corrections: optional callable ``records -> records`` applied before curve extraction
@@ -128,13 +130,14 @@ class OnlineLearner:
                  corrections: Optional[Callable] = None, effects: Optional[dict] = None,
                  min_peak_force: Optional[float] = None, shape_decay: float = np.inf,
                  contact_snr: float = 5.0, min_peak_fraction: float = 0.02,
-                 shape_decay_law: Optional[str] = None):
+                 shape_decay_law: Optional[str] = None, shape_near: str = 'paper'):
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
         self.shape_decay = check_decay(shape_decay, 'shape_decay')
         self.shape_decay_law = check_decay_law(
             DECAY_LAW if shape_decay_law is None else shape_decay_law, 'shape_decay_law')
+        self.shape_near = check_near(shape_near, 'shape_near')
         self.store = None if store_dir is None else PokeStore(store_dir)
         self.model_dir = None if model_dir is None else Path(model_dir)
         self.surface = surface
@@ -316,11 +319,13 @@ class OnlineLearner:
         return self._save(start)
 
     def set_shape_constant(self, c: float, decay: Optional[float] = None,
-                           decay_law: Optional[str] = None) -> Optional[LearnerStatus]:
+                           decay_law: Optional[str] = None,
+                           near: Optional[str] = None) -> Optional[LearnerStatus]:
         """Use shape constant ``c`` (m) from now on; save a new model version if there is one.
 
         ``decay`` (m, or ``inf`` for the paper's ``g``) replaces the tail's decay length too
-        unless it is ``None``, and ``decay_law`` the law it applies by.
+        unless it is ``None``, ``decay_law`` the law it applies by and ``near`` the near
+        field (:data:`~pointforce_ros.contact.lcp.NEARS`).
 
         For a ``c`` identified from data (``identify_shape_constant_from_probe`` or a dent):
         the response is unchanged, the saved model's simulator uses the new ``c``.
@@ -333,12 +338,15 @@ class OnlineLearner:
             raise InvalidInput(f'shape_constant: must be > 0 m, got {c}')
         decay = None if decay is None else check_decay(decay, 'shape_decay')
         law = None if decay_law is None else check_decay_law(decay_law, 'shape_decay_law')
+        near = None if near is None else check_near(near, 'shape_near')
         with self._lock:
             self.shape_constant = float(c)
             if decay is not None:
                 self.shape_decay = decay
             if law is not None:
                 self.shape_decay_law = law
+            if near is not None:
+                self.shape_near = near
             if self.model is None:
                 return None
             self._c_updates += 1
@@ -384,6 +392,7 @@ class OnlineLearner:
                                 version=len(self.curves) + self._c_updates,
                                 shape_decay=self.shape_decay, effects=self.effects,
                                 shape_decay_law=self.shape_decay_law,
+                                shape_near=self.shape_near,
                                 meta={'kind': getattr(self.model, 'kind', 'unknown'),
                                       'pokes': [c.poke_id for c in self.curves],
                                       'surface_corrected': corrected,

@@ -209,7 +209,8 @@ class WrenchServer:
                                 hold_time=self._hold_time)
         simulator = ContactSimulator(model_surface(model), model.response, model.shape_constant,
                                      spacing=self._spacing, decay=model.shape_decay,
-                                     decay_law=model.shape_decay_law)
+                                     decay_law=model.shape_decay_law,
+                                     near=model.shape_near)
         bounds = _model_bounds(model, self.limits)
         with self._swap_lock:
             if self._current is None or model.version >= self._current[0].version:
@@ -248,7 +249,8 @@ class WrenchServer:
                 simulator = ContactSimulator(model_surface(model), model.response,
                                              model.shape_constant, spacing=spacing,
                                              decay=model.shape_decay,
-                                             decay_law=model.shape_decay_law)
+                                             decay_law=model.shape_decay_law,
+                                             near=model.shape_near)
             rebuilt = (model, simulator, ForwardTerms.of(model.effects,
                                                          series_compliance=series,
                                                          hold_time=hold_time),

@@ -41,12 +41,13 @@ from msg_adapters.geometry import sec_to_stamp, stamp_to_sec
 from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.markers import model_markers
 from msg_adapters.pointcloud2 import surface_from_msg
+from pointforce_ros.contact.lcp import check_near
 from pointforce_ros.contact.simulator import DECAY_LAW
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import effects_from_dict
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.learner import check_region, OnlineLearner
-from pointforce_ros.model.files import (load_model, load_shape, load_shape_law,
+from pointforce_ros.model.files import (load_model, load_shape, load_shape_law, load_shape_near,
                                         load_shape_uncertainty, load_surface, save_shape,
                                         version_of_path)
 from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
@@ -108,6 +109,15 @@ class StiffnessLearnerNode(Node):
         except PointforceError as exc:
             self.get_logger().error(f'uncertainty sources refused, models carry none: {exc}')
             self.uncertainty = {}
+        self.near = declare(self, 'shape_near', 'paper',
+                            "Near field of the shape function: 'paper', c/(c+r), or 'flat', "
+                            '(1 + r/c) exp(-r/c) (a skin or layer that spreads a dent flat); '
+                            'the one (c, L) were identified with')
+        try:
+            check_near(self.near, 'shape_near')
+        except PointforceError as exc:
+            self.get_logger().error(f"{exc}; using 'paper'")
+            self.near = 'paper'
         self.decay_law = DECAY_LAW   # the law (c, L) apply by (shape.json's, when restored)
         self._restore_shape()
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
@@ -201,6 +211,7 @@ class StiffnessLearnerNode(Node):
         live(self, {
             'shape_constant': lambda v: lambda: self._set_shape('shape_constant', v),
             'shape_decay': lambda v: lambda: self._set_shape('shape_decay', v),
+            'shape_near': self._near_applier,
             **{name: self._uncertainty_applier(name)
                for name in ('shape_cov', 'relative_std', 'lateral_std')},
             'suggest_exclude_radius': lambda v: lambda: setattr(self, 'exclude_radius', v),
@@ -221,6 +232,7 @@ class StiffnessLearnerNode(Node):
         c, decay = shape
         try:
             law = load_shape_law(self.model_dir)
+            near = load_shape_near(self.model_dir)
         except PointforceError as exc:
             self.get_logger().error(f'ignoring the persisted shape function: {exc}')
             return
@@ -238,17 +250,18 @@ class StiffnessLearnerNode(Node):
             Parameter('relative_std', Parameter.Type.DOUBLE,
                       float(sources.get('relative_std', 0.0))),
             Parameter('lateral_std', Parameter.Type.DOUBLE,
-                      float(sources.get('lateral_std', 0.0)))])
+                      float(sources.get('lateral_std', 0.0))),
+            Parameter('shape_near', Parameter.Type.STRING, near)])
         refused = [r.reason for r in results if not r.successful]
         if refused:
             self.get_logger().error(f'persisted shape function refused: {refused}')
             return
         self.shape_constant, self.shape_decay, self.uncertainty = c, decay_param, sources
-        self.decay_law = law
+        self.decay_law, self.near = law, near
         self.get_logger().info(f'shape function restored from {self.model_dir}/shape.json: '
                                f'c = {1e3 * c:.3f} mm, decay '
                                + (f'{1e3 * decay:.3f} mm ({law} law)' if np.isfinite(decay)
-                                  else 'none'))
+                                  else 'none') + f', {near} near field')
 
     def _set_shape(self, name: str, value: float):
         """Take a new ``shape_constant`` or ``shape_decay`` (identified from data) into use.
@@ -265,14 +278,28 @@ class StiffnessLearnerNode(Node):
         if learner is not None:
             status = learner.set_shape_constant(self.shape_constant,
                                                 _decay_length(self.shape_decay),
-                                                self.decay_law)
+                                                self.decay_law, self.near)
             if status is not None:
                 self._publish(status, learner)
+
+    def _near_applier(self, value):
+        """Return the applier of ``shape_near`` (an unknown near field is refused by name)."""
+        near = check_near(value, 'shape_near')
+
+        def apply():
+            self.near = near
+            self._persist_shape('shape_near', near)
+            learner = self.learner
+            if learner is not None:
+                status = learner.set_shape_constant(learner.shape_constant, near=near)
+                if status is not None:
+                    self._publish(status, learner)
+        return apply
 
     def _persist_shape(self, name: str, value) -> None:
         try:
             save_shape(self.model_dir, self.shape_constant, _decay_length(self.shape_decay),
-                       self.uncertainty, decay_law=self.decay_law)
+                       self.uncertainty, decay_law=self.decay_law, near=self.near)
         except (OSError, PointforceError) as exc:
             self.get_logger().error(f'{name} = {value} is in use but NOT persisted (a restart '
                                     f'loses it): {exc}')
@@ -329,6 +356,7 @@ class StiffnessLearnerNode(Node):
                                          shape_constant=self.shape_constant,
                                          shape_decay=_decay_length(self.shape_decay),
                                          shape_decay_law=self.decay_law,
+                                         shape_near=self.near,
                                          min_peak_force=self.min_peak_force or None,
                                          effects=self.effects)
             self.learner.set_uncertainty(self.uncertainty)

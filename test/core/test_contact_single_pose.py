@@ -64,13 +64,14 @@ def _random_poses(rng, n, depth=(0.001, 0.007)):
                  orientation=q) for q in quat]
 
 
-@pytest.mark.parametrize('decay_law, decay', [('penetration', 0.008), ('fixed', 0.006),
-                                              ('fixed', np.inf)])
-def test_single_poses_equal_the_stacked_numpy_path(decay_law, decay):
+@pytest.mark.parametrize('decay_law, decay, near', [
+    ('penetration', 0.008, 'paper'), ('fixed', 0.006, 'paper'), ('fixed', np.inf, 'paper'),
+    ('penetration', 0.008, 'flat'), ('fixed', np.inf, 'flat')])
+def test_single_poses_equal_the_stacked_numpy_path(decay_law, decay, near):
     rng = np.random.default_rng(21)
     surface = _bumpy_surface(rng)
     sim = ContactSimulator(surface, _heterogeneous_response(rng, len(surface)), c=0.004,
-                           spacing=0.002, decay=decay, decay_law=decay_law)
+                           spacing=0.002, decay=decay, decay_law=decay_law, near=near)
     assert sim._baked is not None
     twin = _numpy_twin(sim)
     compared = 0
@@ -131,8 +132,8 @@ def test_the_kernels_deduplication_keeps_the_numpy_paths_candidates_in_its_order
         nbr[k - 5:] = nbr[k - 10:k - 5][:, ::-1]         # repeated triples, permuted
         posed = rng.uniform(-0.01, 0.01, (k, 3))
         pos = np.zeros(3)
-        out = single_pose.solve_single(nbr, posed, pos, table, 0.004, np.inf, False, 0.004, 0.1,
-                                       0.65, 200, 1e-12)
+        out = single_pose.solve_single(nbr, posed, pos, table, 0.004, np.inf, False, False,
+                                       0.004, 0.1, 0.65, 200, 1e-12)
         keep = out[0]
         # the numpy path's selection, step by step
         sums = table[nbr[:, 0]] + table[nbr[:, 1]] + table[nbr[:, 2]]

@@ -165,6 +165,13 @@ def test_the_tail_decay_length_reaches_the_saved_model_and_the_wrench_server(tmp
     with pytest.raises(InvalidInput, match='shape_decay'):
         OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface, shape_constant=0.004,
                       shape_decay=float('nan'))
+    # the near field reaches the next model and its server too
+    flat = load_model(learner.set_shape_constant(0.004, 0.008, near='flat').model_path)
+    assert flat.shape_near == 'flat' and model.shape_near == 'paper'
+    server.swap(flat)
+    assert server.simulator().near == 'flat'
+    with pytest.raises(InvalidInput, match='shape_near'):
+        learner.set_shape_constant(0.004, near='round')
 
 
 def test_contact_threshold_is_relative_to_the_data():

@@ -137,18 +137,23 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
         ros_graph, tmp_path):
     """Issue 16 item 8: c was lost on restart and the node published the version it asked for.
 
-    After c and L are set at run time (v5, v6) the learner is killed, a fifth poke lands and the
-    learner restarts: it must use the persisted (c, L), and its model (5 pokes, requested as
-    v5, a version taken by other content) is saved as v7, the version it must publish.
+    After c, L and the near field are set at run time (v5, v6, v7) the learner is killed, a
+    fifth poke lands and the learner restarts: it must use the persisted shape, and its model (5
+    pokes, requested as v5, a version taken by other content) is saved as v8, the version it
+    must publish.
     """
     store, records = _setup(tmp_path)
     learner = _learner(ros_graph, tmp_path)
     probe = LearnerProbe(ros_graph, 'shape_probe')
     statuses = probe.statuses
     probe.wait_version(4)
-    for name, value, version in [('shape_constant', 0.0007, 5), ('shape_decay', 0.008, 6)]:
+    refused = probe.set('shape_near', 'round')       # not a near field: refused by name
+    assert not refused.successful and 'shape_near' in refused.reason
+    for name, value, version in [('shape_constant', 0.0007, 5), ('shape_decay', 0.008, 6),
+                                 ('shape_near', 'flat', 7)]:
         assert probe.set(name, value).successful
         probe.wait_version(version)
+    assert load_model(statuses[-1].model_path).shape_near == 'flat'
     ros_graph.remove(learner)  # the node is killed
     store.add(records[4])
     statuses.clear()
@@ -157,10 +162,12 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
     status = statuses[-1]
     model = load_model(status.model_path)
     assert (model.shape_constant, model.shape_decay) == pytest.approx((0.0007, 0.008))
-    assert status.version == model.version == 7, (status.version, status.model_path)
-    assert status.model_path.endswith('model-v000007.npz')
+    assert model.shape_near == 'flat'
+    assert status.version == model.version == 8, (status.version, status.model_path)
+    assert status.model_path.endswith('model-v000008.npz')
     assert restarted.get_parameter('shape_constant').value == pytest.approx(0.0007)
     assert restarted.get_parameter('shape_decay').value == pytest.approx(0.008)
+    assert restarted.get_parameter('shape_near').value == 'flat'
 
 
 def test_uncertainty_sources_go_into_every_model_and_survive_a_restart(ros_graph, tmp_path):

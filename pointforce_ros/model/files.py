@@ -435,6 +435,26 @@ def load_shape(directory) -> Optional[Tuple[float, float]]:
     return c, decay
 
 
+def _shape_entry(directory, key: str, absent: str, old: str, check: Callable, what: str) -> str:
+    """Return ``key`` of ``shape.json``: ``absent`` without a file, ``old`` without the key.
+
+    Raises:
+        DataError: the file exists but cannot be read or ``check`` refuses the value.
+
+    """
+    path = Path(directory) / SHAPE
+    if not path.is_file():
+        return absent
+    try:
+        value = json.loads(path.read_text()).get(key, old)
+    except (OSError, ValueError, AttributeError) as exc:
+        raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
+    try:
+        return check(value, key)
+    except InvalidInput as exc:
+        raise DataError(f'{path}: unknown {what}: {exc}') from exc
+
+
 def load_shape_law(directory) -> str:
     """Return the decay law of ``shape.json`` (:func:`save_shape`).
 
@@ -445,17 +465,8 @@ def load_shape_law(directory) -> str:
         DataError: the file exists but cannot be read or names an unknown law.
 
     """
-    path = Path(directory) / SHAPE
-    if not path.is_file():
-        return DECAY_LAW
-    try:
-        law = json.loads(path.read_text()).get('shape_decay_law', 'fixed')
-    except (OSError, ValueError, AttributeError) as exc:
-        raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
-    try:
-        return check_decay_law(law, 'shape_decay_law')
-    except InvalidInput as exc:
-        raise DataError(f'{path}: unknown decay law: {exc}') from exc
+    return _shape_entry(directory, 'shape_decay_law', DECAY_LAW, 'fixed', check_decay_law,
+                        'decay law')
 
 
 def load_shape_near(directory) -> str:
@@ -465,17 +476,7 @@ def load_shape_near(directory) -> str:
         DataError: the file exists but cannot be read or names an unknown near field.
 
     """
-    path = Path(directory) / SHAPE
-    if not path.is_file():
-        return 'paper'
-    try:
-        near = json.loads(path.read_text()).get('shape_near', 'paper')
-    except (OSError, ValueError, AttributeError) as exc:
-        raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
-    try:
-        return check_near(near, 'shape_near')
-    except InvalidInput as exc:
-        raise DataError(f'{path}: unknown near field: {exc}') from exc
+    return _shape_entry(directory, 'shape_near', 'paper', 'paper', check_near, 'near field')
 
 
 def load_shape_uncertainty(directory) -> dict:

@@ -509,8 +509,9 @@ NEAR_PUSHES = 3
 """Fewest calibration pushes :func:`choose_near` chooses the near field from: with two, each
 push is predicted with ``c`` refitted on the other at the joint ``L``, which the held-out push
 helped choose, so the test does not reach the shape's spread. On the demo's lamb (two pushes
-beside a bone) that test prefers the flat near field (held-out share 2.6 against 7.1 %) where
-the planner queries over the bone prefer the paper's (8.6 against 9.5 %, 8 stored runs)."""
+beside a bone) that test prefers the flat near field on eight stored runs (held-out share
+2.1-5.0 against 4.2-9.6 %) where the planner queries over the bone prefer the paper's (8.4-9.3
+against 8.9-10.5 % of the largest true force; ``data/fem/demo_near_replay.py``)."""
 
 
 def choose_near(simulator, pokes: Sequence[tuple], decays: Optional[Sequence[float]] = DECAY_GRID,

@@ -31,7 +31,8 @@ query, all through the public :class:`~pointforce_ros.contact.simulator.ContactS
   its force over centimetres, and a 15 % share then moves it by millimetres, which the torque
   about a tool tip feels in full while the share of that (near zero) torque does not (the
   demo's torque components about the probe tips: 69 % inside their 90 % intervals without
-  this part, 95 % with it, 8 stored lamb demo models; issue 17);
+  this part, 95 % with it, 8 stored lamb demo models, ``data/fem/demo_torque_coverage.py``;
+  issue 17);
 * **lateral**: an optional share of the normal force (along the approach) as the standard
   deviation of the force across the approach (isotropic in that plane): the contact model
   carries no friction or tangential stiffness, so a measured lateral force (a sloped surface,

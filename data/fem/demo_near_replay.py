@@ -1,0 +1,69 @@
+#!/usr/bin/env python3
+"""Stored demo models with ``(c, L)`` from their two pushes under each near field (a study).
+
+Session 27 gave the shape function a flat-topped near field, ``(1 + r / c) exp(-r / c)``
+beside the paper's ``c / (c + r)`` (:data:`~pointforce_ros.contact.lcp.NEARS`), chosen per
+object by held-out error where three or more calibration pushes allow it
+(:func:`~pointforce_ros.contact.identify.choose_near`; figure 2's trials choose the flat one on
+the vest). Should the demo's two pushes choose too? This replays ``pointforce demo --out DIR``
+runs: each run's last model served as the contact service serves it, ``(c, L)`` from the
+sphere and the rod (:func:`~pointforce_ros.contact.identify.calibrate_shape`, the capped decay
+grid) under each near field, the pushes' held-out share (each push predicted with ``c``
+refitted on the other at the joint ``L``: what two pushes can test) and the 9 planner queries
+against their FEM truth (the force vector's RMSE as a share of the largest true force, the
+demo's figure, and how many ``Fz`` lie below the truth).
+
+Result (session 27, eight lamb runs of sessions 25-26, ``demo_near_replay.log``): the flat near
+field fits the pushes far better (held-out share 2.1-5.0 % against 4.2-9.6 %) and the queries
+worse on every run (8.9-10.5 % against 8.4-9.3 % of the largest true force, 8-9 of 9 below
+against 7): the pushes sit beside the bone, the queries over it, and two pushes cannot test
+the shape's reach. So the demo keeps the paper's near field
+(``choose_near`` needs :data:`~pointforce_ros.contact.identify.NEAR_PUSHES` pushes).
+
+Usage: python data/fem/demo_near_replay.py DEMO_OUT [DEMO_OUT ...] [--object lamb]
+"""
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from demo_floor_setup import load_demo_queries  # this folder
+from pointforce_ros.bringup.demo import _calibration_pokes
+from pointforce_ros.contact.identify import calibrate_shape, decay_grid, small_sample_factor
+from pointforce_ros.contact.lcp import NEARS
+from pointforce_ros.model.serving import WrenchServer
+
+
+def main():
+    """Print one line per run and near field."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('demo_out', nargs='+', help="demos' --out folders (their cell/models)")
+    parser.add_argument('--object', default='lamb')
+    args = parser.parse_args()
+    demo = load_demo_queries(args.object)
+    vectors = _calibration_pokes(demo.spec, vectors=True)
+    pushes = [vectors['sphere'], vectors['rod']]
+    true = np.asarray(demo.gt['force'], dtype=float)
+    big = float(np.max(np.linalg.norm(true, axis=1)))
+    for out in args.demo_out:
+        models = sorted((Path(out) / 'cell' / 'models').glob('model-v*.npz'))
+        server = WrenchServer()
+        server.load(models[-1])
+        served = server.simulator()
+        for near in NEARS:
+            sim = served.with_shape_constant(served.c, near=near)
+            cal = calibrate_shape(sim, pushes, decays=decay_grid(sim.surface))
+            fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
+            pred = np.array([fitted.query(m, p, a, ctr).wrench.force
+                             for _, m, p, a, ctr in demo.queries])
+            vector = float(np.sqrt(np.mean(np.sum((pred - true) ** 2, axis=1))))
+            share = cal.relative_std / small_sample_factor(2)
+            print(f'{out} {near:5s}: c {1e3 * cal.fit.c:.2f} mm, L {1e3 * cal.fit.decay:.0f} mm,'
+                  f' held-out push share {100 * share:.1f} %; queries {100 * vector / big:.1f} %,'
+                  f' {int(np.sum(pred[:, 2] < true[:, 2]))} of 9 below; Fz pred / true '
+                  + ' '.join(f'{v:.2f}' for v in pred[:, 2] / true[:, 2]), flush=True)
+
+
+if __name__ == '__main__':
+    main()

@@ -22,10 +22,9 @@ and the demo's calibration now offer decay lengths up to 1.5 thicknesses
 (:func:`~pointforce_ros.contact.identify.decay_grid`, ``DECAY_CAP``); the ``grid`` column here
 is the figure before that.
 
-Session 27, ``--near flat`` (the flat-topped near field ``(1 + r / c) exp(-r / c)`` on every
-trial, ``decay_cap_flat.log``): with the cap vest 11.7 -> 8.4 %, plush 9.7 -> 8.5 %, lamb 7.5 ->
-6.9 %, dome 4.5 -> 3.4 %, thin_layer 8.3 -> see the log; figure 2 now chooses the near field
-per trial from the other trials (:func:`~pointforce_ros.contact.identify.choose_near`).
+Session 27: ``--near flat`` puts the flat-topped near field ``(1 + r / c) exp(-r / c)`` on every
+trial; figure 2 itself now chooses the near field per trial from the other trials
+(:func:`~pointforce_ros.contact.identify.choose_near`; its numbers in ``docs/STATUS.md``).
 
 Usage: python data/figures/decay_cap.py [--objects vest lamb] [--caps 1.5 2] [--draws 10] [--fine]
        [--law fixed] [--near flat]

@@ -527,9 +527,11 @@ def choose_near(simulator, pokes: Sequence[tuple], decays: Optional[Sequence[flo
     the simulator's family is. With fewer than :data:`NEAR_PUSHES` pushes, or one near field
     offered, nothing is chosen: ``(simulator.near, {})``.
 
-    On figure 2's probe trials (each scored from its object's other four) the flat near field
-    is chosen on every trial of the vest (a stiff skin over padding spreads a dent flat) and
-    lowers its force RMSE from 11.7 to 8.4 % of the peak (``data/figures/near_field.py``).
+    On figure 2's probe trials (each scored from its object's other four trials) the flat near
+    field is chosen for 21 of 24 trials, all five of the vest's (a stiff skin over padding
+    spreads a dent flat), and the force RMSE goes from 4.5-11.7 to 3.6-8.7 % of the peak on
+    the five objects, the vest's from 11.7 to 8.4 % (``python -m pointforce_ros.lab.figures``,
+    ``docs/STATUS.md``).
 
     Raises:
         InvalidInput: an unknown near field, or as :func:`identify_shape_constant_from_probes`.

@@ -13,7 +13,8 @@ the physical problem instead, with the slack taken the other way round::
 
 This is the KKT system of the convex QP ``min 1/2 x'Gx - d'x, x >= 0`` and, because
 ``g(r) = c / (c + r) = integral of c exp(-t (c + r)) dt`` is a positive mixture of exponential
-kernels, ``G`` is positive definite for distinct points: the LCP has exactly one solution. It
+kernels, ``G`` is positive definite for distinct points: the LCP has exactly one solution (so
+is the flat near field's, a Matern kernel, :data:`NEARS`). It
 also implies ``d~ <= d`` (``d_i = d~_i + sum_j g_ij d~_j`` on touching points, ``g > 0``).
 Everything in this module uses ``w = G d~ - d``.
 
@@ -124,7 +125,7 @@ def varying_shape_function(r: np.ndarray, c: float, decay_i: np.ndarray,
     li = np.asarray(decay_i, dtype=np.float64)
     lj = np.asarray(decay_j, dtype=np.float64)
     s2 = 0.5 * (li * li + lj * lj)
-    g = _near(r, c, near)
+    g = _near(r, c, check_near(near))
     g *= (li * lj / s2) ** 1.5
     g *= np.exp(-r / np.sqrt(s2))
     return g

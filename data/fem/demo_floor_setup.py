@@ -7,6 +7,7 @@ Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py`` 
 ``demo_floor_pokes.py`` import it from this folder (a script's folder is on ``sys.path``).
 """
 
+import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,6 +98,15 @@ def load_demo_queries(object_name: str) -> DemoQueries:
     if gt is None:
         raise SystemExit(f'no ground truth for the demo queries of {spec.name} ({path})')
     return DemoQueries(spec, live, queries, gt)
+
+
+def demo_runs_arguments(description: str):
+    """Parse ``DEMO_OUT [DEMO_OUT ...] [--object lamb]``; return ``(args, DemoQueries)``."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument('demo_out', nargs='+', help="demos' --out folders (their cell/models)")
+    parser.add_argument('--object', default='lamb')
+    args = parser.parse_args()
+    return args, load_demo_queries(args.object)
 
 
 def load_demo_floor(demo_out, object_name: str) -> DemoFloor:

@@ -23,12 +23,11 @@ the shape's reach. So the demo keeps the paper's near field
 Usage: python data/fem/demo_near_replay.py DEMO_OUT [DEMO_OUT ...] [--object lamb]
 """
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
-from demo_floor_setup import load_demo_queries  # this folder
+from demo_floor_setup import demo_runs_arguments  # this folder
 from pointforce_ros.bringup.demo import _calibration_pokes
 from pointforce_ros.contact.identify import calibrate_shape, decay_grid, small_sample_factor
 from pointforce_ros.contact.lcp import NEARS
@@ -37,11 +36,7 @@ from pointforce_ros.model.serving import WrenchServer
 
 def main():
     """Print one line per run and near field."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('demo_out', nargs='+', help="demos' --out folders (their cell/models)")
-    parser.add_argument('--object', default='lamb')
-    args = parser.parse_args()
-    demo = load_demo_queries(args.object)
+    args, demo = demo_runs_arguments(__doc__.splitlines()[0])
     vectors = _calibration_pokes(demo.spec, vectors=True)
     pushes = [vectors['sphere'], vectors['rod']]
     true = np.asarray(demo.gt['force'], dtype=float)

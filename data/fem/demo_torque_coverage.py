@@ -17,23 +17,18 @@ while the bone moved the true centre of pressure by millimetres (cylinder #2: 33
 Usage: python data/fem/demo_torque_coverage.py DEMO_OUT [DEMO_OUT ...]
 """
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
-from demo_floor_setup import load_demo_queries  # this folder
+from demo_floor_setup import demo_runs_arguments  # this folder
 from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
 from pointforce_ros.model.files import load_model
 
 
 def main():
     """Print one line per run and part setting, and the pooled shares."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('demo_out', nargs='+', help="demos' --out folders (their cell/models)")
-    parser.add_argument('--object', default='lamb')
-    args = parser.parse_args()
-    demo = load_demo_queries(args.object)
+    args, demo = demo_runs_arguments(__doc__.splitlines()[0])
     true = np.hstack([demo.gt['force'], demo.gt['torque']])
     pooled = {False: [], True: []}
     for out in args.demo_out:

@@ -210,6 +210,9 @@ def test_protective_stop_injection_halts_motion(start_emulator):
         _wait_for(lambda: not rx.isProtectiveStopped(), 0.1, 'protective stop not released')
         assert ctrl.reuploadScript()   # returns once the script is sent, not yet running
         _wait_for(lambda: rx.getRuntimeState() == 2, 1.0, 'script not running after re-upload')
+        # the control interface reads its own state stream: moveL refuses until it too sees
+        # the program running (a cycle or more after the receive interface on a busy machine)
+        _wait_for(ctrl.isProgramRunning, 1.0, 'the control interface never saw the script run')
         assert ctrl.moveL(START, 0.1, 1.0)
         # the receive stream may still hold the sample from one period before the move ended
         _wait_for(lambda: np.allclose(rx.getActualTCPPose(), START, rtol=1e-7, atol=1e-9), 0.1,

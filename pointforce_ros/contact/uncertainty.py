@@ -230,15 +230,21 @@ def lateral_share(simulator: ContactSimulator, pokes) -> float:
                  / np.sqrt(np.mean(normal ** 2)))
 
 
+def _cross_matrices(v: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) ``[v]x`` of each row of ``v`` (B, 3): ``[v]x w = v x w``."""
+    cross = np.zeros((len(v), 3, 3))
+    cross[:, 0, 1], cross[:, 0, 2] = -v[:, 2], v[:, 1]
+    cross[:, 1, 0], cross[:, 1, 2] = v[:, 2], -v[:, 0]
+    cross[:, 2, 0], cross[:, 2, 1] = -v[:, 1], v[:, 0]
+    return cross
+
+
 def _lever(r: np.ndarray, a: np.ndarray) -> np.ndarray:
     """(B, 3) std of ``r x dF`` per unit std of ``dF`` (``dF`` isotropic across ``a``).
 
     ``Cov(r x dF) = [r]x (I - a a^T) [r]x^T`` per unit variance; its diagonal's square root.
     """
-    cross = np.zeros((len(r), 3, 3))
-    cross[:, 0, 1], cross[:, 0, 2] = -r[:, 2], r[:, 1]
-    cross[:, 1, 0], cross[:, 1, 2] = r[:, 2], -r[:, 0]
-    cross[:, 2, 0], cross[:, 2, 1] = -r[:, 1], r[:, 0]
+    cross = _cross_matrices(r)
     plane = np.eye(3) - np.outer(a, a)
     return np.sqrt(np.maximum(np.einsum('bij,jk,bik->bi', cross, plane, cross), 0.0))
 
@@ -255,10 +261,7 @@ def _centre_part(base: np.ndarray, spreads: np.ndarray, rel: float, approach) ->
     plane = np.eye(3) - np.outer(a, a)
     cov = rel ** 2 * np.einsum('ij,bjk,kl->bil', plane, spreads, plane)
     f = base[:, :3]
-    cross = np.zeros((len(f), 3, 3))
-    cross[:, 0, 1], cross[:, 0, 2] = -f[:, 2], f[:, 1]
-    cross[:, 1, 0], cross[:, 1, 2] = f[:, 2], -f[:, 0]
-    cross[:, 2, 0], cross[:, 2, 1] = -f[:, 1], f[:, 0]
+    cross = _cross_matrices(f)
     out = np.zeros_like(base)
     out[:, 3:] = np.sqrt(np.maximum(np.einsum('bij,bjk,bik->bi', cross, cov, cross), 0.0))
     return out

@@ -514,6 +514,23 @@ beside a bone) that test prefers the flat near field on eight stored runs (held-
 against 8.9-10.5 % of the largest true force; ``data/fem/demo_near_replay.py``)."""
 
 
+def _held_out_refits(simulator, pokes: Sequence[tuple], decays, c_bounds
+                     ) -> List[Tuple[float, float, float]]:
+    """Per push: ``(c, L)`` refitted on the other pushes over ``decays``, and that push's
+    relative error predicted with them; ``nan`` all three where the refit did not converge."""
+    out = []
+    for i, poke in enumerate(pokes):
+        try:
+            fit = identify_shape_constant_from_probes(simulator, pokes[:i] + pokes[i + 1:],
+                                                      c_bounds, decays)
+        except NotConverged:
+            out.append((float('nan'),) * 3)
+            continue
+        error = _relative_error(simulator.with_shape_constant(fit.c, fit.decay), poke)
+        out.append((fit.c, fit.decay, error))
+    return out
+
+
 def choose_near(simulator, pokes: Sequence[tuple], decays: Optional[Sequence[float]] = DECAY_GRID,
                 c_bounds: Tuple[float, float] = (1e-4, 0.1),
                 nears: Sequence[str] = NEARS) -> Tuple[str, Dict[str, float]]:
@@ -537,25 +554,24 @@ def choose_near(simulator, pokes: Sequence[tuple], decays: Optional[Sequence[flo
         InvalidInput: an unknown near field, or as :func:`identify_shape_constant_from_probes`.
 
     """
-    pokes = list(pokes)
+    near, errors, _ = _choose_near(simulator, list(pokes), decays, c_bounds, nears)
+    return near, errors
+
+
+def _choose_near(simulator, pokes: List[tuple], decays, c_bounds, nears):
+    """:func:`choose_near`, also returning the chosen near field's held-out refits (or None)."""
     nears = [check_near(n, 'nears') for n in nears]
     own = getattr(simulator, 'near', 'paper')
     if len(pokes) < NEAR_PUSHES or len(set(nears)) < 2:
-        return own, {}
-    errors = {}
+        return own, {}, None
+    errors, refits = {}, {}
     for near in dict.fromkeys(nears):
-        sim = simulator.with_shape_constant(simulator.c, near=near)
-        sq = []
-        for i, poke in enumerate(pokes):
-            try:
-                fit = identify_shape_constant_from_probes(sim, pokes[:i] + pokes[i + 1:],
-                                                          c_bounds, decays)
-                e = _relative_error(sim.with_shape_constant(fit.c, fit.decay), poke)
-            except NotConverged:
-                e = 1.0
-            sq.append(e ** 2 if np.isfinite(e) else 1.0)
+        refits[near] = _held_out_refits(simulator.with_shape_constant(simulator.c, near=near),
+                                        pokes, decays, c_bounds)
+        sq = [e ** 2 if np.isfinite(e) else 1.0 for _, _, e in refits[near]]
         errors[near] = float(np.sqrt(np.mean(sq)))
-    return min(errors, key=errors.get), errors
+    best = min(errors, key=errors.get)
+    return best, errors, refits[best]
 
 
 def calibrate_shape(simulator, pokes: Sequence[tuple],
@@ -584,7 +600,8 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
 
     Everything comes from the calibration pushes alone. ``n`` pushes cost one fit over the
     decay lengths and ``n`` fits of ``c`` alone, and ``n`` more fits over the decay lengths
-    with three or more pushes (none with two).
+    with three or more pushes (none with two); with ``nears`` those are the refits
+    :func:`choose_near` made for each near field offered (the chosen one's are reused).
 
     Args:
         simulator: as for :func:`identify_shape_constant_from_probes`.
@@ -612,9 +629,9 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
     pokes = list(pokes)
     if decay_law is not None:
         simulator = simulator.with_shape_constant(simulator.c, decay_law=decay_law)
-    near_errors = {}
+    near_errors, refits = {}, None
     if nears is not None:
-        near, near_errors = choose_near(simulator, pokes, decays, c_bounds, nears)
+        near, near_errors, refits = _choose_near(simulator, pokes, decays, c_bounds, nears)
         simulator = simulator.with_shape_constant(simulator.c, near=near)
     fit = identify_shape_constant_from_probes(simulator, pokes, c_bounds, decays)
     calibrated = simulator.with_shape_constant(fit.c, fit.decay)
@@ -630,27 +647,19 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
         except NotConverged:
             return float('nan')
 
-    def refit(subset) -> Tuple[float, float]:
-        # (c, L) of two or more other pushes, over the joint fit's decay lengths
-        try:
-            other = identify_shape_constant_from_probes(simulator, subset, c_bounds, decays)
-        except NotConverged:
-            return float('nan'), float('nan')
-        return other.c, other.decay
-
     per_push = [c_alone([p]) for p in pokes] if len(pokes) > 1 else []
-    held_out, held_out_decays = [], []
-    for i, poke in enumerate(pokes):
-        if len(pokes) == 1:
-            held_out.append((float('nan'), float('nan')))
-            held_out_decays.append(float('nan'))
-            continue
-        c, decay = ((per_push[1 - i], fit.decay) if len(pokes) == 2
-                    else refit(pokes[:i] + pokes[i + 1:]))
-        error = (_relative_error(simulator.with_shape_constant(c, decay), poke)
-                 if np.isfinite(c) else float('nan'))
-        held_out.append((c, error))
-        held_out_decays.append(decay if np.isfinite(c) else float('nan'))
+    if len(pokes) == 1:
+        refits = [(float('nan'),) * 3]
+    elif len(pokes) == 2:       # one push cannot choose L: the other's c at the joint L
+        refits = []
+        for c, poke in zip(per_push[::-1], pokes):
+            error = (_relative_error(simulator.with_shape_constant(c, fit.decay), poke)
+                     if np.isfinite(c) else float('nan'))
+            refits.append((c, fit.decay, error))
+    elif refits is None:        # choose_near made these refits for the near field it chose
+        refits = _held_out_refits(simulator, pokes, decays, c_bounds)
+    held_out = [(c, e if np.isfinite(c) else float('nan')) for c, _, e in refits]
+    held_out_decays = [decay if np.isfinite(c) else float('nan') for c, decay, _ in refits]
     errors = np.array([e for _, e in held_out if np.isfinite(e)])
     relative = max(float(np.sqrt(np.mean(errors ** 2))) * small_sample_factor(len(errors))
                    if len(errors) else 0.0, in_sample)

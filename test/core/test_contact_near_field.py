@@ -12,7 +12,7 @@
 import numpy as np
 import pytest
 
-from pointforce_ros.contact import ContactSimulator, shape_function
+from pointforce_ros.contact import ContactSimulator, identify, shape_function
 from pointforce_ros.contact.identify import calibrate_shape, choose_near
 from pointforce_ros.contact.lcp import (check_near, NEARS, PointShapeStack, shape_matrix,
                                         varying_shape_function)
@@ -102,6 +102,32 @@ def test_choose_near_finds_the_near_field_the_pushes_were_made_with(patch, made_
     # two pushes cannot choose (the held-out push would not refit L): the simulator's own
     assert choose_near(start, pushes[:2], decays=(0.016,)) == ('paper', {})
     assert calibrate_shape(start, pushes, decays=(0.008, 0.016, 0.032)).near == 'paper'
+
+
+def test_calibrate_shape_reuses_the_held_out_refits_choose_near_made(patch, monkeypatch):
+    surface, response = patch
+    pushes = _pushes(ContactSimulator(surface, response, c=0.005, decay=0.016, near='flat'))
+    start = ContactSimulator(surface, response, c=0.002)
+    decays = (0.008, 0.016, 0.032)
+    chosen = calibrate_shape(start.with_shape_constant(start.c, near='flat'), pushes,
+                             decays=decays)
+    fits = []
+    original = identify.identify_shape_constant_from_probes
+
+    def counted(sim, pokes, c_bounds=(1e-4, 0.1), decays=None):
+        fits.append(len(pokes) if decays is not None and len(decays) > 1 else 0)
+        return original(sim, pokes, c_bounds, decays)
+
+    monkeypatch.setattr(identify, 'identify_shape_constant_from_probes', counted)
+    cal = calibrate_shape(start, pushes, decays=decays, nears=NEARS)
+    assert cal.near == 'flat'
+    # the same held-out numbers as a calibration told the near field ...
+    np.testing.assert_allclose(cal.held_out, chosen.held_out, rtol=1e-12)
+    assert cal.held_out_decays == chosen.held_out_decays
+    assert cal.relative_std == pytest.approx(chosen.relative_std, rel=1e-12)
+    # ... from one refit over the decay lengths per push and near field, and the joint fit
+    n = len(pushes)
+    assert sorted(f for f in fits if f) == [n - 1] * (len(NEARS) * n) + [n]
 
 
 def test_models_shape_files_the_learner_and_the_service_keep_the_near_field(tmp_path, patch):

@@ -656,7 +656,7 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
             error = (_relative_error(simulator.with_shape_constant(c, fit.decay), poke)
                      if np.isfinite(c) else float('nan'))
             refits.append((c, fit.decay, error))
-    elif refits is None:        # choose_near made these refits for the near field it chose
+    elif refits is None:        # three or more pushes, not refitted yet by choose_near
         refits = _held_out_refits(simulator, pokes, decays, c_bounds)
     held_out = [(c, e if np.isfinite(c) else float('nan')) for c, _, e in refits]
     held_out_decays = [decay if np.isfinite(c) else float('nan') for c, decay, _ in refits]

@@ -235,7 +235,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Optional[List[str]] = None) -> int:
     """Entry point of the ``pointforce`` console script."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    forward = {'figures': _cmd_figures, 'deformation': _cmd_deformation}
+    if argv and argv[0] in forward:
+        # options of the lab modules go to them untouched: argparse's REMAINDER would refuse
+        # one in first place ("pointforce figures --out DIR")
+        args = argparse.Namespace(command=argv[0], rest=argv[1:], func=forward[argv[0]])
+    else:
+        args = build_parser().parse_args(argv)
     # before any rclpy.init: the demo and the benches call the contact service as a planner
     # does; the cell hosts nodes
     use_package_dds_profile(kind='planner' if args.command in ('demo', 'bench') else 'node')

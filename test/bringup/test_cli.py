@@ -9,6 +9,7 @@ import textwrap
 import pytest
 
 from pointforce_ros.bringup import cli
+from pointforce_ros.dds import PROFILE_VARIABLES
 
 
 @pytest.mark.parametrize('name', sorted(cli.BENCHMARKS))
@@ -47,3 +48,14 @@ def test_bench_json_keeps_stdout_to_the_json_lines_when_a_library_prints():
     assert [json.loads(line) for line in out.stdout.splitlines()] == [
         {'benchmark': 'noisy', 'value': 1.5}]
     assert 'Reconnecting...' in out.stderr and 'and a Python print' in out.stderr
+
+
+def test_figures_and_deformation_pass_their_options_on(tmp_path, capsys, monkeypatch):
+    for name in PROFILE_VARIABLES:            # main names a DDS profile: undone after the test
+        monkeypatch.setenv(name, '')
+    # an option in first place reaches the lab module (argparse's REMAINDER refused it)
+    assert cli.main(['figures', '--objects', 'no_such_object', '--out', str(tmp_path)]) == 2
+    assert "unknown object(s) ['no_such_object']" in capsys.readouterr().out
+    assert cli.main(['deformation', '--object', 'no_such_object']) == 2
+    assert "no deformation fixtures for 'no_such_object'" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

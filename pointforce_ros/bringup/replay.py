@@ -31,7 +31,12 @@ def bag_paths(path) -> List[Path]:
         raise DataError(f'no such bag or store: {path}')
     if path.suffix == '.mcap' or (path / 'metadata.yaml').exists():
         return [path]
-    bags = sorted(p for p in path.iterdir() if (p / 'metadata.yaml').exists())
+    if not path.is_dir():
+        raise DataError(f'{path} is not a bag directory, an .mcap file or a poke store')
+    try:
+        bags = sorted(p for p in path.iterdir() if (p / 'metadata.yaml').exists())
+    except OSError as exc:
+        raise DataError(f'{path}: cannot list: {exc}') from exc
     if not bags:
         raise DataError(f'{path} holds no rosbag2 bag')
     return bags

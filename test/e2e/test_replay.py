@@ -54,6 +54,9 @@ def test_replayed_bags_give_the_offline_model(ros_graph, tmp_path):
 def test_missing_and_corrupt_bags_are_clear_errors(tmp_path, ros_graph):
     with pytest.raises(DataError, match='no such bag'):
         bag_paths(tmp_path / 'nothing')
+    (tmp_path / 'notes.txt').write_text('not a bag')
+    with pytest.raises(DataError, match='not a bag directory'):
+        bag_paths(tmp_path / 'notes.txt')
     (tmp_path / 'empty').mkdir()
     with pytest.raises(DataError, match='holds no rosbag2 bag'):
         bag_paths(tmp_path / 'empty')

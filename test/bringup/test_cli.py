@@ -59,3 +59,11 @@ def test_figures_and_deformation_pass_their_options_on(tmp_path, capsys, monkeyp
     assert cli.main(['deformation', '--object', 'no_such_object']) == 2
     assert "no deformation fixtures for 'no_such_object'" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize('duration', ['-5', '0', 'nan'])
+def test_a_cell_duration_that_is_not_positive_is_refused(duration, capsys, monkeypatch):
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    assert cli.main(['cell', 'run', '--duration', duration]) == 2
+    assert '--duration must be > 0 s' in capsys.readouterr().err

@@ -258,6 +258,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     except KeyboardInterrupt:
         print(f'pointforce {args.command}: interrupted', file=sys.stderr)
         return 130
+    except OSError as exc:      # a path the user gave: a file for a folder, no permission, ...
+        print(f'pointforce {args.command}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+        return 2
 
 
 if __name__ == '__main__':

@@ -67,3 +67,15 @@ def test_a_cell_duration_that_is_not_positive_is_refused(duration, capsys, monke
         monkeypatch.setenv(name, '')
     assert cli.main(['cell', 'run', '--duration', duration]) == 2
     assert '--duration must be > 0 s' in capsys.readouterr().err
+
+
+def test_a_path_that_cannot_be_used_is_an_error_line_not_a_traceback(tmp_path):
+    a_file = tmp_path / 'notes.txt'
+    a_file.write_text('not a folder')
+    code = ('import sys; from pointforce_ros.bringup.cli import main; '
+            f'sys.exit(main(["cell", "generate", "--pokes", "1", "--out", "{a_file}/data"]))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120, cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert 'pointforce cell: error: NotADirectoryError' in out.stderr
+    assert 'Traceback' not in out.stderr

@@ -516,8 +516,12 @@ against 8.9-10.5 % of the largest true force; ``data/fem/demo_near_replay.py``).
 
 def _held_out_refits(simulator, pokes: Sequence[tuple], decays, c_bounds
                      ) -> List[Tuple[float, float, float]]:
-    """Per push: ``(c, L)`` refitted on the other pushes over ``decays``, and that push's
-    relative error predicted with them; ``nan`` all three where the refit did not converge."""
+    """Return per push ``(c, L)`` refitted on the other pushes and its relative error.
+
+    The refit is over ``decays`` as :func:`identify_shape_constant_from_probes`; the error is
+    the push's relative RMS error predicted with that ``(c, L)``; ``nan`` all three where the
+    refit did not converge.
+    """
     out = []
     for i, poke in enumerate(pokes):
         try:

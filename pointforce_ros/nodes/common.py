@@ -5,8 +5,10 @@ Parameters are described and bounded; a stop lets the callbacks in flight finish
 """
 
 import logging
+import sys
 import threading
 import time
+from pathlib import Path
 from typing import Callable, Dict, Optional, Sequence
 
 import rclpy
@@ -186,10 +188,49 @@ def stop_executor(executor: Executor, name: str,
     return finished
 
 
+def report_folder(node: Node, name: str, path: str, polled: bool = False) -> Optional[str]:
+    """Log once, at start, a folder parameter that cannot work; return the message or None.
+
+    A file where the folder should be is an error (nothing can be read from or written to it
+    until the parameter is fixed); with ``polled`` (a folder the node only reads, filled by
+    another node) one that does not exist yet is a warning. An empty ``path`` is not checked.
+    """
+    if not path:
+        return None
+    where = Path(path)
+    if where.exists() and not where.is_dir():
+        message = f'{name} {where} is a file, not a folder: nothing is read or written there'
+        node.get_logger().error(message)
+        return message
+    if polled and not where.exists():
+        message = f'{name} {where} does not exist yet: polling it'
+        node.get_logger().warning(message)
+        return message
+    return None
+
+
+def init_or_exit(args=None) -> None:
+    """Initialise rclpy with ``args``, or end the process with rcl's reason and status 2.
+
+    A command line rcl refuses (a params file it cannot parse, a malformed ``--ros-args``)
+    ends in one line, not a traceback.
+
+    Raises:
+        SystemExit: rcl did not initialise.
+
+    """
+    use_package_dds_profile()   # before the first rclpy.init of the process
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: BLE001 - rclpy raises its pybind RCLError here
+        name = Path(sys.argv[0]).name or 'node'
+        print(f'{name}: cannot start: {str(exc).strip()}', file=sys.stderr)
+        raise SystemExit(2) from None
+
+
 def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
     """Spin one node the Jazzy way (ros2/demos): init, spin, shutdown on Ctrl-C or external."""
-    use_package_dds_profile()   # before the first rclpy.init of the process
-    rclpy.init(args=args)
+    init_or_exit(args)
     node = executor = None
     try:
         node = node_factory()

@@ -45,10 +45,9 @@ from msg_adapters.contact_markers import contact_markers
 from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_from_request,
                                      fail, fill_batch_response, fill_contact_response,
                                      fill_wrench_std)
-from pointforce_ros.dds import use_package_dds_profile
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
-from pointforce_ros.nodes.common import declare, live
+from pointforce_ros.nodes.common import declare, init_or_exit, live, report_folder
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
 from pointforce_ros.response.blas import limit_blas_for_process
@@ -85,6 +84,7 @@ class ContactWrenchNode(Node):
         self.model_dir = declare(
             self, 'model_dir', '', 'Directory of model-v*.npz files to serve from (polled); '
             'empty: only models announced on the model topic (read-only)', read_only=True)
+        report_folder(self, 'model_dir', self.model_dir, polled=True)
         self.max_batch = declare(self, 'max_batch', 20000,
                                  'Largest number of poses in one batch request',
                                  bounds=(1, 1000000))
@@ -367,8 +367,7 @@ def spin_single_threaded(node_factory, args=None) -> None:
     them). A batch's chunks run on the server's worker threads; while one batch is solved,
     single queries wait for it.
     """
-    use_package_dds_profile()   # before the first rclpy.init of the process
-    rclpy.init(args=args)
+    init_or_exit(args)
     node = None
     try:
         node = node_factory()

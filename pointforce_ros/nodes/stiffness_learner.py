@@ -50,7 +50,7 @@ from pointforce_ros.model.learner import check_region, OnlineLearner
 from pointforce_ros.model.files import (load_model, load_shape, load_shape_law, load_shape_near,
                                         load_shape_uncertainty, load_surface, save_shape,
                                         version_of_path)
-from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
+from pointforce_ros.nodes.common import contained, declare, live, qos_watch, report_folder, run
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
 
@@ -78,6 +78,8 @@ class StiffnessLearnerNode(Node):
                                  'Poke store directory (rosbag2 MCAP per poke)', read_only=True)
         self.model_dir = declare(self, 'model_dir', 'out/cell/models',
                                  'Where versioned contact models are written', read_only=True)
+        for name, folder in (('store_dir', self.store_dir), ('model_dir', self.model_dir)):
+            report_folder(self, name, folder)
         surface_file = declare(self, 'surface_file', '',
                                'Equilibrium surface (.npz) to start from; empty: wait for '
                                'cloud_capture/surface', read_only=True)

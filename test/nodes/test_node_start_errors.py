@@ -1,0 +1,59 @@
+"""What a node says when its command line or its folders cannot work (a user's typo).
+
+* a parameter file rcl cannot parse ends the node with rcl's reason and status 2, no traceback
+  (both start paths: ``run`` and the contact node's single-threaded spin);
+* a folder parameter that names a file is an error in the log at start, and a polled folder
+  that does not exist yet a warning; the node still comes up.
+"""
+
+import subprocess
+import sys
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+
+from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
+from pointforce_ros.nodes.stiffness_learner import StiffnessLearnerNode
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.mark.parametrize('module', ['contact_wrench', 'stiffness_learner'])
+def test_a_params_file_rcl_cannot_parse_ends_the_node_with_its_reason(tmp_path, module):
+    bad = tmp_path / 'nodes.yaml'
+    bad.write_text('/**/contact_wrench: [ros__parameters\n')
+    out = subprocess.run([sys.executable, '-m', f'pointforce_ros.nodes.{module}', '--ros-args',
+                          '--params-file', str(bad)], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert 'cannot start' in out.stderr and "Couldn't parse params file" in out.stderr
+    assert 'Traceback' not in out.stderr
+
+
+@pytest.fixture
+def context(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)     # the learner's default out/ folders land here
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def test_folder_parameters_that_cannot_work_are_reported_at_start(tmp_path, context, capfd):
+    a_file = tmp_path / 'models.txt'
+    a_file.write_text('not a folder')
+    node = ContactWrenchNode(context=context,
+                             parameter_overrides=[Parameter('model_dir', value=str(a_file))])
+    node.destroy_node()
+    assert f'model_dir {a_file} is a file, not a folder' in capfd.readouterr().err
+    later = tmp_path / 'not_yet'
+    node = ContactWrenchNode(context=context,
+                             parameter_overrides=[Parameter('model_dir', value=str(later))])
+    node.destroy_node()
+    assert f'model_dir {later} does not exist yet: polling it' in capfd.readouterr().err
+    node = StiffnessLearnerNode(context=context,
+                                parameter_overrides=[Parameter('store_dir', value=str(a_file))])
+    node.destroy_node()
+    err = capfd.readouterr().err
+    assert f'store_dir {a_file} is a file, not a folder' in err and 'model_dir' not in err

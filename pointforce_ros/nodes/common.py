@@ -198,11 +198,17 @@ def report_folder(node: Node, name: str, path: str, polled: bool = False) -> Opt
     if not path:
         return None
     where = Path(path)
-    if where.exists() and not where.is_dir():
+    try:
+        exists, folder = where.exists(), where.is_dir()
+    except OSError as exc:          # no permission to look: say so, the node still starts
+        message = f'{name} {where} cannot be checked: {exc}'
+        node.get_logger().warning(message)
+        return message
+    if exists and not folder:
         message = f'{name} {where} is a file, not a folder: nothing is read or written there'
         node.get_logger().error(message)
         return message
-    if polled and not where.exists():
+    if polled and not exists:
         message = f'{name} {where} does not exist yet: polling it'
         node.get_logger().warning(message)
         return message

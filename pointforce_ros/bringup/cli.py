@@ -8,7 +8,6 @@ import argparse
 import contextlib
 import importlib
 import json
-import math
 import os
 import sys
 from pathlib import Path
@@ -131,8 +130,8 @@ def _cmd_cell(args) -> int:
             object_name=args.object, scenario=args.scenario, pokes=args.pokes,
             probes=[p for p in args.probes.split(',') if p], seed=args.seed,
             out=args.out or f'out/data/{args.object}-{args.scenario}')
-    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        raise PointforceError(f'--duration must be > 0 s (or left out: run until Ctrl-C), '
+    if args.duration is not None and not args.duration >= 0:     # 0: start, then stop
+        raise PointforceError(f'--duration must be >= 0 s (or left out: run until Ctrl-C), '
                               f'got {args.duration}')
     params_file = check_params_file(args.params_file) if args.params_file else None
     return _load('pointforce_ros.bringup.cell:run_cell')(

@@ -61,12 +61,12 @@ def test_figures_and_deformation_pass_their_options_on(tmp_path, capsys, monkeyp
     assert not any(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize('duration', ['-5', '0', 'nan'])
-def test_a_cell_duration_that_is_not_positive_is_refused(duration, capsys, monkeypatch):
+@pytest.mark.parametrize('duration', ['-5', '-0.5', 'nan'])
+def test_a_negative_cell_duration_is_refused(duration, capsys, monkeypatch):
     for name in PROFILE_VARIABLES:
         monkeypatch.setenv(name, '')
     assert cli.main(['cell', 'run', '--duration', duration]) == 2
-    assert '--duration must be > 0 s' in capsys.readouterr().err
+    assert '--duration must be >= 0 s' in capsys.readouterr().err
 
 
 def test_a_path_that_cannot_be_used_is_an_error_line_not_a_traceback(tmp_path):

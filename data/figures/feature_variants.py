@@ -34,22 +34,30 @@ from pointforce_ros.response.ours import ContactGpModel
 
 
 @contextlib.contextmanager
-def height_weight(k):
-    """Within the block, every ``FeatureGp`` scales the height of its RBF positions by ``k``."""
+def patched_prepare(change):
+    """Within the block, ``FeatureGp._prepare`` returns ``change(gp, features, parts, phi)``."""
     original = gp.FeatureGp._prepare
 
     def prepare(self, features, groups=True, basis=True):
         parts, phi = original(self, features, groups, basis)
-        if parts is not None:
-            pos, col, nor = parts
-            parts = (pos * np.array([1.0, 1.0, k]), col, nor)
-        return parts, phi
+        return change(self, features, parts, phi)
 
     gp.FeatureGp._prepare = prepare
     try:
         yield
     finally:
         gp.FeatureGp._prepare = original
+
+
+def height_weight(k):
+    """Within the block, every ``FeatureGp`` scales the height of its RBF positions by ``k``."""
+    def change(process, features, parts, phi):
+        if parts is not None:
+            pos, col, nor = parts
+            parts = (pos * np.array([1.0, 1.0, k]), col, nor)
+        return parts, phi
+
+    return patched_prepare(change)
 
 
 class HeightWeighted:

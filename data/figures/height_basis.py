@@ -18,35 +18,25 @@ Usage: python data/figures/height_basis.py [--objects dome] [--sizes 5 10]
 (about 25 s per object on one core; set OPENBLAS_NUM_THREADS=1).
 """
 
-import contextlib
-
 import numpy as np
-from spread_variants import print_table   # this script's folder is on sys.path
+from feature_variants import patched_prepare   # this script's folder is on sys.path
+from spread_variants import print_table
 
-import pointforce_ros.response.gp as gp
 from pointforce_ros.lab.baseline import EtBaseline
 from pointforce_ros.response.ours import ContactGpModel
 
 
-@contextlib.contextmanager
 def height_basis(columns, skip=()):
     """Within the block, ``FeatureGp`` bases (but those in ``skip``) get ``columns`` added."""
-    original = gp.FeatureGp._prepare
-
-    def prepare(self, features, groups=True, basis=True):
-        parts, phi = original(self, features, groups, basis)
-        if phi is not None and self.basis not in skip:
+    def change(process, features, parts, phi):
+        if phi is not None and process.basis not in skip:
             f = np.asarray(features, dtype=float)
-            extra = {'z': 2.5 * (f[:, 2] - self.frame.centre[2]) / self.frame.scale,
+            extra = {'z': 2.5 * (f[:, 2] - process.frame.centre[2]) / process.frame.scale,
                      'nz': f[:, 8] - 0.7}
             phi = np.hstack([phi] + [extra[c][:, None] for c in columns])
         return parts, phi
 
-    gp.FeatureGp._prepare = prepare
-    try:
-        yield
-    finally:
-        gp.FeatureGp._prepare = original
+    return patched_prepare(change)
 
 
 class HeightBasis:

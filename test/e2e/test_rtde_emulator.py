@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from pointforce_ros.drivers.rtde_host import RtdeHost
+from pointforce_ros.errors import DeviceFault
+from pointforce_ros.sim.rtde.process import start_emulator as start_process
 
 pytestmark = pytest.mark.e2e
 
@@ -291,3 +293,10 @@ def test_force_and_stream_stalls(start_emulator):
         assert rx.getTimestamp() > t0 and rx.isConnected()
     finally:
         _disconnect(ctrl, rx)
+
+
+def test_an_emulator_that_exits_at_start_says_so_with_its_reason(tmp_path):
+    # a bad argument ends it at once: that is not a readiness timeout
+    with pytest.raises(DeviceFault, match=r'exited with code 2 before it was ready:'
+                                          r'(.|\n)*--rtde-port'):
+        start_process(tmp_path, extra_args=['--rtde-port', 'not-a-port'], ready_timeout=60.0)

@@ -122,7 +122,7 @@ def start_emulator(log_dir, *, hosts: Optional[Iterator[str]] = None,
     hosts = hosts if hosts is not None else loopback_hosts()
     log_dir = Path(log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
-    handle = None
+    handle = exited = None
     for _ in range(int(attempts)):
         host = next(hosts)
         log_path = log_dir / f'emulator_{host}.log'
@@ -148,12 +148,16 @@ def start_emulator(log_dir, *, hosts: Optional[Iterator[str]] = None,
         handle = EmulatorProcess(host, process, log_path)
         if _wait_ready(process, time.monotonic() + ready_timeout):
             return handle
+        exited = process.poll()
         handle.stop()
         if process.returncode != ADDRESS_IN_USE:
             break
     tail = handle.log()[-2000:] if handle is not None else ''
+    code = handle.process.returncode if handle is not None else None
+    if exited is not None:      # it ended by itself (a bad argument, no free address)
+        raise DeviceFault(f'rtde_emulator exited with code {code} before it was ready:\n{tail}')
     raise DeviceFault(f'rtde_emulator did not become ready within {ready_timeout} s '
-                      f'(exit code {handle.process.returncode if handle else None}):\n{tail}')
+                      f'(stopped, exit code {code}):\n{tail}')
 
 
 def child_pids(pid: int, needle: str) -> List[int]:

@@ -229,9 +229,22 @@ def init_or_exit(args=None) -> None:
     try:
         rclpy.init(args=args)
     except Exception as exc:  # noqa: BLE001 - rclpy raises its pybind RCLError here
-        name = Path(sys.argv[0]).name or 'node'
-        print(f'{name}: cannot start: {str(exc).strip()}', file=sys.stderr)
-        raise SystemExit(2) from None
+        cannot_start(exc)
+
+
+def cannot_start(reason) -> None:
+    """End a node's process before it serves: ``<program>: cannot start: reason``, status 2.
+
+    For what the user must fix first (a command line rcl refuses, a node's configuration it
+    refuses, such as a poke store that is a file): one line, no traceback.
+
+    Raises:
+        SystemExit: always.
+
+    """
+    name = Path(sys.argv[0]).name or 'node'
+    print(f'{name}: cannot start: {str(reason).strip()}', file=sys.stderr)
+    raise SystemExit(2) from None
 
 
 def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
@@ -245,6 +258,10 @@ def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except PointforceError as exc:      # a configuration the node refuses, before it serves
+        if node is not None:
+            raise
+        cannot_start(exc)
     finally:
         if executor is not None:     # callbacks in flight finish before the node goes
             stop_executor(executor, node.get_name())

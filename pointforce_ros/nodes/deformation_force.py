@@ -100,7 +100,7 @@ from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, 
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
                                         version_of_path)
-from pointforce_ros.nodes.common import declare, live, run
+from pointforce_ros.nodes.common import declare, live, report_folder, run
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
 
@@ -130,6 +130,7 @@ class DeformationForceNode(Node):
                                  'Directory of versioned deformation-v*.npz models (newest '
                                  'loaded at start, identified ones saved there); empty: keep '
                                  'identified models in memory only', read_only=True)
+        report_folder(self, 'model_dir', self.model_dir)
         surface_file = declare(self, 'surface_file', '',
                                'Rest (equilibrium) surface .npz to mesh at start-up; empty: '
                                'wait for the latched cloud_capture/surface', read_only=True)
@@ -178,6 +179,7 @@ class DeformationForceNode(Node):
             "The learner's model-v*.npz (its model_dir): the point model the fused force "
             'uses (newest valid one, polled); empty: only models announced on '
             'stiffness_learner/model', read_only=True)
+        report_folder(self, 'point_model_dir', self.point_model_dir)
         poll = declare(self, 'point_model_poll', 2.0, 'Seconds between point_model_dir polls',
                        bounds=(0.1, 600.0), read_only=True)
         self.cross_validate = declare(

@@ -1,7 +1,8 @@
 """What a node says when its command line or its folders cannot work (a user's typo).
 
 * a parameter file rcl cannot parse ends the node with rcl's reason and status 2, no traceback
-  (both start paths: ``run`` and the contact node's single-threaded spin);
+  (both start paths: ``run`` and the contact node's single-threaded spin), and so does a
+  configuration a node refuses before it serves (a poke store that is a file);
 * a folder parameter that names a file is an error in the log at start, and a polled folder
   that does not exist yet a warning; the node still comes up.
 """
@@ -14,6 +15,7 @@ import rclpy
 from rclpy.parameter import Parameter
 
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
+from pointforce_ros.nodes.deformation_force import DeformationForceNode
 from pointforce_ros.nodes.stiffness_learner import StiffnessLearnerNode
 
 pytestmark = pytest.mark.ros
@@ -28,6 +30,17 @@ def test_a_params_file_rcl_cannot_parse_ends_the_node_with_its_reason(tmp_path, 
                          timeout=60, cwd=tmp_path)
     assert out.returncode == 2, out.stderr
     assert 'cannot start' in out.stderr and "Couldn't parse params file" in out.stderr
+    assert 'Traceback' not in out.stderr
+
+
+def test_a_configuration_a_node_refuses_ends_it_with_the_reason(tmp_path):
+    a_file = tmp_path / 'pokes.txt'
+    a_file.write_text('not a folder')
+    out = subprocess.run([sys.executable, '-m', 'pointforce_ros.nodes.poke_server', '--ros-args',
+                          '-p', f'store_dir:={a_file}'], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert f'cannot start: poke store {a_file} is a file' in out.stderr
     assert 'Traceback' not in out.stderr
 
 
@@ -57,3 +70,8 @@ def test_folder_parameters_that_cannot_work_are_reported_at_start(tmp_path, cont
     node.destroy_node()
     err = capfd.readouterr().err
     assert f'store_dir {a_file} is a file, not a folder' in err and 'model_dir' not in err
+    node = DeformationForceNode(context=context, parameter_overrides=[
+        Parameter('model_dir', value=str(a_file)), Parameter('point_model_dir', value='')])
+    node.destroy_node()
+    err = capfd.readouterr().err
+    assert f'model_dir {a_file} is a file, not a folder' in err and 'point_model_dir' not in err

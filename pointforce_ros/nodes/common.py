@@ -188,31 +188,27 @@ def stop_executor(executor: Executor, name: str,
     return finished
 
 
-def report_folder(node: Node, name: str, path: str, polled: bool = False) -> Optional[str]:
-    """Log once, at start, a folder parameter that cannot work; return the message or None.
+def report_folder(node: Node, name: str, path: str, polled: bool = False) -> None:
+    """Log once, at start, a folder parameter that cannot work.
 
     A file where the folder should be is an error (nothing can be read from or written to it
     until the parameter is fixed); with ``polled`` (a folder the node only reads, filled by
-    another node) one that does not exist yet is a warning. An empty ``path`` is not checked.
+    another node) one that does not exist yet is a warning, and so is a folder the node may
+    not look into (it still starts). An empty ``path`` is not checked.
     """
     if not path:
-        return None
+        return
     where = Path(path)
+    logger = node.get_logger()
     try:
         exists, folder = where.exists(), where.is_dir()
-    except OSError as exc:          # no permission to look: say so, the node still starts
-        message = f'{name} {where} cannot be checked: {exc}'
-        node.get_logger().warning(message)
-        return message
+    except OSError as exc:
+        logger.warning(f'{name} {where} cannot be checked: {exc}')
+        return
     if exists and not folder:
-        message = f'{name} {where} is a file, not a folder: nothing is read or written there'
-        node.get_logger().error(message)
-        return message
-    if polled and not exists:
-        message = f'{name} {where} does not exist yet: polling it'
-        node.get_logger().warning(message)
-        return message
-    return None
+        logger.error(f'{name} {where} is a file, not a folder: nothing is read or written there')
+    elif polled and not exists:
+        logger.warning(f'{name} {where} does not exist yet: polling it')
 
 
 def init_or_exit(args=None) -> None:
@@ -247,21 +243,29 @@ def cannot_start(reason) -> None:
     raise SystemExit(2) from None
 
 
+def build_node(node_factory: Callable[[], Node]) -> Node:
+    """Return ``node_factory()``; a configuration the node refuses ends the process.
+
+    A :class:`~pointforce_ros.errors.PointforceError` while the node is built (before it
+    serves: a poke store that is a file) goes through :func:`cannot_start`.
+    """
+    try:
+        return node_factory()
+    except PointforceError as exc:
+        cannot_start(exc)
+
+
 def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
     """Spin one node the Jazzy way (ros2/demos): init, spin, shutdown on Ctrl-C or external."""
     init_or_exit(args)
     node = executor = None
     try:
-        node = node_factory()
+        node = build_node(node_factory)
         executor = MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except PointforceError as exc:      # a configuration the node refuses, before it serves
-        if node is not None:
-            raise
-        cannot_start(exc)
     finally:
         if executor is not None:     # callbacks in flight finish before the node goes
             stop_executor(executor, node.get_name())

@@ -47,7 +47,7 @@ from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_fr
                                      fill_wrench_std)
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
-from pointforce_ros.nodes.common import (cannot_start, declare, init_or_exit, live,
+from pointforce_ros.nodes.common import (build_node, declare, init_or_exit, live,
                                          report_folder)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
@@ -371,16 +371,12 @@ def spin_single_threaded(node_factory, args=None) -> None:
     init_or_exit(args)
     node = None
     try:
-        node = node_factory()
+        node = build_node(node_factory)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except PointforceError as exc:      # a configuration the node refuses, before it serves
-        if node is not None:
-            raise
-        cannot_start(exc)
     finally:
         if node is not None:
             node.destroy_node()

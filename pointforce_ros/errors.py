@@ -1,8 +1,15 @@
-"""Exception hierarchy of pointforce_ros.
+"""Exception hierarchy of pointforce_ros, and the readers that turn file faults into it.
+
+:func:`reading` and :func:`read_json` turn every way of failing to read a file into a
+:class:`DataError` naming the file.
 
 Every error the package raises on purpose derives from :class:`PointforceError`, so a node can
 catch one type, turn it into ``success=False`` with the message, and keep serving.
 """
+
+import json
+from contextlib import contextmanager
+from pathlib import Path
 
 
 class PointforceError(Exception):
@@ -31,3 +38,47 @@ class DeviceFault(PointforceError, RuntimeError):
 
 class ModelNotReady(PointforceError, RuntimeError):
     """A query needs a fitted force-response model and none is available yet."""
+
+
+TEXT_ENCODING = 'utf-8-sig'
+"""Encoding of the text files the package reads: UTF-8, with the byte-order mark that
+spreadsheet programs put in front of an exported CSV dropped."""
+
+
+@contextmanager
+def reading(path, what: str):
+    """Turn every error raised inside the block into a :class:`DataError` about ``path``.
+
+    A file a user or another process wrote can fail in more ways than any one ``except``
+    clause lists: not UTF-8 (``UnicodeDecodeError``), JSON or YAML nested past the recursion
+    limit (``RecursionError``), an empty or truncated ``.npz`` (``EOFError``, ``BadZipFile``),
+    a top level of another type (``TypeError``, ``AttributeError``), a missing key. Wrap the
+    read *and* the parse of one file in this block; a :class:`PointforceError` raised inside
+    (a check of the content) passes through unchanged.
+
+    Raises:
+        DataError: ``'<path>: unreadable <what>: <error type>: <message>'``.
+
+    """
+    try:
+        yield
+    except PointforceError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - codecs, json, yaml, zipfile, numpy: many types
+        raise DataError(f'{path}: unreadable {what}: {type(exc).__name__}: {exc}') from exc
+
+
+def read_json(path, what: str) -> dict:
+    """Read a JSON file whose top level is an object; every fault is a :class:`DataError`.
+
+    Raises:
+        DataError: missing, unreadable, not UTF-8, not JSON, nested past the recursion limit,
+            or a top level that is not an object.
+
+    """
+    with reading(path, what):
+        body = json.loads(Path(path).read_text(encoding=TEXT_ENCODING))
+    if not isinstance(body, dict):
+        raise DataError(f'{path}: unreadable {what}: the top level is a {type(body).__name__}, '
+                        'not a JSON object')
+    return body

@@ -16,7 +16,7 @@ from typing import Callable, Dict, List, Optional
 import yaml
 
 from pointforce_ros.dds import use_package_dds_profile
-from pointforce_ros.errors import PointforceError
+from pointforce_ros.errors import PointforceError, reading, TEXT_ENCODING
 from pointforce_ros.replica import cli as replica_cli
 
 BENCHMARKS: Dict[str, str] = {
@@ -107,10 +107,8 @@ def check_params_file(path) -> str:
 
     """
     path = Path(path).expanduser().resolve()
-    try:
-        content = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise PointforceError(f'--params-file {path}: {exc}') from exc
+    with reading(f'--params-file {path}', 'parameter file (YAML)'):
+        content = yaml.safe_load(path.read_text(encoding=TEXT_ENCODING))
     if not isinstance(content, dict) or not content:
         raise PointforceError(f'--params-file {path}: not a mapping of node names')
     for key, section in content.items():

@@ -23,7 +23,7 @@ from pointforce_ros.deformation.fem import CorotationalFem
 from pointforce_ros.deformation.force import ForceEstimate
 from pointforce_ros.deformation.fusion import FusionData
 from pointforce_ros.deformation.mesh import TetMesh
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, reading
 from pointforce_ros.types import as_array
 
 FORMAT = 1
@@ -108,13 +108,17 @@ def load_model(path: str) -> DeformationModel:
         DataError: missing, unreadable, or of another file format.
 
     """
-    try:
-        with np.load(path) as data:
+    with reading(path, 'deformation model'):
+        with np.load(path, allow_pickle=False) as data:
             d = dict(data)
-    except (OSError, ValueError) as exc:
-        raise DataError(f'cannot read deformation model {path}: {exc}')
-    if int(d.get('format', -1)) != FORMAT:
-        raise DataError(f'{path}: deformation model format {d.get("format")} is not {FORMAT}')
+        if int(d.get('format', -1)) != FORMAT:
+            raise DataError(f'{path}: deformation model format {d.get("format")} is not '
+                            f'{FORMAT}')
+        return _model_from_arrays(d)
+
+
+def _model_from_arrays(d: dict) -> DeformationModel:
+    """Build the model from the arrays of its file (a missing one raises KeyError)."""
     mesh = TetMesh(nodes=d['nodes'], tets=d['tets'], fixed_nodes=d['fixed_nodes'],
                    surface_triangles=d['surface_triangles'],
                    element_size=float(d['element_size']))

@@ -10,7 +10,7 @@ import json
 from pathlib import Path
 from typing import Mapping
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, read_json
 from pointforce_ros.model.files import atomic_write
 from pointforce_ros.lab.baseline import AutoEtBaseline, EtBaseline
 from pointforce_ros.response.ours import ContactGpModel
@@ -55,13 +55,9 @@ def load_response_model(path):
     path = Path(path)
     if not path.is_file():
         raise DataError(f'response model file not found: {path}')
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise DataError(f'{path}: not a readable JSON model file: {exc}') from exc
-    if not isinstance(data, dict) or data.get('format') != FILE_FORMAT:
-        raise DataError(f'{path}: unknown response model format '
-                        f'{data.get("format") if isinstance(data, dict) else None!r}')
+    data = read_json(path, 'JSON response model file')
+    if data.get('format') != FILE_FORMAT:
+        raise DataError(f'{path}: unknown response model format {data.get("format")!r}')
     try:
         return model_from_dict(data['model'])
     except (InvalidInput, KeyError) as exc:

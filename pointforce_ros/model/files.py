@@ -34,7 +34,7 @@ import numpy as np
 from pointforce_ros.contact.lcp import check_decay, check_near
 from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, uncertainty_sources
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, read_json
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
 
@@ -197,9 +197,9 @@ def highest_version(directory) -> int:
     directory = Path(directory)
     highest = max(_versions_on_disk(directory), default=-1)
     try:
-        stored = json.loads((directory / VERSIONS).read_text())['highest']
+        stored = read_json(directory / VERSIONS, 'version counter')['highest']
         highest = max(highest, int(stored))
-    except (OSError, ValueError, KeyError, TypeError):
+    except (DataError, ValueError, KeyError, TypeError):
         pass
     return highest
 
@@ -423,13 +423,15 @@ def load_shape(directory) -> Optional[Tuple[float, float]]:
     if not path.is_file():
         return None
     try:
-        body = json.loads(path.read_text())
+        body = read_json(path, 'shape file')
         c = float(body['shape_constant'])
         decay = body.get('shape_decay')
         decay = float('inf') if decay is None else float(decay)
         if not (np.isfinite(c) and c > 0):
             raise ValueError(f'shape_constant {c} is not > 0')
         check_decay(decay, 'shape_decay')
+    except DataError:
+        raise
     except (OSError, ValueError, KeyError, TypeError, AttributeError, InvalidInput) as exc:
         raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
     return c, decay
@@ -445,10 +447,7 @@ def _shape_entry(directory, key: str, absent: str, old: str, check: Callable, wh
     path = Path(directory) / SHAPE
     if not path.is_file():
         return absent
-    try:
-        value = json.loads(path.read_text()).get(key, old)
-    except (OSError, ValueError, AttributeError) as exc:
-        raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
+    value = read_json(path, 'shape file').get(key, old)
     try:
         return check(value, key)
     except InvalidInput as exc:
@@ -490,12 +489,14 @@ def load_shape_uncertainty(directory) -> dict:
     if not path.is_file():
         return {}
     try:
-        body = json.loads(path.read_text())
+        body = read_json(path, 'shape file')
         sources = body.get('uncertainty') or {}
         unknown = set(sources) - set(SOURCE_KEYS)
         if unknown:
             raise ValueError(f'unknown uncertainty sources {sorted(unknown)}')
         return uncertainty_sources(**sources)
+    except DataError:
+        raise
     except (OSError, ValueError, TypeError, AttributeError, InvalidInput) as exc:
         raise DataError(f'{path}: unreadable uncertainty sources: {type(exc).__name__}: '
                         f'{exc}') from exc

@@ -45,7 +45,7 @@ from pointforce_ros.contact.lcp import check_near
 from pointforce_ros.contact.simulator import DECAY_LAW
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import effects_from_dict
-from pointforce_ros.errors import PointforceError
+from pointforce_ros.errors import PointforceError, read_json
 from pointforce_ros.model.learner import check_region, OnlineLearner
 from pointforce_ros.model.files import (load_model, load_shape, load_shape_law, load_shape_near,
                                         load_shape_uncertainty, load_surface, save_shape,
@@ -345,8 +345,8 @@ class StiffnessLearnerNode(Node):
         if not path:
             return {}
         try:
-            effects = effects_from_dict(json.loads(Path(path).read_text()))
-        except (OSError, ValueError, PointforceError) as exc:
+            effects = effects_from_dict(read_json(path, 'effects file'))
+        except (PointforceError, ValueError, TypeError) as exc:
             self.get_logger().error(f'effects_file {path}: {exc}; learning WITHOUT effects')
             return {}
         self.get_logger().info(f'accepted effects from {path}: {sorted(effects) or "none"}')

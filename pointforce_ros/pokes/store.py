@@ -44,7 +44,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, read_json
 from pointforce_ros.rotations import (matrix_to_quaternion, quaternion_to_rotvec,
                                       rotvec_to_matrix)
 from pointforce_ros.types import PokeRecord
@@ -321,8 +321,8 @@ class PokeStore:
         path = self.root / self.INDEX
         if path.exists():
             try:
-                index = {e['poke_id']: e for e in json.loads(path.read_text())['pokes']}
-            except (ValueError, KeyError, TypeError):
+                index = {e['poke_id']: e for e in read_json(path, 'poke index')['pokes']}
+            except (DataError, KeyError, TypeError):
                 index = {}  # rebuilt below from the bags, which are the truth
         if set(index) != bags:
             index = {k: v for k, v in index.items() if k in bags}
@@ -352,8 +352,8 @@ class PokeStore:
                 names.extend(p.name for p in folder.iterdir())
         numbers = [int(m.group(1)) for m in map(_ID.match, names) if m]
         try:
-            numbers.append(int(json.loads((self.root / self.IDS).read_text())['last']))
-        except (OSError, ValueError, KeyError, TypeError):
+            numbers.append(int(read_json(self.root / self.IDS, 'poke id counter')['last']))
+        except (DataError, ValueError, KeyError, TypeError):
             pass  # a lost or damaged counter: the names on disk still bound it
         return max(numbers, default=0)
 

@@ -25,7 +25,7 @@ from typing import List, Sequence
 
 import numpy as np
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, reading, TEXT_ENCODING
 from pointforce_ros.pokes.store import PokeStore, read_poke_bag
 from pointforce_ros.rotations import rotvec_aligning_z
 from pointforce_ros.types import PokeRecord, Surface
@@ -86,16 +86,14 @@ def read_poke_table(path) -> List[PokeRecord]:
     is estimated from the depth series.
 
     Raises:
-        DataError: unreadable file, missing columns, non-numeric values, a poke whose time is
-            not strictly increasing, or a poke whose point/normal changes between rows.
+        DataError: unreadable file (not UTF-8 text; a byte-order mark is fine), missing
+            columns, non-numeric values, a poke whose time is not strictly increasing, a poke
+            whose point/normal changes between rows, or a normal of zero length.
 
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise DataError(f'cannot read poke table {path}: {exc}')
-    rows = list(csv.reader(io.StringIO(text)))
+    with reading(path, 'poke table'):
+        rows = list(csv.reader(io.StringIO(path.read_text(encoding=TEXT_ENCODING))))
     if not rows:
         raise DataError(f'{path}: empty table')
     header = [h.strip() for h in rows[0]]
@@ -130,7 +128,10 @@ def read_poke_table(path) -> List[PokeRecord]:
         if np.ptp(point, axis=0).max() > 0 or np.ptp(normal, axis=0).max() > 0:
             raise DataError(f'{path}: poke {poke_id}: point or normal changes between rows')
         depth = num['depth'][sel]
-        n = normal[0] / np.linalg.norm(normal[0])
+        length = float(np.linalg.norm(normal[0]))
+        if length < 1e-9:
+            raise DataError(f'{path}: poke {poke_id}: the normal (nx, ny, nz) has zero length')
+        n = normal[0] / length
         if has_vector:
             force = np.column_stack([num['fx'][sel], num['fy'][sel], num['fz'][sel]])
         else:

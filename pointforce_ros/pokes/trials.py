@@ -12,7 +12,7 @@ from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, read_json, reading
 from pointforce_ros.types import Mesh, Pose
 
 
@@ -35,8 +35,8 @@ def load_trial_dicts(path) -> List[Dict]:
     path = Path(path)
     if path.is_dir():
         path = path / 'probes.npz'
-    index = json.loads(path.with_suffix('.json').read_text())['trials']
-    with np.load(path, allow_pickle=False) as z:
+    index = read_json(path.with_suffix('.json'), 'probe trial index')['trials']
+    with reading(path, 'probe trial file'), np.load(path, allow_pickle=False) as z:
         return [{'kind': e['kind'], **{key[4:]: z[key] for key in z.files
                                        if key.startswith(f'{e["trial"]:03d}_')}}
                 for e in index]
@@ -100,7 +100,9 @@ def trials_from_dicts(entries: Sequence[Dict]) -> List[ProbeTrial]:
                 force=np.asarray(e['force'], dtype=np.float64).reshape(len(depths), 3),
                 torque=np.asarray(e['torque'], dtype=np.float64).reshape(len(depths), 3),
                 compliant=bool(e.get('compliant', False)))
-        except (KeyError, ValueError, InvalidInput) as exc:
+        except KeyError as exc:
+            raise DataError(f'probe trial {i}: no {exc} in the file') from exc
+        except (ValueError, InvalidInput) as exc:
             raise DataError(f'probe trial {i}: {exc}') from exc
         trials.append(trial)
     return trials
@@ -113,7 +115,9 @@ def load_probe_trials(path) -> List[ProbeTrial]:
         DataError: missing or unreadable files.
 
     """
+    with reading(path, 'probe trials'):
+        dicts = load_trial_dicts(path)
     try:
-        return trials_from_dicts(load_trial_dicts(path))
-    except (OSError, KeyError, ValueError, json.JSONDecodeError) as exc:
-        raise DataError(f'cannot read probe trials at {path}: {exc}') from exc
+        return trials_from_dicts(dicts)
+    except DataError as exc:
+        raise DataError(f'{path}: {exc}') from exc

@@ -14,7 +14,7 @@ from typing import Dict
 import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import InvalidInput, reading
 from pointforce_ros.replica.mesh import TetMesh
 from pointforce_ros.replica.scene import deformed_nodes, Material, ReplicaScene, SceneConfig
 
@@ -338,7 +338,7 @@ def read_camera_views(path) -> Dict:
         DataError: missing or unreadable.
 
     """
-    try:
+    with reading(path, 'camera views'):
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
         out = {k: (v.item() if v.ndim == 0 else v) for k, v in data.items()
@@ -346,8 +346,6 @@ def read_camera_views(path) -> Dict:
         for state in ('rest', 'loaded'):
             off, pts = data[f'{state}_offsets'], np.asarray(data[f'{state}_points'], float)
             out[state] = [pts[off[i]:off[i + 1]] for i in range(len(off) - 1)]
-    except (OSError, KeyError, ValueError) as exc:
-        raise DataError(f'{path}: unreadable camera views: {exc}') from exc
     return out
 
 

@@ -14,7 +14,7 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, reading
 from pointforce_ros.model.files import load_surface
 from pointforce_ros.pokes.curves import extract_curve, PokeCurve
 from pointforce_ros.pokes.store import PokeStore
@@ -119,11 +119,8 @@ def _from_curve(curve: PokeCurve) -> MeasuredPoke:
 
 
 def _fixture(path: Path) -> PokeSet:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise DataError(f'{path}: unreadable poke file: {exc}') from exc
+    with reading(path, 'poke file'), np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
     if 'static_offsets' in data:
         return _ball_plate(path, data)
     if 'surface_points' not in data or len(data['surface_points']) == 0:
@@ -181,7 +178,7 @@ def _static_pushes(pattern: str) -> PokeSet:
         raise InvalidInput(f'{pattern}: no push files match')
     pokes, held = [], []
     for f in files:
-        try:
+        with reading(f, 'push file'):
             with np.load(f, allow_pickle=False) as z:
                 depth = np.asarray(z['depths'], float)
                 force = np.asarray(z['force'], float) @ np.asarray(z['direction'], float)
@@ -189,14 +186,12 @@ def _static_pushes(pattern: str) -> PokeSet:
                                     depth / 0.002)
                 if str(z['role']) == 'heldout':
                     held.append(poke.poke_id)
-        except (OSError, KeyError, ValueError) as exc:
-            raise DataError(f'{f}: unreadable push file: {exc}') from exc
         pokes.append(poke)
     name = Path(files[0]).stem.split('_', 1)[1].rsplit('_', 1)[0]
     rest = Path(files[0]).parent / f'rest_{name}.npz'
     if not rest.is_file():
         raise DataError(f'{pattern}: the pushes come without a surface (no {rest.name})')
-    with np.load(rest, allow_pickle=False) as z:
+    with reading(rest, 'rest surface'), np.load(rest, allow_pickle=False) as z:
         points = np.asarray(z['points'], float)
         normals = np.asarray(z['normals'], float) if 'normals' in z.files else None
     return PokeSet(tuple(pokes), points, pattern, tuple(held), surface_normals=normals)
@@ -208,7 +203,7 @@ def _ball_plate(path: Path, data: dict) -> PokeSet:
     Each trial becomes a poke at the ball's centre x-y whose curve is the static (relaxed)
     force against compression and whose ``series`` is the ramp-and-hold record.
     """
-    try:
+    with reading(path, 'plate-on-ball trials'):
         off, soff = data['offsets'], data['static_offsets']
         radius = float(data['radius'])
         pokes, held = [], []
@@ -222,8 +217,6 @@ def _ball_plate(path: Path, data: dict) -> PokeSet:
                 (data['t'][s], data['depth'][s], data['force'][s])))
             if str(role) == 'heldout':
                 held.append(poke_id)
-    except (KeyError, ValueError, IndexError) as exc:
-        raise DataError(f'{path}: unreadable plate-on-ball trials: {exc}') from exc
     if not pokes:
         raise InvalidInput(f'{path}: no pokes in the file')
     theta = np.linspace(0, np.pi, 12)[:, None]

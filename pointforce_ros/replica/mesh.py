@@ -17,7 +17,7 @@ from typing import Optional, Tuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, reading, TEXT_ENCODING
 from pointforce_ros.types import as_array
 
 # Kuhn split of the unit cube: corner index = i + 2 j + 4 k; one tet per axis permutation.
@@ -265,10 +265,8 @@ def read_vtk(path, resolution: float) -> TetMesh:
 
     """
     path = Path(path)
-    try:
-        words = path.read_text().split()
-    except OSError as exc:
-        raise DataError(f'cannot read {path}: {exc}') from exc
+    with reading(path, 'legacy ASCII VTK file (a binary VTK is not read)'):
+        words = path.read_text(encoding=TEXT_ENCODING).split()
     try:
         i = words.index('POINTS')
         n = int(words[i + 1])

@@ -17,7 +17,7 @@ import json
 from pathlib import Path
 from typing import Dict, Mapping, Optional
 
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, read_json
 from pointforce_ros.replica.mesh import read_vtk, TetMesh, write_vtk
 from pointforce_ros.replica.scene import Material, pusher_urdf, ReplicaScene, SceneConfig
 
@@ -94,10 +94,9 @@ def read_description(path) -> Dict:
 
     """
     path = Path(path)
-    try:
-        desc = json.loads((path / 'replica.json').read_text())
-    except (OSError, ValueError) as exc:
-        raise DataError(f'{path}: not a replica directory (replica.json: {exc})') from exc
+    if not (path / 'replica.json').is_file():
+        raise DataError(f'{path}: not a replica directory (no replica.json)')
+    desc = read_json(path / 'replica.json', 'replica description')
     if desc.get('format') != FORMAT:
         raise DataError(f'{path}: replica format {desc.get("format")!r}, expected {FORMAT}')
     return desc

@@ -19,7 +19,7 @@ import yaml
 from pointforce_ros.sim.fem.mesh import (graded_axis, HexMesh, replace_nodes, square_to_disk,
                                          structured_hex)
 from pointforce_ros.paths import share_path
-from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.errors import DataError, InvalidInput, reading, TEXT_ENCODING
 from pointforce_ros.types import as_array, Mesh
 from pointforce_ros.sim.fem.hyperelastic import GAUSS_2, shape_functions
 
@@ -323,11 +323,9 @@ def load_object(name_or_path: str) -> ObjectSpec:
     if not os.path.isfile(path):
         raise DataError(f'object {name_or_path!r} not found: known objects are '
                         f'{", ".join(list_objects())} (or give a path to a YAML file)')
-    try:
-        with open(path) as fh:
+    with reading(path, 'object file (YAML)'):
+        with open(path, encoding=TEXT_ENCODING) as fh:
             doc = yaml.safe_load(fh)
-    except (OSError, yaml.YAMLError) as exc:
-        raise DataError(f'object file {path}: {exc}')
     try:
         geo, mat, col = doc['geometry'], doc['material'], doc.get('colour', {})
         mesh, poke, live = doc.get('mesh', {}), doc.get('poke', {}), doc.get('live', {})

@@ -31,7 +31,7 @@ from pointforce_ros.sim.disturbances import (build_effect, DelayLine, Effect, Fr
                                              TimeOffset, ViscoelasticRelaxation)
 from pointforce_ros.sim.ft_sensor import FtSensor
 from pointforce_ros.paths import share_dirs
-from pointforce_ros.errors import DataError, InvalidInput, ModelNotReady
+from pointforce_ros.errors import InvalidInput, ModelNotReady, reading, TEXT_ENCODING
 from pointforce_ros.rotations import rotvec_to_matrix
 
 CleanFn = Callable[[np.ndarray, np.ndarray], Tuple[np.ndarray, np.ndarray]]
@@ -340,13 +340,9 @@ def load_scenario(name_or_path) -> Scenario:
         if not found:
             raise InvalidInput(f'unknown scenario {text!r}; known: {", ".join(list_scenarios())}')
         path = found[0]
-    try:
-        with open(path, encoding='utf-8') as stream:
+    with reading(path, 'scenario file (YAML)'):
+        with open(path, encoding=TEXT_ENCODING) as stream:
             data = yaml.safe_load(stream)
-    except OSError as exc:
-        raise DataError(f'cannot read scenario file {path}: {exc}')
-    except yaml.YAMLError as exc:
-        raise DataError(f'scenario file {path} is not valid YAML: {exc}')
     return scenario_from_dict(data, source=str(path))
 
 

@@ -16,6 +16,7 @@ Ground truth for the queries is the full nonlinear FEM solve, precomputed by
 per query; the demo itself runs in a few minutes).
 """
 
+import numbers
 import time
 from pathlib import Path
 from typing import Optional
@@ -34,7 +35,7 @@ from pointforce_ros.contact.identify import (calibrate_shape, decay_grid,
                                              identify_shape_constant_from_probe)
 from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
-from pointforce_ros.errors import DeviceFault, ModelNotReady, PointforceError
+from pointforce_ros.errors import DeviceFault, InvalidInput, ModelNotReady, PointforceError
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.sim.fem.live import LiveContact
@@ -448,7 +449,14 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
     The simulated cell runs in ROS domain ``domain``, by default one of its own on localhost
     (:func:`~pointforce_ros.bringup.domain.private_domain`): its nodes carry the product's
     names and must not meet a real cell's or another run's.
+
+    Raises:
+        InvalidInput: ``pokes`` below 0 (0: 8 pokes, or 4 with ``quick``).
+
     """
+    if not isinstance(pokes, numbers.Integral) or pokes < 0:
+        raise InvalidInput(f'run_demo: pokes must be a whole number >= 0 (0: the default), '
+                           f'got {pokes!r}')
     with private_domain(domain) as chosen:
         print(f'[demo] ROS domain {chosen}'
               + (' (private to this run, localhost only; RViz: ROS_DOMAIN_ID='

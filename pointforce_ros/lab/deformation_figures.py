@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 
+from pointforce_ros import arguments
 from pointforce_ros.deformation.force import estimate_force, ForceConfig
 from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
 from pointforce_ros.deformation.mesh import volume_mesh_from_surface
@@ -136,9 +137,9 @@ def main(argv=None):
     """Parse the command line, evaluate the objects, print tables (and JSON)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--object', action='append', help='object (repeatable); default all present')
-    ap.add_argument('--element-size', type=float, default=0.004)
-    ap.add_argument('--layers', type=int, default=8)
-    ap.add_argument('--identify-depth', type=float, default=0.003)
+    ap.add_argument('--element-size', type=arguments.positive_float, default=0.004)
+    ap.add_argument('--layers', type=arguments.positive_int, default=8)
+    ap.add_argument('--identify-depth', type=arguments.positive_float, default=0.003)
     ap.add_argument('--corotational', action='store_true')
     ap.add_argument('--json', help='write the results here')
     args = ap.parse_args(argv)

@@ -44,6 +44,7 @@ from typing import Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from pointforce_ros import arguments
 from pointforce_ros.paths import share_path
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
@@ -1372,13 +1373,14 @@ def main(argv=None) -> int:
     parser.add_argument('--out', default='out/figures', help='output directory')
     parser.add_argument('--objects', nargs='+', default=list(OBJECTS))
     parser.add_argument('--quick', action='store_true', help='2 objects, 3 subsets')
-    parser.add_argument('--repeats', type=int, default=None)
-    parser.add_argument('--seed', type=int, default=0)
-    parser.add_argument('--auto-budget', type=float, default=1.0, help='Auto-ET budget, s')
+    parser.add_argument('--repeats', type=arguments.positive_int, default=None)
+    parser.add_argument('--seed', type=arguments.seed, default=0)
+    parser.add_argument('--auto-budget', type=arguments.positive_float,
+                        default=1.0, help='Auto-ET budget, s')
     parser.add_argument('--data', default=DATA_DIR, help='folder of the cached fixtures')
     parser.add_argument('--learning-only', action='store_true',
                         help='figure 1 (learning curves) and its error budget only')
-    parser.add_argument('--sizes', type=int, nargs='+', default=list(SIZES),
+    parser.add_argument('--sizes', type=arguments.positive_int, nargs='+', default=list(SIZES),
                         help='figure 1 training-set sizes')
     args = parser.parse_args(argv)
     try:

@@ -10,6 +10,8 @@ Wired into the ``pointforce`` command as::
 
 import argparse
 
+from pointforce_ros import arguments
+
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``replica`` sub-command to ``subparsers``; returns its parser."""
@@ -19,11 +21,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument('--data', required=True, help='poke store, generated data set, or poke '
                    'fixture .npz')
     p.add_argument('--out', required=True, help='replica directory')
-    p.add_argument('--h', type=float, default=0.01, help='mesh edge length, m (recorded)')
-    p.add_argument('--train', type=int, default=3, help='training pokes')
-    p.add_argument('--held-out', type=int, default=3, help='held-out pokes')
+    p.add_argument('--h', type=arguments.positive_float,
+                   default=0.01, help='mesh edge length, m (recorded)')
+    p.add_argument('--train', type=arguments.positive_int, default=3, help='training pokes')
+    p.add_argument('--held-out', type=arguments.positive_int, default=3, help='held-out pokes')
     p.add_argument('--no-damping', action='store_true', help='skip the damping step')
-    p.add_argument('--seed', type=int, default=0, help='train/held-out split seed')
+    p.add_argument('--seed', type=arguments.seed, default=0, help='train/held-out split seed')
     p.add_argument('--calibrators', default='scaling,paper',
                    help='comma-separated: scaling (ours), paper (seed 002 MLP)')
     p.add_argument('--paper-grid', type=int, default=3,

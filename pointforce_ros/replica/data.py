@@ -244,6 +244,11 @@ def load_pokes(path) -> PokeSet:
     if not path.exists():
         raise DataError(f'{path}: no such poke store or file')
     if path.is_file():
+        if path.suffix.lower() != '.npz':
+            raise DataError(f'{path}: a replica is built from a poke store, a generated data set '
+                            '(pointforce cell generate) or a poke fixture .npz, not a '
+                            f'{path.suffix or "suffix-less"} file (a CSV table carries no '
+                            'surface to build the body from)')
         return _fixture(path)
     return _dataset(path)
 

@@ -79,3 +79,43 @@ def test_a_path_that_cannot_be_used_is_an_error_line_not_a_traceback(tmp_path):
     assert out.returncode == 2, out.stderr
     assert 'pointforce cell: error: NotADirectoryError' in out.stderr
     assert 'Traceback' not in out.stderr
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['demo', '--pokes', '-1'], 'argument --pokes: -1 is not >= 0'),
+    (['cell', 'generate', '--seed', '-1'], 'argument --seed: -1 is not in 0..4294967295'),
+    (['cell', 'generate', '--pokes', 'many'], "argument --pokes: 'many' is not a whole number"),
+    (['diagnose', 'x.csv', '--seed', str(2 ** 32)], 'argument --seed: 4294967296 is not in'),
+    (['replay', 'x', '--rate', 'inf'], 'argument --rate: inf is not a finite number > 0'),
+    (['replica', '--data', 'x', '--out', 'y', '--h', '-0.01'],
+     'argument --h: -0.01 is not a finite number > 0'),
+    (['replica', '--data', 'x', '--out', 'y', '--train', '0'], 'argument --train: 0 is not >= 1'),
+    (['figures', '--repeats', '0'], 'argument --repeats: 0 is not >= 1'),
+    (['figures', '--sizes', '5', '0'], 'argument --sizes: 0 is not >= 1'),
+    (['figures', '--auto-budget', 'nan'], 'argument --auto-budget: nan is not a finite number'),
+    (['deformation', '--element-size', '-1'], 'argument --element-size: -1.0 is not a finite'),
+    (['deformation', '--layers', '0'], 'argument --layers: 0 is not >= 1'),
+    (['deformation', '--identify-depth', 'nan'], 'argument --identify-depth: nan is not a'),
+])
+def test_a_number_outside_its_range_is_refused_before_anything_runs(
+        argv, message, capsys, monkeypatch):
+    # before: --pokes -1 started the cell and ended in an UnboundLocalError, --seed -1 in
+    # numpy's ValueError, --repeats 0 ran the default 10, --element-size -1 printed FAILED for
+    # every object and exited 0
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv)
+    assert info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_params_file_that_is_not_text_is_one_error_line(tmp_path, capsys, monkeypatch):
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    params = tmp_path / 'nodes.yaml'
+    params.write_bytes(b'\xac\xed\x00\x05binary')
+    assert cli.main(['cell', 'run', '--params-file', str(params), '--duration', '0']) == 2
+    err = capsys.readouterr().err
+    assert 'unreadable parameter file (YAML): UnicodeDecodeError' in err
+    assert str(params) in err

@@ -158,3 +158,11 @@ def test_a_poke_store_rebuilds_over_a_damaged_index_or_counter(tmp_path, label):
         assert list(store) == []
         assert store.next_id() == 'poke-000001'
         shutil.rmtree(root)
+
+
+def test_the_replica_names_a_table_as_the_wrong_kind_of_file(tmp_path):
+    # before: numpy's "This file contains pickled (object) data" for a CSV table
+    path = tmp_path / 'pokes.csv'
+    path.write_text(_table_text())
+    with pytest.raises(DataError, match='a CSV table carries no surface'):
+        load_replica_pokes(path)

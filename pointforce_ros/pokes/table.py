@@ -33,6 +33,12 @@ from pointforce_ros.types import PokeRecord, Surface
 TABLE_COLUMNS = ('poke_id', 't', 'px', 'py', 'pz', 'nx', 'ny', 'nz', 'depth', 'force')
 FORCE_COLUMNS = ('fx', 'fy', 'fz')
 
+UNIT_LIMITS = {'position': 5.0, 'depth': 0.2, 'force': 1000.0}
+"""Largest plausible magnitudes in a table of a robot cell, in its units (m, m, N): a poked point
+5 m from the base, a probe 200 mm past the surface, 1 kN on a soft object. A value past one is
+almost always a column in other units (millimetres, millinewtons), and the table is refused
+with that said, instead of learning a stiffness a thousand times off."""
+
 
 # --------------------------------------------------------------------------- tables
 
@@ -78,6 +84,22 @@ def _speed_of(t: np.ndarray, depth: np.ndarray) -> float:
     return float(np.median(fast)) if len(fast) else 0.002
 
 
+def _check_units(path, num: dict, ids: List[str]) -> None:
+    """Refuse a column whose largest magnitude is past :data:`UNIT_LIMITS` (another unit)."""
+    groups = {'position': (('px', 'py', 'pz'), 'm', 'millimetres? divide by 1000'),
+              'depth': (('depth',), 'm', 'millimetres? divide by 1000'),
+              'force': (('force',) + tuple(c for c in FORCE_COLUMNS if c in num), 'N',
+                        'millinewtons? divide by 1000; grams-force? multiply by 0.00981')}
+    for kind, (columns, unit, hint) in groups.items():
+        stack = np.abs(np.column_stack([num[c] for c in columns]))
+        row, col = np.unravel_index(np.argmax(stack), stack.shape)
+        if stack[row, col] > UNIT_LIMITS[kind]:
+            raise DataError(
+                f'{path}: {columns[col]} = {num[columns[col]][row]:g} {unit} (poke '
+                f'{ids[row]}) is past {UNIT_LIMITS[kind]:g} {unit}, the largest plausible '
+                f'{kind} of a robot cell: the table is in metres and newtons ({hint})')
+
+
 def read_poke_table(path) -> List[PokeRecord]:
     """Read the plain import table (see the module docstring) into point-poke records.
 
@@ -88,7 +110,8 @@ def read_poke_table(path) -> List[PokeRecord]:
     Raises:
         DataError: unreadable file (not UTF-8 text; a byte-order mark is fine), missing
             columns, non-numeric values, a poke whose time is not strictly increasing, a poke
-            whose point/normal changes between rows, or a normal of zero length.
+            whose point/normal changes between rows, a normal of zero length, or a
+            position, depth or force past :data:`UNIT_LIMITS` (a column in other units).
 
     """
     path = Path(path)
@@ -117,6 +140,7 @@ def read_poke_table(path) -> List[PokeRecord]:
     if not np.all(np.isfinite(values)):
         raise DataError(f'{path}: NaN or infinite values')
     num = {c: values[:, i] for i, c in enumerate(numeric)}
+    _check_units(path, num, ids)
     id_arr = np.asarray(ids)
     order, first = np.unique(id_arr, return_index=True)
     records = []

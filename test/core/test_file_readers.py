@@ -166,3 +166,24 @@ def test_the_replica_names_a_table_as_the_wrong_kind_of_file(tmp_path):
     path.write_text(_table_text())
     with pytest.raises(DataError, match='a CSV table carries no surface'):
         load_replica_pokes(path)
+
+
+@pytest.mark.parametrize('column, message', [
+    ('depth', r'depth = 5 m \(poke a\) is past 0.2 m.*millimetres\? divide by 1000'),
+    ('px', r'px = 10 m \(poke a\) is past 5 m'),
+    ('force', r'force = 10000 N \(poke a\) is past 1000 N.*millinewtons'),
+])
+def test_a_column_in_other_units_is_refused_with_the_likely_unit_named(
+        tmp_path, column, message):
+    plain = tmp_path / 'plain.csv'
+    plain.write_text(_table_text())
+    assert len(read_poke_table(plain)) == 2          # the same table in metres and newtons
+    lines = _table_text().splitlines()
+    i = lines[0].split(',').index(column)
+    rows = [line.split(',') for line in lines[1:]]
+    for row in rows:
+        row[i] = repr(float(row[i]) * 1000.0)
+    scaled = tmp_path / 'units.csv'
+    scaled.write_text('\n'.join([lines[0]] + [','.join(r) for r in rows]) + '\n')
+    with pytest.raises(DataError, match=message):
+        read_poke_table(scaled)

@@ -27,7 +27,7 @@ from typing import Optional
 
 import numpy as np
 
-from pointforce_ros.errors import DeviceFault, PointforceError
+from pointforce_ros.errors import DeviceFault, InvalidInput, PointforceError
 from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.bringup.sim_camera import SimCameraNode
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
@@ -69,6 +69,7 @@ class CellSession:
                  params_file: Optional[str] = None):
         """Start everything; raises DeviceFault if the emulator or the arm cannot start."""
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        from rclpy.exceptions import NameValidationException, ParameterException
         from rclpy.node import Node
         from rclpy.parameter import Parameter
 
@@ -144,6 +145,9 @@ class CellSession:
             self.client = self.client_launcher.add(Node('cell_driver',
                                                         context=self.client_launcher.context))
             self._clients()
+        except (ParameterException, NameValidationException) as exc:
+            self.close()     # a value of the parameter file a node refuses: out of range, ...
+            raise InvalidInput(f'a node of the cell refused its parameters: {exc}') from exc
         except BaseException:
             self.close()
             raise

@@ -24,7 +24,7 @@ from std_srvs.srv import Trigger
 
 from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
-from pointforce_ros.errors import PointforceError
+from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import save_surface
 from pointforce_ros.nodes.common import declare, live, qos_watch, run
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
@@ -66,7 +66,7 @@ class CloudCaptureNode(Node):
                                         orientation=orientation)
             self.default_pose = Pose(position=pose7[:3], orientation=pose7[3:])
         except PointforceError as exc:
-            raise ValueError(f'cloud_capture: bad parameters: {exc}') from exc
+            raise InvalidInput(f'roi / camera_pose: {exc}') from exc
         self._lock = threading.Lock()
         self._latest = None
         self._camera_pose = None

@@ -16,6 +16,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType, SetParametersResult)
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
 from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.node import Node
 
 from pointforce_ros.dds import use_package_dds_profile
@@ -246,12 +247,14 @@ def cannot_start(reason) -> None:
 def build_node(node_factory: Callable[[], Node]) -> Node:
     """Return ``node_factory()``; a configuration the node refuses ends the process.
 
-    A :class:`~pointforce_ros.errors.PointforceError` while the node is built (before it
-    serves: a poke store that is a file) goes through :func:`cannot_start`.
+    What is refused while the node is built, before it serves, goes through
+    :func:`cannot_start`: a :class:`~pointforce_ros.errors.PointforceError` (a poke store that
+    is a file, a camera pose that is no pose), a parameter rclpy refuses (out of its declared
+    range, of another type) and a topic or service name that is not valid.
     """
     try:
         return node_factory()
-    except PointforceError as exc:
+    except (PointforceError, ParameterException, NameValidationException) as exc:
         cannot_start(exc)
 
 

@@ -201,7 +201,7 @@ class DeformationForceNode(Node):
         try:
             self.default_pose = Pose(position=pose7[:3], orientation=pose7[3:])
         except PointforceError as exc:
-            raise ValueError(f'deformation_force: bad camera_pose: {exc}') from exc
+            raise InvalidInput(f'camera_pose: {exc}') from exc
         self._lock = threading.Lock()
         self._camera_pose = None
         self._tcp = None            # (position (3,), rotation (3, 3)) in base

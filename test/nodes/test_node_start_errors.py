@@ -2,7 +2,9 @@
 
 * a parameter file rcl cannot parse ends the node with rcl's reason and status 2, no traceback
   (both start paths: ``run`` and the contact node's single-threaded spin), and so does a
-  configuration a node refuses before it serves (a poke store that is a file);
+  configuration a node refuses before it serves (a poke store that is a file, a parameter out
+  of its range or of another type, a camera pose that is no pose, a topic name that is not
+  valid), in the simulated cell too;
 * a folder parameter that names a file is an error in the log at start, and a polled folder
   that does not exist yet a warning; the node still comes up.
 """
@@ -41,6 +43,38 @@ def test_a_configuration_a_node_refuses_ends_it_with_the_reason(tmp_path):
                          timeout=60, cwd=tmp_path)
     assert out.returncode == 2, out.stderr
     assert f'cannot start: poke store {a_file} is a file' in out.stderr
+    assert 'Traceback' not in out.stderr
+
+
+@pytest.mark.parametrize('module, argument, reason', [
+    ('poke_server', 'max_force:=-5.0', 'Parameter max_force out of range Min: 0.1'),
+    ('contact_wrench', 'max_batch:=many', "Trying to set parameter 'max_batch' to 'many'"),
+    ('cloud_capture', 'camera_pose:=[0.5,0.0,0.5,0.0,0.0,0.0,0.0]',
+     'camera_pose: Pose.orientation: quaternion must be unit length'),
+    ('deformation_force', 'camera_pose:=[1.0]', 'camera_pose: Pose.position: expected shape'),
+    ('cloud_capture', 'cloud_topic:=a b', 'Invalid topic name'),
+])
+def test_a_parameter_a_node_refuses_ends_it_with_the_reason(tmp_path, module, argument, reason):
+    # before: rclpy's InvalidParameterValueException / TypeException, or the node's own
+    # ValueError, as a traceback with status 1
+    out = subprocess.run([sys.executable, '-m', f'pointforce_ros.nodes.{module}', '--ros-args',
+                          '-p', argument], capture_output=True, text=True, timeout=60,
+                         cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert 'cannot start' in out.stderr and reason in out.stderr, out.stderr
+    assert 'Traceback' not in out.stderr
+
+
+def test_the_cell_names_a_parameter_file_value_a_node_refuses(tmp_path):
+    params = tmp_path / 'nodes.yaml'
+    params.write_text('/**/poke_server:\n  ros__parameters:\n    max_force: -5.0\n')
+    code = ('import sys; from pointforce_ros.bringup.cli import main; sys.exit(main(["cell", '
+            f'"run", "--params-file", "{params}", "--duration", "0", "--out", "cell"]))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120, cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert ('pointforce cell: error: a node of the cell refused its parameters' in out.stderr
+            and 'max_force out of range' in out.stderr)
     assert 'Traceback' not in out.stderr
 
 

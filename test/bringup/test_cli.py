@@ -69,16 +69,33 @@ def test_a_negative_cell_duration_is_refused(duration, capsys, monkeypatch):
     assert '--duration must be >= 0 s' in capsys.readouterr().err
 
 
+def _refused_in_a_process(argv, cwd) -> str:
+    """Run ``pointforce argv`` in its own process; assert status 2, no traceback; stderr."""
+    code = f'import sys; from pointforce_ros.bringup.cli import main; sys.exit(main({argv!r}))'
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120, cwd=cwd)
+    assert out.returncode == 2, out.stderr
+    assert 'Traceback' not in out.stderr
+    return out.stderr
+
+
 def test_a_path_that_cannot_be_used_is_an_error_line_not_a_traceback(tmp_path):
     a_file = tmp_path / 'notes.txt'
     a_file.write_text('not a folder')
-    code = ('import sys; from pointforce_ros.bringup.cli import main; '
-            f'sys.exit(main(["cell", "generate", "--pokes", "1", "--out", "{a_file}/data"]))')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=120, cwd=tmp_path)
-    assert out.returncode == 2, out.stderr
-    assert 'pointforce cell: error: NotADirectoryError' in out.stderr
-    assert 'Traceback' not in out.stderr
+    err = _refused_in_a_process(['cell', 'generate', '--pokes', '1', '--out',
+                                 f'{a_file}/data'], tmp_path)
+    assert 'pointforce cell: error: NotADirectoryError' in err
+
+
+def test_the_cell_names_a_parameter_file_value_a_node_refuses(tmp_path):
+    # before: rclpy's InvalidParameterValueException as a traceback, the emulator left to
+    # the cell's cleanup
+    params = tmp_path / 'nodes.yaml'
+    params.write_text('/**/poke_server:\n  ros__parameters:\n    max_force: -5.0\n')
+    err = _refused_in_a_process(['cell', 'run', '--params-file', str(params), '--duration',
+                                 '0', '--out', 'cell'], tmp_path)
+    assert 'pointforce cell: error: a node of the cell refused its parameters' in err
+    assert 'max_force out of range' in err
 
 
 @pytest.mark.parametrize('argv, message', [

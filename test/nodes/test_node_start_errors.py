@@ -4,7 +4,7 @@
   (both start paths: ``run`` and the contact node's single-threaded spin), and so does a
   configuration a node refuses before it serves (a poke store that is a file, a parameter out
   of its range or of another type, a camera pose that is no pose, a topic name that is not
-  valid), in the simulated cell too;
+  valid) (the simulated cell's case: ``test/bringup/test_cli.py``);
 * a folder parameter that names a file is an error in the log at start, and a polled folder
   that does not exist yet a warning; the node still comes up.
 """
@@ -62,19 +62,6 @@ def test_a_parameter_a_node_refuses_ends_it_with_the_reason(tmp_path, module, ar
                          cwd=tmp_path)
     assert out.returncode == 2, out.stderr
     assert 'cannot start' in out.stderr and reason in out.stderr, out.stderr
-    assert 'Traceback' not in out.stderr
-
-
-def test_the_cell_names_a_parameter_file_value_a_node_refuses(tmp_path):
-    params = tmp_path / 'nodes.yaml'
-    params.write_text('/**/poke_server:\n  ros__parameters:\n    max_force: -5.0\n')
-    code = ('import sys; from pointforce_ros.bringup.cli import main; sys.exit(main(["cell", '
-            f'"run", "--params-file", "{params}", "--duration", "0", "--out", "cell"]))')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         timeout=120, cwd=tmp_path)
-    assert out.returncode == 2, out.stderr
-    assert ('pointforce cell: error: a node of the cell refused its parameters' in out.stderr
-            and 'max_force out of range' in out.stderr)
     assert 'Traceback' not in out.stderr
 
 

@@ -166,8 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument('--quick', action='store_true', help='fewer pokes (4 instead of 8)')
     demo.add_argument('--object', default='lamb', help='simulated object (config/objects)')
     demo.add_argument('--scenario', default='realistic', help='sensor effects (config/scenarios)')
-    demo.add_argument('--pokes', type=arguments.count,
-                      default=0, help='number of pokes (0: 8, or 4 quick)')
+    demo.add_argument('--pokes', type=arguments.count, default=0,
+                      help='number of pokes (0: 8, or 4 quick)')
     demo.add_argument('--camera-check', action='store_true',
                       help='also estimate one contact force from the camera alone against the '
                            'F/T (seed 001; two ground-truth FEM solves, about 5 min more)')
@@ -202,8 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
                               'error before and after (held-out)')
     diagnose.add_argument('data', help='poke store directory, one poke bag, or a CSV table')
     diagnose.add_argument('--out', default='out/diagnose', help='report directory')
-    diagnose.add_argument('--seed', type=arguments.seed,
-                          default=0, help='train/held-out split seed')
+    diagnose.add_argument('--seed', type=arguments.seed, default=0,
+                          help='train/held-out split seed')
     diagnose.add_argument('--json', action='store_true',
                           help='print the JSON summary on stdout (progress on stderr)')
     diagnose.set_defaults(func=_cmd_diagnose)
@@ -226,8 +226,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
     replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')
-    replay.add_argument('--rate', type=arguments.positive_float,
-                        default=1.0, help='speed-up factor (1 = real time)')
+    replay.add_argument('--rate', type=arguments.positive_float, default=1.0,
+                        help='speed-up factor (1 = real time)')
     replay.set_defaults(func=_cmd_replay)
 
     bench = sub.add_parser('bench', help='benchmarks; ratios against a baseline in the same run')

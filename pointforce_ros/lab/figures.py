@@ -1375,8 +1375,8 @@ def main(argv=None) -> int:
     parser.add_argument('--quick', action='store_true', help='2 objects, 3 subsets')
     parser.add_argument('--repeats', type=arguments.positive_int, default=None)
     parser.add_argument('--seed', type=arguments.seed, default=0)
-    parser.add_argument('--auto-budget', type=arguments.positive_float,
-                        default=1.0, help='Auto-ET budget, s')
+    parser.add_argument('--auto-budget', type=arguments.positive_float, default=1.0,
+                        help='Auto-ET budget, s')
     parser.add_argument('--data', default=DATA_DIR, help='folder of the cached fixtures')
     parser.add_argument('--learning-only', action='store_true',
                         help='figure 1 (learning curves) and its error budget only')

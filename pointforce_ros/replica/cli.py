@@ -21,8 +21,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument('--data', required=True, help='poke store, generated data set, or poke '
                    'fixture .npz')
     p.add_argument('--out', required=True, help='replica directory')
-    p.add_argument('--h', type=arguments.positive_float,
-                   default=0.01, help='mesh edge length, m (recorded)')
+    p.add_argument('--h', type=arguments.positive_float, default=0.01,
+                   help='mesh edge length, m (recorded)')
     p.add_argument('--train', type=arguments.positive_int, default=3, help='training pokes')
     p.add_argument('--held-out', type=arguments.positive_int, default=3, help='held-out pokes')
     p.add_argument('--no-damping', action='store_true', help='skip the damping step')

@@ -300,7 +300,14 @@ class PokeServerNode(Node):
                 try_feedback()
             return goal_handle.is_cancel_requested
 
-        poke_id = self.store.next_id()
+        try:
+            poke_id = self.store.next_id()
+        except OSError as exc:     # a full disk or a read-only store: before the arm moves
+            message = (f'poke store {self.store.root} cannot take a new poke '
+                       f'({type(exc).__name__}: {exc}); the arm did not move')
+            self.get_logger().error(message)
+            goal_handle.abort()
+            return poke_result_msg('', 0, 0.0, 0.0, 'aborted', message)
         fault = None
         try:
             result = arm.push_until(standoff, -normal, force_limit=goal.force_limit,

@@ -163,6 +163,23 @@ def test_a_storing_failure_after_the_arm_moved_keeps_the_samples_and_says_where(
     assert after.poke_id == 'poke-000002'
 
 
+def test_a_store_that_cannot_take_a_new_poke_aborts_before_the_arm_moves(scripted, monkeypatch):
+    graph, server, client, arms, tmp_path = scripted
+
+    def full(*args, **kwargs):
+        raise OSError(28, 'No space left on device')
+    monkeypatch.setattr(server.store, '_write_json', full)   # the id counter's write
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal')
+    got = graph.wait_future(handle.get_result_async(), 30, 'result')
+    assert got.status == 6 and arms[0].pushes == 0            # ABORTED, the arm never moved
+    assert (f'poke store {tmp_path / "pokes"} cannot take a new poke (OSError: [Errno 28] No '
+            'space left on device); the arm did not move') in got.result.message
+    monkeypatch.undo()
+    handle = graph.wait_future(client.send_goal_async(_goal()), 20, 'goal after')
+    after = graph.wait_future(handle.get_result_async(), 30, 'result after')
+    assert after.status == 4 and arms[0].pushes == 1
+
+
 def test_an_unexpected_error_in_execution_aborts_with_a_message_and_frees_the_lock(
         scripted, monkeypatch):
     graph, server, client, arms, _ = scripted

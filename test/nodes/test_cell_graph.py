@@ -2,7 +2,7 @@
 
 * Two cells under ``/cell1`` and ``/cell2`` on one domain: each learner gets its own capture
   node's surface and each capture node its own camera's clouds, never the other cell's.
-* The four nodes together: every publisher/subscriber pair they form has compatible QoS (no
+* The five nodes together: every publisher/subscriber pair they form has compatible QoS (no
   incompatible-QoS event), and the learner's record-from-topics mode rebuilds a poke that a live
   poke server streams.
 * The learner's latched ``~/markers``: the surface coloured by the learned force, and arrows at
@@ -31,6 +31,7 @@ from pointforce_ros.drivers.ur_arm import ArmSample, PushResult
 from pointforce_ros.model.files import load_model, save_surface
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
+from pointforce_ros.nodes.deformation_force import DeformationForceNode
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import LATCHED, StiffnessLearnerNode
 from pointforce_ros.pokes.store import PokeStore
@@ -41,7 +42,8 @@ from pointforce_ros.types import PokeGoal, Surface
 from idle_arm import IdleArm  # noqa: I100 - the test helper beside this file
 
 pytestmark = pytest.mark.ros
-PRODUCT = {'cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench'}
+PRODUCT = {'cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench',
+           'deformation_force'}
 
 
 def _plane_cloud(half: float) -> PointCloud2:
@@ -161,7 +163,7 @@ def _incompatible_pairs(probe):
     return bad
 
 
-def test_four_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp_path):
+def test_five_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp_path):
     ctx = ros_graph.context
     ros_graph.add(CloudCaptureNode(context=ctx, parameter_overrides=[
         Parameter('surface_file', value=str(tmp_path / 'surface.npz'))]))
@@ -173,20 +175,31 @@ def test_four_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp
         Parameter('record_topics', value=True),
         Parameter('poll_period', value=600.0)]))
     ros_graph.add(ContactWrenchNode(context=ctx))
+    ros_graph.add(DeformationForceNode(context=ctx, parameter_overrides=[
+        Parameter('model_dir', value=str(tmp_path / 'deformation')),
+        Parameter('point_model_dir', value='')]))
     probe = ros_graph.add(Node('qos_probe', context=ctx))
 
     def matched():
         subs = {(s.node_name, t) for t in ('/poke_server/tcp_pose', '/poke_server/wrench',
                                            '/poke_server/poke_record', '/cloud_capture/surface',
-                                           '/stiffness_learner/model')
+                                           '/stiffness_learner/model',
+                                           '/poke_server/poke_landed',
+                                           '/cloud_capture/camera_pose')
                 for s in probe.get_subscriptions_info_by_topic(t)}
         return {('stiffness_learner', '/poke_server/tcp_pose'),
                 ('stiffness_learner', '/poke_server/wrench'),
                 ('stiffness_learner', '/poke_server/poke_record'),
                 ('stiffness_learner', '/cloud_capture/surface'),
                 ('poke_server', '/cloud_capture/surface'),
-                ('contact_wrench', '/stiffness_learner/model')} <= subs
-    ros_graph.wait_for(matched, 15, 'the four nodes discovered')
+                ('contact_wrench', '/stiffness_learner/model'),
+                ('deformation_force', '/poke_server/tcp_pose'),
+                ('deformation_force', '/poke_server/wrench'),
+                ('deformation_force', '/poke_server/poke_landed'),
+                ('deformation_force', '/cloud_capture/surface'),
+                ('deformation_force', '/cloud_capture/camera_pose'),
+                ('deformation_force', '/stiffness_learner/model')} <= subs
+    ros_graph.wait_for(matched, 15, 'the five nodes discovered')
     assert _incompatible_pairs(probe) == []
     client = ActionClient(probe, Poke, '/poke_server/poke')
     assert client.wait_for_server(timeout_sec=15.0)

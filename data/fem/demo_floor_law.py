@@ -20,6 +20,10 @@ penetration past the response's onset, ``E`` = 4 mm, ``e`` floored at ``0.1 E``)
   so scaled;
 * ``Lpd``: ``L_i = L (e_i / E) ** gamma`` in the positive definite non-stationary kernel
   (``varying_shape_function``): what ``ContactSimulator(decay_law='penetration')`` computes.
+* ``Tpd`` (session 29): ``Lpd`` (exponent 1 on the penetration) with the whole query's tail
+  length times ``median(t_i) ** gamma`` over its candidate contacts: a contact over a thinner
+  layer (more stiffening in its point response) spreads its dent less far (session 16's
+  ``'substrate'`` law, here with ``gamma`` 1 and 2).
 * ``Kpd`` (session 22): ``Lpd`` (``gamma = 1``) with compliance-weighted coupling: a contact
   next to a stiffer one is dragged less than it drags, ``G_ij -> G_ij w_j / w_i``, ``w_i = (k_i
   / k_ref) ** (gamma / 2)`` (``k_i`` the point force 3 mm past the onset at the contact's
@@ -97,6 +101,17 @@ kept. The same 11 runs as served: five of this session's product code 6.8-9.5 %,
 session 22's demo commit (973f7a7, run alternately on the same machine) 8.3-9.0 %: the
 demo's lower scores since session 23 are not a change in its code.
 
+Session 29, ``Tpd`` on the last model of 14 stored lamb runs of sessions 25-29
+(``demo_floor_law_lamb_tpd_s29.log``): with the learned response ``gamma = 1`` lowers the
+queries' RMSE on all 14 (7.2-9.7 %, mean 8.51 % -> 5.1-8.6 %, mean 7.11 %; ``gamma = 2``: mean
+7.44 %, lower on 11), cylinder #2 0.72-0.79 -> 0.76-0.93, and both demo goals hold on 3 of 14
+(1 with ``Lpd``): two runs go from 7 below to 7 above. With the TRUE response (4 runs) 8.0-8.4 %
+-> 5.9-6.6 % (``gamma = 1``) and 4.0-5.0 % (``gamma = 2``, 4-5 below): the law the bone needs.
+The pushes do not choose it (their error moves by -1.3 to +7 points; one run's fit jumps to c
+9.9 mm, L 8 mm), so it would be a default, and it is not one yet: the simulator's compiled
+kernels, the service, the calibration and figure 2's other objects (session 16 saw
+thin_layer's probe trials get worse under the ``gamma = 1`` form) have to carry and confirm it.
+
 Usage: python data/fem/demo_floor_law.py out/demo [--object lamb] [--response true|learned]
        [--laws global,Lpd] [--gammas 1] [--proxy 5,10] [--tag _run2] [--floor]
        [--select-gamma] [--extra-push NPZ] [--drop rod] [--average] [--scale] [--relative]
@@ -125,7 +140,7 @@ C_GRID = (0.001, 0.0015, 0.002, 0.003, 0.004, 0.006, 0.008, 0.01, 0.015, 0.02, 0
 C_BOUNDS = (1e-4, 0.1)
 LAWS = {'global': (0.0,), 'decay': (0.5, 1.0, 2.0), 'scale': (0.5, 1.0, 2.0),
         'depth': (0.002, 0.004, 0.008), 'cq': (0.5, 1.0, 1.5, 2.0), 'cp': (0.5, 1.0, 2.0),
-        'Lp': (1.0,), 'sp': (1.0,), 'Lpd': (1.0,), 'Kpd': (0.5, 1.0, 2.0),
+        'Lp': (1.0,), 'sp': (1.0,), 'Lpd': (1.0,), 'Tpd': (1.0, 2.0), 'Kpd': (0.5, 1.0, 2.0),
         'Dpd': (0.001, 0.002, 0.004, 0.006), 'Spd': (0.002, 0.004, 0.006, 0.008)}
 E_REF = 0.004
 """Penetration at which the depth laws' ``c`` is the grid's ``c``, metres."""
@@ -173,8 +188,10 @@ def shape(law, gamma, cand, c, decay, t):
         cij = 0.5 * (ci[:, None] + ci[None])
         G = cij / (cij + r)
         return G * np.exp(-r / decay) if np.isfinite(decay) else G
-    if law == 'Lpd':
-        Li = decay * (np.maximum(e, 0.1 * E_REF) / E_REF) ** gamma
+    if law in ('Lpd', 'Tpd'):
+        Li = decay * (np.maximum(e, 0.1 * E_REF) / E_REF) ** (gamma if law == 'Lpd' else 1.0)
+        if law == 'Tpd':     # the whole query's tail by the median proxy under it
+            Li = Li * float(np.median(ti)) ** gamma
         s2 = 0.5 * (Li[:, None] ** 2 + Li[None] ** 2)
         G = c / (c + r)
         if np.isfinite(decay):

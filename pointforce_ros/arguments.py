@@ -7,12 +7,13 @@ else; with them argparse answers at once: ``error: argument --pokes: -1 is not >
 
 import argparse
 import math
+from typing import Optional
 
 SEED_MAX = 2 ** 32 - 1
 """Largest seed the command lines take (numpy's generators take any integer from 0)."""
 
 
-def _int(text: str, low: int, high: int = None) -> int:
+def _int(text: str, low: int, high: Optional[int] = None) -> int:
     try:
         value = int(text)
     except ValueError:

@@ -422,16 +422,14 @@ def load_shape(directory) -> Optional[Tuple[float, float]]:
     path = Path(directory) / SHAPE
     if not path.is_file():
         return None
+    body = read_json(path, 'shape file')
     try:
-        body = read_json(path, 'shape file')
         c = float(body['shape_constant'])
         decay = body.get('shape_decay')
         decay = float('inf') if decay is None else float(decay)
         if not (np.isfinite(c) and c > 0):
             raise ValueError(f'shape_constant {c} is not > 0')
         check_decay(decay, 'shape_decay')
-    except DataError:
-        raise
     except (OSError, ValueError, KeyError, TypeError, AttributeError, InvalidInput) as exc:
         raise DataError(f'{path}: unreadable shape file: {type(exc).__name__}: {exc}') from exc
     return c, decay
@@ -488,15 +486,13 @@ def load_shape_uncertainty(directory) -> dict:
     path = Path(directory) / SHAPE
     if not path.is_file():
         return {}
+    body = read_json(path, 'shape file')
     try:
-        body = read_json(path, 'shape file')
         sources = body.get('uncertainty') or {}
         unknown = set(sources) - set(SOURCE_KEYS)
         if unknown:
             raise ValueError(f'unknown uncertainty sources {sorted(unknown)}')
         return uncertainty_sources(**sources)
-    except DataError:
-        raise
     except (OSError, ValueError, TypeError, AttributeError, InvalidInput) as exc:
         raise DataError(f'{path}: unreadable uncertainty sources: {type(exc).__name__}: '
                         f'{exc}') from exc

@@ -35,11 +35,11 @@ def load_trial_dicts(path) -> List[Dict]:
     path = Path(path)
     if path.is_dir():
         path = path / 'probes.npz'
-    index = read_json(path.with_suffix('.json'), 'probe trial index')['trials']
-    with reading(path, 'probe trial file'), np.load(path, allow_pickle=False) as z:
+    index = read_json(path.with_suffix('.json'), 'probe trial index')
+    with reading(path, 'probe trials'), np.load(path, allow_pickle=False) as z:
         return [{'kind': e['kind'], **{key[4:]: z[key] for key in z.files
                                        if key.startswith(f'{e["trial"]:03d}_')}}
-                for e in index]
+                for e in index['trials']]
 
 
 @dataclass(frozen=True)
@@ -115,9 +115,8 @@ def load_probe_trials(path) -> List[ProbeTrial]:
         DataError: missing or unreadable files.
 
     """
-    with reading(path, 'probe trials'):
-        dicts = load_trial_dicts(path)
+    dicts = load_trial_dicts(path)
     try:
         return trials_from_dicts(dicts)
-    except DataError as exc:
+    except DataError as exc:      # a trial's content: say which file it is in
         raise DataError(f'{path}: {exc}') from exc

@@ -23,27 +23,28 @@ from pointforce_ros.nodes.stiffness_learner import StiffnessLearnerNode
 pytestmark = pytest.mark.ros
 
 
+def _refused_node(module: str, ros_args, cwd) -> str:
+    """Start node ``module`` with ``--ros-args ros_args``; assert status 2, no traceback."""
+    out = subprocess.run([sys.executable, '-m', f'pointforce_ros.nodes.{module}', '--ros-args',
+                          *ros_args], capture_output=True, text=True, timeout=60, cwd=cwd)
+    assert out.returncode == 2, out.stderr
+    assert 'Traceback' not in out.stderr
+    return out.stderr
+
+
 @pytest.mark.parametrize('module', ['contact_wrench', 'stiffness_learner'])
 def test_a_params_file_rcl_cannot_parse_ends_the_node_with_its_reason(tmp_path, module):
     bad = tmp_path / 'nodes.yaml'
     bad.write_text('/**/contact_wrench: [ros__parameters\n')
-    out = subprocess.run([sys.executable, '-m', f'pointforce_ros.nodes.{module}', '--ros-args',
-                          '--params-file', str(bad)], capture_output=True, text=True,
-                         timeout=60, cwd=tmp_path)
-    assert out.returncode == 2, out.stderr
-    assert 'cannot start' in out.stderr and "Couldn't parse params file" in out.stderr
-    assert 'Traceback' not in out.stderr
+    err = _refused_node(module, ['--params-file', str(bad)], tmp_path)
+    assert 'cannot start' in err and "Couldn't parse params file" in err
 
 
 def test_a_configuration_a_node_refuses_ends_it_with_the_reason(tmp_path):
     a_file = tmp_path / 'pokes.txt'
     a_file.write_text('not a folder')
-    out = subprocess.run([sys.executable, '-m', 'pointforce_ros.nodes.poke_server', '--ros-args',
-                          '-p', f'store_dir:={a_file}'], capture_output=True, text=True,
-                         timeout=60, cwd=tmp_path)
-    assert out.returncode == 2, out.stderr
-    assert f'cannot start: poke store {a_file} is a file' in out.stderr
-    assert 'Traceback' not in out.stderr
+    err = _refused_node('poke_server', ['-p', f'store_dir:={a_file}'], tmp_path)
+    assert f'cannot start: poke store {a_file} is a file' in err
 
 
 @pytest.mark.parametrize('module, argument, reason', [
@@ -57,12 +58,8 @@ def test_a_configuration_a_node_refuses_ends_it_with_the_reason(tmp_path):
 def test_a_parameter_a_node_refuses_ends_it_with_the_reason(tmp_path, module, argument, reason):
     # before: rclpy's InvalidParameterValueException / TypeException, or the node's own
     # ValueError, as a traceback with status 1
-    out = subprocess.run([sys.executable, '-m', f'pointforce_ros.nodes.{module}', '--ros-args',
-                          '-p', argument], capture_output=True, text=True, timeout=60,
-                         cwd=tmp_path)
-    assert out.returncode == 2, out.stderr
-    assert 'cannot start' in out.stderr and reason in out.stderr, out.stderr
-    assert 'Traceback' not in out.stderr
+    err = _refused_node(module, ['-p', argument], tmp_path)
+    assert 'cannot start' in err and reason in err, err
 
 
 @pytest.fixture

@@ -68,6 +68,9 @@ from pointforce_ros.response.blas import single_threaded_blas
 from pointforce_ros.types import as_array, Mesh, Pose, Surface, Wrench
 from pointforce_ros.rotations import quaternion_to_matrix
 
+_NO_PROXY = np.zeros(0)
+"""The compiled kernels' ``thickness`` outside the ``'layer'`` law."""
+
 APPROACH_TOLERANCE = 1e-3
 """Largest accepted deviation of the approach direction's length from one."""
 
@@ -86,10 +89,11 @@ every candidate), half the LCP time, answers equal within 2e-15 N. On the contac
 first round's free sets are smaller (0.3-0.9: fewest rounds and least time at 0.65-0.7; a
 dome with ``c`` = 8 mm agrees)."""
 
-DECAY_LAWS = ('fixed', 'penetration')
+DECAY_LAWS = ('fixed', 'penetration', 'layer')
 """How the shape function's tail decay length is set (:class:`ContactSimulator` ``decay_law``):
-one ``decay`` for every contact, or per contact in proportion to its penetration
-(:data:`DECAY_REFERENCE`)."""
+one ``decay`` for every contact, per contact in proportion to its penetration
+(:data:`DECAY_REFERENCE`), or so and times the layer proxy under the query
+(:func:`layer_proxy`)."""
 
 DECAY_LAW = 'penetration'
 """The decay law a simulator gets when none is given (issue 17): on the demo's lamb it beat
@@ -106,6 +110,41 @@ DECAY_REFERENCE``."""
 DECAY_FLOOR = 0.1
 """Smallest penetration the ``'penetration'`` law scales by, as a share of
 :data:`DECAY_REFERENCE` (a contact at its rim still spreads its dent)."""
+
+
+LAYER_DEPTHS = (0.003, 0.008)
+"""Depths past the onset, metres, whose point forces' ratio ``F(deep) / F(shallow)`` is a
+point's stiffening in :func:`layer_proxy`."""
+
+LAYER_CLIP = (0.25, 4.0)
+"""Bounds of :func:`layer_proxy`'s ratio (a point whose response barely rises is not read as a
+layer a hundred times thicker)."""
+
+
+def layer_proxy(response, onsets: np.ndarray) -> np.ndarray:
+    """(N,) each surface point's layer proxy ``t_i = s_ref / s_i`` read off the point response.
+
+    ``s_i = F(d0 + 8 mm) / F(d0 + 3 mm)`` (:data:`LAYER_DEPTHS`, ``d0`` the point's onset) is how
+    much the response stiffens: soft material over a stiff substrate stiffens more the thinner
+    it is, so a thinner layer gives a smaller ``t``. ``s_ref`` is the median over the points
+    whose shallow force is at least 5 % of the median one (the rest, and non-finite ratios,
+    get ``t = 1``); ``t`` is clipped to :data:`LAYER_CLIP`. A surface where no point qualifies
+    gets ones (the ``'penetration'`` law).
+    """
+    n = len(onsets)
+    every = np.arange(n)
+    shallow = np.asarray(response.force(every, onsets + LAYER_DEPTHS[0]), dtype=np.float64)
+    deep = np.asarray(response.force(every, onsets + LAYER_DEPTHS[1]), dtype=np.float64)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        ratio = deep / np.maximum(shallow, 1e-3)
+    positive = shallow[np.isfinite(shallow) & (shallow > 0.0)]
+    if len(positive) == 0:
+        return np.ones(n)
+    ok = (shallow > 0.05 * float(np.median(positive))) & np.isfinite(ratio) & (ratio > 0.0)
+    if not np.any(ok):
+        return np.ones(n)
+    reference = float(np.median(ratio[ok]))
+    return np.clip(np.where(ok, reference / np.where(ok, ratio, 1.0), 1.0), *LAYER_CLIP)
 
 
 def check_decay_law(value, name: str = 'decay_law') -> str:
@@ -355,6 +394,7 @@ class ContactSimulator:
         self.duplicates_removed = len(surface) - len(self._unique)
         self._projections: Dict[Tuple[float, ...], _Projection] = {}
         self._meshes: Dict[Tuple[int, float], Tuple[Mesh, np.ndarray]] = {}
+        self._proxy: Dict[str, np.ndarray] = {}   # layer_proxy of the response, on first use
 
     def with_shape_constant(self, c: float, decay: Optional[float] = None,
                             decay_law: Optional[str] = None,
@@ -471,15 +511,17 @@ class ContactSimulator:
                                   pressure_spreads=spread)
 
     def surface_displacement(self, contact_points: np.ndarray, actual: np.ndarray,
-                             penetrations: Optional[np.ndarray] = None) -> np.ndarray:
+                             penetrations: Optional[np.ndarray] = None,
+                             scale: float = 1.0) -> np.ndarray:
         """(N,) displacement along ``-n`` of every surface point, ``sum_i g(|x - q_i|) d~_i``.
 
-        Under the ``'penetration'`` decay law each contact's dent decays over its own length
-        (``penetrations`` (K,), metres, past the onset; without them the law's reference).
+        Under the ``'penetration'`` and ``'layer'`` decay laws each contact's dent decays over
+        its own length (``penetrations`` (K,), metres, past the onset; without them the law's
+        reference), times ``scale`` (the ``'layer'`` law's factor of the pose).
         """
         out = np.zeros(len(self._points))
         lengths = self.decay_lengths(np.full(len(actual), DECAY_REFERENCE)
-                                     if penetrations is None else penetrations)
+                                     if penetrations is None else penetrations, scale)
         for s in range(0, len(contact_points), 256):
             r = cdist(self._points, contact_points[s:s + 256])
             if lengths is None:
@@ -489,16 +531,43 @@ class ContactSimulator:
             out += g @ actual[s:s + 256]
         return out
 
-    def decay_lengths(self, penetrations: np.ndarray) -> Optional[np.ndarray]:
+    def decay_lengths(self, penetrations: np.ndarray,
+                      scale: Union[float, np.ndarray] = 1.0) -> Optional[np.ndarray]:
         """Per-contact decay lengths (K,), metres, of ``penetrations`` (K,), metres.
 
+        ``scale``: the ``'layer'`` law's factor (:meth:`layer_scales`), one or per contact.
         ``None`` under the ``'fixed'`` law or without a tail (``decay = inf``): one ``decay``.
         """
         if self.decay_law == 'fixed' or not np.isfinite(self.decay):
             return None
         e = np.maximum(np.asarray(penetrations, dtype=np.float64),
                        DECAY_FLOOR * DECAY_REFERENCE)
-        return self.decay * e / DECAY_REFERENCE
+        return scale * (self.decay * e / DECAY_REFERENCE)
+
+    def layer_thickness(self) -> np.ndarray:
+        """(N,) the response's :func:`layer_proxy` (computed once, shared with copies)."""
+        proxy = self._proxy.get('t')
+        if proxy is None:
+            proxy = self._proxy['t'] = np.ascontiguousarray(
+                layer_proxy(self.response, self._onset), dtype=np.float64)
+        return proxy
+
+    def layer_scales(self, b_idx: np.ndarray, nbr: np.ndarray) -> np.ndarray:
+        """(K,) the ``'layer'`` law's factor of each candidate: its pose's median proxy.
+
+        ``b_idx`` (K,) the candidates' poses (sorted), ``nbr`` (K, 3) their neighbours; each
+        candidate's proxy is its neighbours' mean :meth:`layer_thickness`. Ones under the other
+        laws.
+        """
+        if self.decay_law != 'layer' or len(b_idx) == 0:
+            return np.ones(len(b_idx))
+        t = self.layer_thickness()[nbr].mean(axis=1)
+        order = np.lexsort((t, b_idx))
+        ts = t[order]
+        starts = np.flatnonzero(np.concatenate([[True], b_idx[1:] != b_idx[:-1]]))
+        counts = np.diff(np.append(starts, len(b_idx)))
+        median = 0.5 * (ts[starts + (counts - 1) // 2] + ts[starts + counts // 2])
+        return np.repeat(median, counts)
 
     # ------------------------------------------------------------------------------ internals
     def _samples(self, mesh: Mesh) -> np.ndarray:
@@ -635,7 +704,7 @@ class ContactSimulator:
         nsum = sums[:, :3]
         nq = nsum / np.linalg.norm(nsum, axis=1, keepdims=True)
         # 4. LCP per pose, padded stacks of similar size.
-        x, u, residual = self._solve_grouped(b_idx, q, e, B)
+        x, u, residual = self._solve_grouped(b_idx, q, e, B, self.layer_scales(b_idx, nbr))
         # 5. Forces and wrench (eq. 4).
         f = self._contact_forces(nbr, d, x)
         # b_idx is sorted: per-pose sums over runs, in the order add.at would take
@@ -687,7 +756,9 @@ class ContactSimulator:
             local, rot.T @ frame, pos @ frame, np.ascontiguousarray(rot), proj.floor,
             proj.origin, proj.cell, proj.last, proj.bound, *self._cells(proj), proj.tree.data,
             proj.index, proj.max_gap, pos, self._table, self.c, self.decay,
-            self.decay_law == 'penetration', self.near == 'flat', DECAY_REFERENCE, DECAY_FLOOR,
+            self.decay_law != 'fixed',
+            self.layer_thickness() if self.decay_law == 'layer' else _NO_PROXY,
+            self.near == 'flat', DECAY_REFERENCE, DECAY_FLOOR,
             WARM_START, MAX_PIVOTING, PIVOTING_TOL)
         if len(keep) == 0:
             return empty
@@ -711,9 +782,12 @@ class ContactSimulator:
                        x=x, f=f)
         return run
 
-    def _solve_grouped(self, b_idx: np.ndarray, q: np.ndarray, d: np.ndarray,
-                       B: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Solve every pose's LCP; candidates are sorted by pose. Returns x, u = G x, residual."""
+    def _solve_grouped(self, b_idx: np.ndarray, q: np.ndarray, d: np.ndarray, B: int,
+                       scale: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Solve every pose's LCP; candidates are sorted by pose. Returns x, u = G x, residual.
+
+        ``scale`` (K,): each candidate's decay-length factor (:meth:`layer_scales`).
+        """
         counts = np.bincount(b_idx, minlength=B)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
         x = np.zeros(len(d))
@@ -743,11 +817,13 @@ class ContactSimulator:
             dp = np.zeros((len(members), m))
             valid = np.zeros((len(members), m), dtype=bool)
             qp[gi, si], dp[gi, si], valid[gi, si] = q[rows], d[rows], True
+            sp = np.ones((len(members), m))
+            sp[gi, si] = scale[rows]
             # Pairwise distances by the Gram identity, centred per pose against cancellation.
             qp -= qp.sum(axis=1, keepdims=True) / np.maximum(valid.sum(axis=1), 1)[:, None, None]
             qp[~valid] = 0.0
             # G is built column by column as the pivoting needs it (lcp.PointShapeStack)
-            lengths = self.decay_lengths(dp)
+            lengths = self.decay_lengths(dp, sp)
             if lengths is not None:
                 lengths[~valid] = self.decay     # padding: any positive length
             G = PointShapeStack(qp, self.c, self.decay, lengths, self.near)
@@ -777,7 +853,8 @@ class ContactSimulator:
         q, x = run['q'][act], run['x'][act]
         if return_displacements:
             disp_idx = np.arange(len(self._points))
-            disp = self.surface_displacement(q, x, run['e'][act])
+            disp = self.surface_displacement(
+                q, x, run['e'][act], float(self.layer_scales(run['b'], run['nbr'])[0]))
         else:
             disp_idx = run['nbr'][act, 0]
             disp = run['d'][act]
@@ -891,6 +968,7 @@ def _positive(name: str, value) -> float:
 
 __all__: List[str] = ['APPROACH_TOLERANCE', 'BatchContactResult', 'ContactResult',
                       'ContactSimulator', 'DECAY_FLOOR', 'DECAY_LAW', 'DECAY_LAWS',
-                      'DECAY_REFERENCE', 'check_decay_law', 'normalise_approach',
+                      'DECAY_REFERENCE', 'LAYER_CLIP', 'LAYER_DEPTHS', 'check_decay_law',
+                      'layer_proxy', 'normalise_approach',
                       'poses_as_arrays',
                       ]

@@ -279,9 +279,9 @@ def bpp(G, d, free, max_iter, tol):
     return np.maximum(x, 0.0), max_iter, NOT_CONVERGED
 
 
-@numba.njit((_IM, _M, _V, _M, float64, float64, boolean, boolean, float64, float64, float64,
-             int64, float64), **_JIT)
-def solve_single(nbr, posed, pos, table, c, decay, penetration_law, flat, reference,
+@numba.njit((_IM, _M, _V, _M, float64, float64, boolean, _V, boolean, float64, float64,
+             float64, int64, float64), **_JIT)
+def solve_single(nbr, posed, pos, table, c, decay, penetration_law, thickness, flat, reference,
                  floor_share, warm_start, max_iter, tol):
     """Solve steps 2 (after the search), 3 and 4 of one pose: candidates, dedupes, LCP.
 
@@ -294,6 +294,9 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, flat, refere
         c, decay: shape-function constant and tail length (``inf``: no tail), metres.
         penetration_law: decay lengths grow with each contact's penetration
             (``decay * max(e, floor_share * reference) / reference``); False: one ``decay``.
+        thickness: (N,) per surface point the layer proxy of the ``'layer'`` law: with
+            ``penetration_law``, every length of the pose is also multiplied by the median
+            over its candidates of their three neighbours' mean proxy; empty: not.
         flat: the flat-topped near field ``(1 + r / c) exp(-r / c)`` instead of the paper's
             ``c / (c + r)`` (:data:`~pointforce_ros.contact.lcp.NEARS`).
         warm_start: the first free set: penetration >= ``warm_start`` x the deepest.
@@ -383,8 +386,16 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, flat, refere
     lengths = np.empty(M)
     varying = penetration_law and math.isfinite(decay)
     if varying:
+        scale = 1.0
+        if len(thickness) > 0 and M > 0:
+            proxy = np.empty(M)
+            for a in range(M):
+                k = idx[a]
+                proxy[a] = (thickness[nbr[k, 0]] + thickness[nbr[k, 1]]
+                            + thickness[nbr[k, 2]]) / 3.0
+            scale = np.median(proxy)
         for a in range(M):
-            lengths[a] = decay * max(e[a], floor_share * reference) / reference
+            lengths[a] = scale * decay * max(e[a], floor_share * reference) / reference
     for i in range(M):
         G[i, i] = 1.0           # g(0) = 1 under both laws
         for j in range(i + 1, M):   # symmetric: each pair once
@@ -417,11 +428,11 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, flat, refere
 
 
 @numba.njit((_M, _M, _V, _M, float64, _V, float64, _I, _M, _I, _I, _M, _I, float64, _V, _M,
-             float64, float64, boolean, boolean, float64, float64, float64, int64, float64),
+             float64, float64, boolean, _V, boolean, float64, float64, float64, int64, float64),
             **_JIT)
 def single_query(local, to_frame, offset, rot, floor, origin, cell, last, bound, starts, members,
-                 facing, facing_index, max_gap, pos, table, c, decay, penetration_law, flat,
-                 reference, floor_share, warm_start, max_iter, tol):
+                 facing, facing_index, max_gap, pos, table, c, decay, penetration_law, thickness,
+                 flat, reference, floor_share, warm_start, max_iter, tol):
     """Solve steps 1-4 of one pose in one call.
 
     :func:`prefilter`, :func:`three_nearest`, then :func:`solve_single`, with their arguments;
@@ -440,8 +451,8 @@ def single_query(local, to_frame, offset, rot, floor, origin, cell, last, bound,
         for j in range(3):
             nbr[k, j] = facing_index[nn[k, j]]
             near[k, j] = posed[rows[k], j]
-    out = solve_single(nbr, near, pos, table, c, decay, penetration_law, flat, reference,
-                       floor_share, warm_start, max_iter, tol)
+    out = solve_single(nbr, near, pos, table, c, decay, penetration_law, thickness, flat,
+                       reference, floor_share, warm_start, max_iter, tol)
     return (nbr,) + out
 
 

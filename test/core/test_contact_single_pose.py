@@ -132,8 +132,8 @@ def test_the_kernels_deduplication_keeps_the_numpy_paths_candidates_in_its_order
         nbr[k - 5:] = nbr[k - 10:k - 5][:, ::-1]         # repeated triples, permuted
         posed = rng.uniform(-0.01, 0.01, (k, 3))
         pos = np.zeros(3)
-        out = single_pose.solve_single(nbr, posed, pos, table, 0.004, np.inf, False, False,
-                                       0.004, 0.1, 0.65, 200, 1e-12)
+        out = single_pose.solve_single(nbr, posed, pos, table, 0.004, np.inf, False, np.zeros(0),
+                                       False, 0.004, 0.1, 0.65, 200, 1e-12)
         keep = out[0]
         # the numpy path's selection, step by step
         sums = table[nbr[:, 0]] + table[nbr[:, 1]] + table[nbr[:, 2]]

@@ -86,10 +86,19 @@ def _domain_id(text: str) -> int:
     return value
 
 
+def _decay_law(text: str) -> str:
+    """Parse a shape-function decay law for argparse (the simulator's names)."""
+    try:
+        return _load('pointforce_ros.contact.simulator:check_decay_law')(text, 'law')
+    except PointforceError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
 def _cmd_demo(args) -> int:
     return _load('pointforce_ros.bringup.demo:run_demo')(
         out=args.out, quick=args.quick, object_name=args.object, scenario=args.scenario,
-        pokes=args.pokes, camera_check=args.camera_check, domain=args.domain)
+        pokes=args.pokes, camera_check=args.camera_check, domain=args.domain,
+        decay_law=args.decay_law)
 
 
 NODES = ('cloud_capture', 'poke_server', 'stiffness_learner', 'contact_wrench',
@@ -174,6 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument('--domain', type=_domain_id, default=None,
                       help='ROS domain of the simulated cell (default: one of its own, '
                            'localhost only, so it never meets a real cell or another run)')
+    demo.add_argument('--decay-law', type=_decay_law, default=None,
+                      help="the learner's shape_decay_law (fixed, penetration or layer; "
+                           'default: its own), under which (c, L) are identified and served')
     demo.set_defaults(func=_cmd_demo)
 
     cell = sub.add_parser('cell', help='run the node suite on the simulated (or a real) cell; '

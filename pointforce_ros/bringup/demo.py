@@ -31,6 +31,7 @@ from pointforce_ros.bringup.camera_check import camera_force_checks
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.bringup.domain import private_domain
 from pointforce_ros.contact.sampling import sample_mesh_surface
+from pointforce_ros.contact.simulator import check_decay_law
 from pointforce_ros.contact.identify import (calibrate_shape, decay_grid,
                                              identify_shape_constant_from_probe)
 from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
@@ -437,7 +438,8 @@ def _ground_truth(spec, queries):
 
 def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lamb',
              scenario: str = 'realistic', pokes: int = 0, camera_check: bool = False,
-             domain: Optional[int] = None, region: bool = True) -> int:
+             domain: Optional[int] = None, region: bool = True,
+             decay_law: Optional[str] = None) -> int:
     """Run the demo; returns a process exit code.
 
     ``region``: the planner tells the learner where it will query (:func:`planner_region`)
@@ -448,24 +450,29 @@ def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lam
     reading (:mod:`pointforce_ros.bringup.camera_check`: two ground-truth FEM solves, minutes).
     The simulated cell runs in ROS domain ``domain``, by default one of its own on localhost
     (:func:`~pointforce_ros.bringup.domain.private_domain`): its nodes carry the product's
-    names and must not meet a real cell's or another run's.
+    names and must not meet a real cell's or another run's. ``decay_law``: the learner's
+    ``shape_decay_law`` (``None``: its default), under which ``(c, L)`` are identified and served.
 
     Raises:
-        InvalidInput: ``pokes`` below 0 (0: 8 pokes, or 4 with ``quick``).
+        InvalidInput: ``pokes`` below 0 (0: 8 pokes, or 4 with ``quick``), an unknown
+            ``decay_law``.
 
     """
     if not isinstance(pokes, numbers.Integral) or pokes < 0:
         raise InvalidInput(f'run_demo: pokes must be a whole number >= 0 (0: the default), '
                            f'got {pokes!r}')
+    if decay_law is not None:
+        check_decay_law(decay_law, 'run_demo: decay_law')
     with private_domain(domain) as chosen:
         print(f'[demo] ROS domain {chosen}'
               + (' (private to this run, localhost only; RViz: ROS_DOMAIN_ID='
                  f'{chosen} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)' if domain is None else ''))
-        return _run_demo(out, quick, object_name, scenario, pokes, camera_check, region)
+        return _run_demo(out, quick, object_name, scenario, pokes, camera_check, region,
+                         decay_law)
 
 
 def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
-              camera_check: bool, region: bool = True) -> int:
+              camera_check: bool, region: bool = True, decay_law: Optional[str] = None) -> int:
     started = time.monotonic()
     out = Path(out)
     pokes = pokes or (4 if quick else 8)
@@ -491,6 +498,9 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
         else:
             first, site = 'object centre', np.asarray(spec.centre, dtype=float)
         queries = demo_query_set(spec)
+        if decay_law is not None:      # before any model: every model carries it
+            cell.set_parameter('stiffness_learner', 'shape_decay_law', decay_law)
+            print(f'[demo] shape function decay law: {decay_law}')
         if region:
             # the calibration pushes are answered by the same point model: their sites too
             calibration = [(None, push(spec)[0], pose, None, None)

@@ -121,7 +121,7 @@ LAYER_CLIP = (0.25, 4.0)
 layer a hundred times thicker)."""
 
 
-def layer_proxy(response, onsets: np.ndarray) -> np.ndarray:
+def layer_proxy(response, onsets: np.ndarray, reference: Optional[float] = None) -> np.ndarray:
     """(N,) each surface point's layer proxy ``t_i = s_ref / s_i`` read off the point response.
 
     ``s_i = F(d0 + 8 mm) / F(d0 + 3 mm)`` (:data:`LAYER_DEPTHS`, ``d0`` the point's onset) is how
@@ -129,7 +129,7 @@ def layer_proxy(response, onsets: np.ndarray) -> np.ndarray:
     it is, so a thinner layer gives a smaller ``t``. ``s_ref`` is the median over the points
     whose shallow force is at least 5 % of the median one (the rest, and non-finite ratios,
     get ``t = 1``); ``t`` is clipped to :data:`LAYER_CLIP`. A surface where no point qualifies
-    gets ones (the ``'penetration'`` law).
+    gets ones (the ``'penetration'`` law). ``reference``: a given ``s_ref`` instead.
     """
     n = len(onsets)
     every = np.arange(n)
@@ -143,7 +143,8 @@ def layer_proxy(response, onsets: np.ndarray) -> np.ndarray:
     ok = (shallow > 0.05 * float(np.median(positive))) & np.isfinite(ratio) & (ratio > 0.0)
     if not np.any(ok):
         return np.ones(n)
-    reference = float(np.median(ratio[ok]))
+    if reference is None:
+        reference = float(np.median(ratio[ok]))
     return np.clip(np.where(ok, reference / np.where(ok, ratio, 1.0), 1.0), *LAYER_CLIP)
 
 

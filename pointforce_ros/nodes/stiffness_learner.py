@@ -8,8 +8,9 @@ poke store directory the poke server writes; a refit is triggered by ``poke_serv
 learned force at ``marker_depth``, and the suggested next pokes), and serves ``~/suggest_poke``.
 Cross-node names are relative (``__ns:=/cell1`` keeps a cell together). On restart it reloads the
 stored pokes and produces the same model. A shape function set at run time (``shape_constant``,
-``shape_decay``) is persisted beside the models (``<model_dir>/shape.json``) and wins over the
-start-up parameters after a restart (an effects file's ``spatial_coupling`` still wins over both),
+``shape_decay``, ``shape_near``, ``shape_decay_law``) is persisted beside the models
+(``<model_dir>/shape.json``) and wins over the start-up parameters after a restart (an effects
+file's ``spatial_coupling`` still wins over both),
 and so are the wrench's uncertainty sources from the same calibration (``shape_cov`` of
 ``(log c, 1/L)``, ``relative_std``, ``lateral_std``), which every model stores in its ``meta`` for
 the contact service's standard deviations.
@@ -42,7 +43,7 @@ from msg_adapters.interfaces import fail, fill_suggest_response
 from msg_adapters.markers import model_markers
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.contact.lcp import check_near
-from pointforce_ros.contact.simulator import DECAY_LAW
+from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import uncertainty_sources
 from pointforce_ros.effects.accepted import effects_from_dict
 from pointforce_ros.errors import PointforceError, read_json
@@ -120,7 +121,17 @@ class StiffnessLearnerNode(Node):
         except PointforceError as exc:
             self.get_logger().error(f"{exc}; using 'paper'")
             self.near = 'paper'
-        self.decay_law = DECAY_LAW   # the law (c, L) apply by (shape.json's, when restored)
+        self.decay_law = declare(self, 'shape_decay_law', DECAY_LAW,
+                                 "How the shape function's tail decay length applies: 'fixed' "
+                                 "(one length), 'penetration' (grows with each contact's "
+                                 "penetration) or 'layer' (that, times the layer proxy the "
+                                 'point response shows under the query); the law (c, L) were '
+                                 'identified under')
+        try:
+            check_decay_law(self.decay_law, 'shape_decay_law')
+        except PointforceError as exc:
+            self.get_logger().error(f'{exc}; using {DECAY_LAW!r}')
+            self.decay_law = DECAY_LAW
         self._restore_shape()
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
                        bounds=(0.1, 600.0), read_only=True)
@@ -213,7 +224,9 @@ class StiffnessLearnerNode(Node):
         live(self, {
             'shape_constant': lambda v: lambda: self._set_shape('shape_constant', v),
             'shape_decay': lambda v: lambda: self._set_shape('shape_decay', v),
-            'shape_near': self._near_applier,
+            'shape_near': self._choice_applier('shape_near', check_near, 'near'),
+            'shape_decay_law': self._choice_applier('shape_decay_law', check_decay_law,
+                                                    'decay_law'),
             **{name: self._uncertainty_applier(name)
                for name in ('shape_cov', 'relative_std', 'lateral_std')},
             'suggest_exclude_radius': lambda v: lambda: setattr(self, 'exclude_radius', v),
@@ -253,7 +266,8 @@ class StiffnessLearnerNode(Node):
                       float(sources.get('relative_std', 0.0))),
             Parameter('lateral_std', Parameter.Type.DOUBLE,
                       float(sources.get('lateral_std', 0.0))),
-            Parameter('shape_near', Parameter.Type.STRING, near)])
+            Parameter('shape_near', Parameter.Type.STRING, near),
+            Parameter('shape_decay_law', Parameter.Type.STRING, law)])
         refused = [r.reason for r in results if not r.successful]
         if refused:
             self.get_logger().error(f'persisted shape function refused: {refused}')
@@ -273,8 +287,6 @@ class StiffnessLearnerNode(Node):
         model exists, saved as a new model version the contact service hot-swaps to.
         """
         setattr(self, name, float(value))
-        # a (c, L) set now was identified under the simulator's own law (calibrate_shape)
-        self.decay_law = DECAY_LAW
         self._persist_shape(name, value)
         learner = self.learner
         if learner is not None:
@@ -284,19 +296,27 @@ class StiffnessLearnerNode(Node):
             if status is not None:
                 self._publish(status, learner)
 
-    def _near_applier(self, value):
-        """Return the applier of ``shape_near`` (an unknown near field is refused by name)."""
-        near = check_near(value, 'shape_near')
+    def _choice_applier(self, name: str, check, attribute: str):
+        """Return the applier factory of ``shape_near`` or ``shape_decay_law``.
 
-        def apply():
-            self.near = near
-            self._persist_shape('shape_near', near)
-            learner = self.learner
-            if learner is not None:
-                status = learner.set_shape_constant(learner.shape_constant, near=near)
-                if status is not None:
-                    self._publish(status, learner)
-        return apply
+        ``check`` refuses an unknown value by name; an accepted one is kept in ``attribute``
+        (``near`` or ``decay_law``), persisted and, once a model exists, saved as a new model
+        version (the learner's keyword is ``attribute``).
+        """
+        def applier(value):
+            value = check(value, name)
+
+            def apply():
+                setattr(self, attribute, value)
+                self._persist_shape(name, value)
+                learner = self.learner
+                if learner is not None:
+                    status = learner.set_shape_constant(learner.shape_constant,
+                                                        **{attribute: value})
+                    if status is not None:
+                        self._publish(status, learner)
+            return apply
+        return applier
 
     def _persist_shape(self, name: str, value) -> None:
         try:

@@ -100,6 +100,7 @@ def test_the_cell_names_a_parameter_file_value_a_node_refuses(tmp_path):
 
 @pytest.mark.parametrize('argv, message', [
     (['demo', '--pokes', '-1'], 'argument --pokes: -1 is not >= 0'),
+    (['demo', '--decay-law', 'depth'], "argument --decay-law: law: must be one of ('fixed',"),
     (['cell', 'generate', '--seed', '-1'], 'argument --seed: -1 is not in 0..4294967295'),
     (['cell', 'generate', '--pokes', 'many'], "argument --pokes: 'many' is not a whole number"),
     (['diagnose', 'x.csv', '--seed', str(2 ** 32)], 'argument --seed: 4294967296 is not in'),

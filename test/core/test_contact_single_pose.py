@@ -39,14 +39,18 @@ def _bumpy_surface(rng, n=61, half=0.03):
     return Surface(points=np.column_stack([xy, z]), normals=normals)
 
 
-def _heterogeneous_response(rng, count):
-    """A baked power law, stiffness varying by 3x and onsets from -1.5 to +1 mm."""
+def _heterogeneous_response(rng, count, stiffening=False):
+    """A baked power law, stiffness varying by 3x and onsets from -1.5 to +1 mm.
+
+    ``stiffening``: exponents from 1.2 to 2.2 (the ``'layer'`` law's proxy varies), else 1.6.
+    """
     k = rng.uniform(2e3, 6e3, count)
+    p = rng.uniform(1.2, 2.2, count) if stiffening else np.full(count, 1.6)
     base = power_response(k, 1.6, depths=np.linspace(-0.004, 0.02, 121))
     shift = rng.uniform(-0.0015, 0.001, count)
     d = base.depths
-    forces = k[:, None] * np.clip(d[None] - shift[:, None], 0.0, None) ** 1.6
-    slopes = k * 1.6 * (d[-1] - shift) ** 0.6
+    forces = k[:, None] * np.clip(d[None] - shift[:, None], 0.0, None) ** p[:, None]
+    slopes = k * p * (d[-1] - shift) ** (p - 1.0)
     return BakedResponse(depths=d, forces=forces, slopes=slopes)
 
 
@@ -66,13 +70,16 @@ def _random_poses(rng, n, depth=(0.001, 0.007)):
 
 @pytest.mark.parametrize('decay_law, decay, near', [
     ('penetration', 0.008, 'paper'), ('fixed', 0.006, 'paper'), ('fixed', np.inf, 'paper'),
-    ('penetration', 0.008, 'flat'), ('fixed', np.inf, 'flat')])
+    ('penetration', 0.008, 'flat'), ('fixed', np.inf, 'flat'), ('layer', 0.008, 'paper')])
 def test_single_poses_equal_the_stacked_numpy_path(decay_law, decay, near):
     rng = np.random.default_rng(21)
     surface = _bumpy_surface(rng)
-    sim = ContactSimulator(surface, _heterogeneous_response(rng, len(surface)), c=0.004,
-                           spacing=0.002, decay=decay, decay_law=decay_law, near=near)
+    sim = ContactSimulator(surface, _heterogeneous_response(rng, len(surface),
+                                                            decay_law == 'layer'),
+                           c=0.004, spacing=0.002, decay=decay, decay_law=decay_law, near=near)
     assert sim._baked is not None
+    if decay_law == 'layer':
+        assert np.ptp(sim.layer_thickness()) > 0.5
     twin = _numpy_twin(sim)
     compared = 0
     for mesh in (box((0.014, 0.01, 0.008)), icosphere(0.008, 2)):

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from pointforce_ros.contact.simulator import ContactSimulator, DECAY_LAW
+from pointforce_ros.contact.simulator import ContactSimulator, DECAY_LAW, DECAY_LAWS
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import (ContactModel, load_model, load_shape, load_shape_law,
@@ -99,7 +99,7 @@ def test_a_calibration_keeps_the_decay_law_it_was_identified_under(tmp_path):
 
     base = dataclasses.replace(MODEL, shape_decay=0.006)
     answers = {}
-    for law in ('fixed', 'penetration'):
+    for law in DECAY_LAWS:
         folder = tmp_path / law
         path = save_model(dataclasses.replace(base, shape_decay_law=law), folder)
         loaded = load_model(path)                              # its SHA-256 checked

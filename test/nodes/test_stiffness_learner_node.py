@@ -12,6 +12,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 from pointforce_ros.contact import ContactSimulator
+from pointforce_ros.contact.simulator import DECAY_LAW
 from pointforce_ros.effects.accepted import effects_to_dict
 from pointforce_ros.effects.forward import model_surface
 from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
@@ -137,10 +138,10 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
         ros_graph, tmp_path):
     """Issue 16 item 8: c was lost on restart and the node published the version it asked for.
 
-    After c, L and the near field are set at run time (v5, v6, v7) the learner is killed, a
-    fifth poke lands and the learner restarts: it must use the persisted shape, and its model (5
-    pokes, requested as v5, a version taken by other content) is saved as v8, the version it
-    must publish.
+    After c, L, the near field and the decay law are set at run time (v5-v8) the learner is
+    killed, a fifth poke lands and the learner restarts: it must use the persisted shape, and its
+    model (5 pokes, requested as v5, a version taken by other content) is saved as v9, the
+    version it must publish.
     """
     store, records = _setup(tmp_path)
     learner = _learner(ros_graph, tmp_path)
@@ -149,11 +150,15 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
     probe.wait_version(4)
     refused = probe.set('shape_near', 'round')       # not a near field: refused by name
     assert not refused.successful and 'shape_near' in refused.reason
+    refused = probe.set('shape_decay_law', 'depth')  # not a decay law: refused by name
+    assert not refused.successful and 'shape_decay_law' in refused.reason
+    assert load_model(statuses[-1].model_path).shape_decay_law == DECAY_LAW != 'layer'
     for name, value, version in [('shape_constant', 0.0007, 5), ('shape_decay', 0.008, 6),
-                                 ('shape_near', 'flat', 7)]:
+                                 ('shape_near', 'flat', 7), ('shape_decay_law', 'layer', 8)]:
         assert probe.set(name, value).successful
         probe.wait_version(version)
-    assert load_model(statuses[-1].model_path).shape_near == 'flat'
+    last = load_model(statuses[-1].model_path)
+    assert (last.shape_near, last.shape_decay_law) == ('flat', 'layer')
     ros_graph.remove(learner)  # the node is killed
     store.add(records[4])
     statuses.clear()
@@ -162,12 +167,13 @@ def test_a_shape_update_survives_a_restart_and_the_saved_version_is_published(
     status = statuses[-1]
     model = load_model(status.model_path)
     assert (model.shape_constant, model.shape_decay) == pytest.approx((0.0007, 0.008))
-    assert model.shape_near == 'flat'
-    assert status.version == model.version == 8, (status.version, status.model_path)
-    assert status.model_path.endswith('model-v000008.npz')
+    assert (model.shape_near, model.shape_decay_law) == ('flat', 'layer')
+    assert status.version == model.version == 9, (status.version, status.model_path)
+    assert status.model_path.endswith('model-v000009.npz')
     assert restarted.get_parameter('shape_constant').value == pytest.approx(0.0007)
     assert restarted.get_parameter('shape_decay').value == pytest.approx(0.008)
     assert restarted.get_parameter('shape_near').value == 'flat'
+    assert restarted.get_parameter('shape_decay_law').value == 'layer'
 
 
 def test_uncertainty_sources_go_into_every_model_and_survive_a_restart(ros_graph, tmp_path):

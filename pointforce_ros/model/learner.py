@@ -395,6 +395,11 @@ class OnlineLearner:
                                 shape_near=self.shape_near,
                                 meta={'kind': getattr(self.model, 'kind', 'unknown'),
                                       'pokes': [c.poke_id for c in self.curves],
+                                      # the deepest the pokes pressed: past it an answer
+                                      # is extrapolated (WrenchServer.depth_note)
+                                      'learned_depth': max(
+                                          (float(np.max(c.d)) for c in self.curves
+                                           if len(c.d)), default=0.0),
                                       'surface_corrected': corrected,
                                       **self.uncertainty})
 

@@ -56,6 +56,10 @@ UNCERTAINTY_CHUNK = 256
 
 _MIB = float(2 ** 20)
 _CACHED_SAMPLES = 200_000
+DEPTH_MARGIN = 0.001
+"""How far past the deepest poke a contact may press before :meth:`WrenchServer.depth_note`
+says the answer is extrapolated, metres."""
+
 _NO_ANSWER = ('{where}: the model has no finite answer for this pose ({bad} of {count} poses); '
               'the mesh is outside what the model covers; check the pose and the mesh')
 
@@ -356,6 +360,28 @@ class WrenchServer:
                            np.array([result.contact_count]),
                            np.array([result.max_displacement]), pose.position[None])
         return result, int(model.version)
+
+    def depth_note(self, result) -> str:
+        """Return ``''``, or a note that ``result`` presses deeper than any poke reached.
+
+        ``result``: a :class:`~pointforce_ros.contact.simulator.ContactResult` of the current
+        model. The point response past its pokes' deepest nominal displacement (the model's
+        ``meta['learned_depth']``, written by the learner) is the baked table's straight-line
+        extrapolation, which the wrench's standard deviation does not cover: a contact more
+        than :data:`DEPTH_MARGIN` deeper than that gets the note (a model without the entry,
+        from before it, gets none).
+        """
+        learned = self._snapshot()[0].meta.get('learned_depth')
+        pressed = np.asarray(result.nominal_displacements, dtype=float)
+        if not isinstance(learned, (int, float)) or not len(pressed):
+            return ''
+        deepest = float(np.max(pressed))
+        if not deepest > float(learned) + DEPTH_MARGIN:
+            return ''
+        return (f'extrapolated: a contact {1e3 * deepest:.1f} mm past the scanned surface, '
+                f'the pokes reached {1e3 * float(learned):.1f} mm; the force beyond is the '
+                'point response extrapolated along a straight line, which wrench_std does not '
+                'cover')
 
     def answer_batch(self, query: ContactQuery):
         """Answer every pose of ``query``: returns (BatchContactResult, model version).

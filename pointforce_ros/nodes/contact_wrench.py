@@ -9,7 +9,9 @@ requests beyond the limits (``max_sample_poses``, ``max_request_memory``, ``max_
 budget (``max_request_seconds``) between chunks of poses. With ``uncertainty`` on, every
 answer carries the standard deviation of each wrench component (``wrench_std``; a request sets
 ``skip_uncertainty`` to save its four extra solves); a spread that cannot be computed leaves the
-wrench answered and says why in ``message``. Accepted effects stored in
+wrench answered and says why in ``message``, as does an answer that presses deeper than any
+poke reached (``WrenchServer.depth_note``: the force there is extrapolated). Accepted effects
+stored in
 the model add their forward terms (:mod:`pointforce_ros.effects.forward`): series compliance
 (``series_compliance``), a viscoelastic hold fraction (``hold_time``) and a surface offset.
 
@@ -301,6 +303,7 @@ class ContactWrenchNode(Node):
             query = contact_query_from_request(request)
             result, version = self.server.answer(query)
             fill_contact_response(response, result, version, query.return_displacements)
+            response.message = self.server.depth_note(result)
             if self.uncertainty and not request.skip_uncertainty:
                 pose = query.poses[0]
                 self._add_uncertainty(response, query.mesh,
@@ -338,7 +341,8 @@ class ContactWrenchNode(Node):
             reason = str(exc) if isinstance(exc, PointforceError) else (
                 'not enough memory' if isinstance(exc, MemoryError)
                 else f'{type(exc).__name__}: {exc}')
-            response.message = f'no wrench standard deviation: {reason}'
+            response.message = '; '.join(filter(None, [
+                response.message, f'no wrench standard deviation: {reason}']))
 
     def _refuse(self, response, service: str, exc: Exception):
         """Answer ``success=False`` with a reason about the request, whatever ``exc`` was."""

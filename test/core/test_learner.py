@@ -55,6 +55,10 @@ def test_refits_as_pokes_land_and_restart_reproduces_the_model(tmp_path):
     assert second.training_rmse < second.validation_rmse
     saved = load_model(second.model_path)
     assert saved.version == 8 and len(saved.surface) == len(surface)
+    # the deepest the 8 pokes pressed (depth limit 10 mm), for the service's extrapolation note
+    deepest = max(float(np.max(c.d)) for c in learner.curves)
+    assert saved.meta['learned_depth'] == pytest.approx(deepest, rel=1e-12)
+    assert 0.003 < deepest < 0.013
     restarted = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
                               shape_constant=0.004)
     again = restarted.update()

@@ -6,6 +6,7 @@ centre 5.9e300 N m, all with ``success=true``.
 """
 
 import time
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -209,3 +210,21 @@ def test_the_contact_bound_uses_the_footprint_not_the_enclosing_circle():
     assert result.contact_count > 0
     with pytest.raises(InvalidInput, match=r'up to \d+ contacts under the mesh'):
         server.answer(_query(_plate(0.07), [0.5, 0.0, 0.0395]))
+
+
+def test_an_answer_pressed_past_the_pokes_depth_is_noted_as_extrapolated():
+    """Session 30: a 20 mm sphere 50 mm into the lamb answered 564 N with the std of 4 mm."""
+    served = WrenchServer()
+    served.swap(MODEL)
+    top = 0.04 + 0.02                      # the sphere's centre when it touches the patch
+    shallow = served.answer(_query(SPHERE, [0.5, 0.0, top - 0.002]))[0]
+    deep = served.answer(_query(SPHERE, [0.5, 0.0, top - 0.006]))[0]
+    assert served.depth_note(deep) == ''   # a model from before the entry: no note
+    served.swap(dataclasses.replace(MODEL, meta={**MODEL.meta, 'learned_depth': 0.003}))
+    assert shallow.contact_count and served.depth_note(shallow) == ''
+    note = served.depth_note(deep)
+    deepest = float(np.max(deep.nominal_displacements))
+    assert deepest > 0.003 + 0.001
+    assert note.startswith(f'extrapolated: a contact {1e3 * deepest:.1f} mm past')
+    assert 'the pokes reached 3.0 mm' in note
+    assert served.depth_note(served.answer(_query(SPHERE, [0.5, 0.0, top + 0.01]))[0]) == ''

@@ -1,5 +1,6 @@
 """contact_wrench node over real DDS: answers, batch, bad requests, hot swap, concurrency."""
 
+import dataclasses
 import threading
 import time
 
@@ -59,6 +60,22 @@ def test_answer_round_trips_and_equals_the_core_solver(served):
     assert response.wrench.force.z > 0.5 and response.model_version == model.version
     deeper = graph.wait_future(single.call_async(_request(0.005)[0]), 10, 'deeper')
     assert deeper.wrench.force.z > response.wrench.force.z
+
+
+def test_an_answer_past_the_pokes_depth_says_it_is_extrapolated(ros_graph, tmp_path):
+    model = patch_contact_model(spacing=0.003)
+    save_model(dataclasses.replace(model, meta={**model.meta, 'learned_depth': 0.003}),
+               tmp_path / 'models')
+    node = ros_graph.add(ContactWrenchNode(
+        context=ros_graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(tmp_path / 'models'))]))
+    shallow = node._on_single(_request(0.002)[0], ContactWrench.Response())
+    deep = node._on_single(_request(0.006)[0], ContactWrench.Response())
+    assert shallow.success and deep.success, (shallow.message, deep.message)
+    assert 'extrapolated' not in shallow.message
+    assert deep.message.startswith('extrapolated: a contact ') and 'reached 3.0 mm' in deep.message
+    # the note comes first; why the spread is missing (this model carries no sources) follows
+    assert shallow.message and deep.message.endswith('; ' + shallow.message)
 
 
 @pytest.mark.parametrize('breakage, match', [

@@ -3,8 +3,13 @@
 Also the force of one query's LCP solution (:func:`lcp_force_z`), the step after the solve that
 ``demo_floor_local.py`` and ``demo_floor_law.py`` share.
 
-Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py`` and
-``demo_floor_pokes.py`` import it from this folder (a script's folder is on ``sys.path``).
+And the replay of a stored demo's last model with ``(c, L)`` from its two pushes
+(:func:`served_last_model`, :func:`pushed_answers`), which ``demo_near_replay.py`` and
+``demo_layer_replay.py`` share.
+
+Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py``,
+``demo_floor_pokes.py`` and the two replays import it from this folder (a script's folder is on
+``sys.path``).
 """
 
 import argparse
@@ -13,7 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pointforce_ros.bringup.demo import _ground_truth, demo_query_set, true_point_response
+from pointforce_ros.bringup.demo import (_calibration_pokes, _ground_truth, demo_query_set,
+                                         true_point_response)
+from pointforce_ros.contact.identify import calibrate_shape, decay_grid
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.response.baked import BakedResponse
@@ -120,3 +127,33 @@ def load_demo_floor(demo_out, object_name: str) -> DemoFloor:
     server.load(model_path)
     return DemoFloor(base.spec, base.live, base.queries, base.gt, model_path,
                      server.simulator())
+
+
+def replay_arguments(description: str):
+    """:func:`demo_runs_arguments` and what a replay scores against.
+
+    Returns ``(args, demo, pushes, true, largest)``: the demo's two calibration pushes (force
+    vectors), the queries' true forces (Q, 3) and the largest true force's norm.
+    """
+    args, demo = demo_runs_arguments(description)
+    vectors = _calibration_pokes(demo.spec, vectors=True)
+    true = np.asarray(demo.gt['force'], dtype=float)
+    return (args, demo, [vectors['sphere'], vectors['rod']], true,
+            float(np.max(np.linalg.norm(true, axis=1))))
+
+
+def served_last_model(demo_out) -> ContactSimulator:
+    """The simulator the contact service serves the last model of the demo in ``demo_out`` with."""
+    models = sorted((Path(demo_out) / 'cell' / 'models').glob('model-v*.npz'))
+    server = WrenchServer()
+    server.load(models[-1])
+    return server.simulator()
+
+
+def pushed_answers(sim: ContactSimulator, pushes, queries):
+    """``(calibration, fitted simulator, (Q, 3) forces)``: ``(c, L)`` from ``pushes`` as the
+    demo identifies them (:func:`calibrate_shape`, the capped decay grid), then ``queries``."""
+    cal = calibrate_shape(sim, pushes, decays=decay_grid(sim.surface))
+    fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
+    pred = np.array([fitted.query(m, p, a, ctr).wrench.force for _, m, p, a, ctr in queries])
+    return cal, fitted, pred

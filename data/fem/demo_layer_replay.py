@@ -16,37 +16,23 @@ each law, the pushes' calibration error, and the 9 planner queries against their
 Usage: python data/fem/demo_layer_replay.py DEMO_OUT [DEMO_OUT ...] [--object lamb]
 """
 
-from pathlib import Path
-
 import numpy as np
 
-from demo_floor_setup import demo_runs_arguments  # this folder
-from pointforce_ros.bringup.demo import _calibration_pokes
-from pointforce_ros.contact.identify import calibrate_shape, decay_grid
-from pointforce_ros.model.serving import WrenchServer
+from demo_floor_setup import (pushed_answers, replay_arguments,  # this folder
+                              served_last_model)
 
 LAWS = ('penetration', 'layer')
 
 
 def main():
     """Print one line per run and law, and a summary per law."""
-    args, demo = demo_runs_arguments(__doc__.splitlines()[0])
-    vectors = _calibration_pokes(demo.spec, vectors=True)
-    pushes = [vectors['sphere'], vectors['rod']]
-    true = np.asarray(demo.gt['force'], dtype=float)
-    big = float(np.max(np.linalg.norm(true, axis=1)))
+    args, demo, pushes, true, big = replay_arguments(__doc__.splitlines()[0])
     scores = {law: [] for law in LAWS}
     for out in args.demo_out:
-        models = sorted((Path(out) / 'cell' / 'models').glob('model-v*.npz'))
-        server = WrenchServer()
-        server.load(models[-1])
-        served = server.simulator()
+        served = served_last_model(out)
         for law in LAWS:
-            sim = served.with_shape_constant(served.c, decay_law=law)
-            cal = calibrate_shape(sim, pushes, decays=decay_grid(sim.surface))
-            fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
-            pred = np.array([fitted.query(m, p, a, ctr).wrench.force
-                             for _, m, p, a, ctr in demo.queries])
+            cal, fitted, pred = pushed_answers(served.with_shape_constant(served.c, decay_law=law),
+                                               pushes, demo.queries)
             batch = np.array([fitted.query_batch(m, [p, p], a, ctr).wrenches[0, :3]
                               for _, m, p, a, ctr in demo.queries])
             gap = float(np.max(np.abs(batch - pred)))

@@ -23,35 +23,22 @@ the shape's reach. So the demo keeps the paper's near field
 Usage: python data/fem/demo_near_replay.py DEMO_OUT [DEMO_OUT ...] [--object lamb]
 """
 
-from pathlib import Path
-
 import numpy as np
 
-from demo_floor_setup import demo_runs_arguments  # this folder
-from pointforce_ros.bringup.demo import _calibration_pokes
-from pointforce_ros.contact.identify import calibrate_shape, decay_grid, small_sample_factor
+from demo_floor_setup import (pushed_answers, replay_arguments,  # this folder
+                              served_last_model)
+from pointforce_ros.contact.identify import small_sample_factor
 from pointforce_ros.contact.lcp import NEARS
-from pointforce_ros.model.serving import WrenchServer
 
 
 def main():
     """Print one line per run and near field."""
-    args, demo = demo_runs_arguments(__doc__.splitlines()[0])
-    vectors = _calibration_pokes(demo.spec, vectors=True)
-    pushes = [vectors['sphere'], vectors['rod']]
-    true = np.asarray(demo.gt['force'], dtype=float)
-    big = float(np.max(np.linalg.norm(true, axis=1)))
+    args, demo, pushes, true, big = replay_arguments(__doc__.splitlines()[0])
     for out in args.demo_out:
-        models = sorted((Path(out) / 'cell' / 'models').glob('model-v*.npz'))
-        server = WrenchServer()
-        server.load(models[-1])
-        served = server.simulator()
+        served = served_last_model(out)
         for near in NEARS:
-            sim = served.with_shape_constant(served.c, near=near)
-            cal = calibrate_shape(sim, pushes, decays=decay_grid(sim.surface))
-            fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
-            pred = np.array([fitted.query(m, p, a, ctr).wrench.force
-                             for _, m, p, a, ctr in demo.queries])
+            cal, fitted, pred = pushed_answers(served.with_shape_constant(served.c, near=near),
+                                               pushes, demo.queries)
             vector = float(np.sqrt(np.mean(np.sum((pred - true) ** 2, axis=1))))
             share = cal.relative_std / small_sample_factor(2)
             print(f'{out} {near:5s}: c {1e3 * cal.fit.c:.2f} mm, L {1e3 * cal.fit.decay:.0f} mm,'

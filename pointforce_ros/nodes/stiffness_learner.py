@@ -112,26 +112,16 @@ class StiffnessLearnerNode(Node):
         except PointforceError as exc:
             self.get_logger().error(f'uncertainty sources refused, models carry none: {exc}')
             self.uncertainty = {}
-        self.near = declare(self, 'shape_near', 'paper',
-                            "Near field of the shape function: 'paper', c/(c+r), or 'flat', "
-                            '(1 + r/c) exp(-r/c) (a skin or layer that spreads a dent flat); '
-                            'the one (c, L) were identified with')
-        try:
-            check_near(self.near, 'shape_near')
-        except PointforceError as exc:
-            self.get_logger().error(f"{exc}; using 'paper'")
-            self.near = 'paper'
-        self.decay_law = declare(self, 'shape_decay_law', DECAY_LAW,
-                                 "How the shape function's tail decay length applies: 'fixed' "
-                                 "(one length), 'penetration' (grows with each contact's "
-                                 "penetration) or 'layer' (that, times the layer proxy the "
-                                 'point response shows under the query); the law (c, L) were '
-                                 'identified under')
-        try:
-            check_decay_law(self.decay_law, 'shape_decay_law')
-        except PointforceError as exc:
-            self.get_logger().error(f'{exc}; using {DECAY_LAW!r}')
-            self.decay_law = DECAY_LAW
+        self.near = self._choice(
+            'shape_near', 'paper', check_near,
+            "Near field of the shape function: 'paper', c/(c+r), or 'flat', (1 + r/c) exp(-r/c) "
+            '(a skin or layer that spreads a dent flat); the one (c, L) were identified with')
+        self.decay_law = self._choice(
+            'shape_decay_law', DECAY_LAW, check_decay_law,
+            "How the shape function's tail decay length applies: 'fixed' (one length), "
+            "'penetration' (grows with each contact's penetration) or 'layer' (that, times the "
+            'layer proxy the point response shows under the query); the law (c, L) were '
+            'identified under')
         self._restore_shape()
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
                        bounds=(0.1, 600.0), read_only=True)
@@ -234,6 +224,15 @@ class StiffnessLearnerNode(Node):
             'suggest_region': self._region_applier,
             'marker_depth': lambda v: lambda: self._set_marker('marker_depth', v),
             'marker_suggestions': lambda v: lambda: self._set_marker('marker_suggestions', v)})
+
+    def _choice(self, name: str, default: str, check, description: str) -> str:
+        """Declare text parameter ``name``; a value ``check`` refuses is logged, ``default``."""
+        value = declare(self, name, default, description)
+        try:
+            return check(value, name)
+        except PointforceError as exc:
+            self.get_logger().error(f'{exc}; using {default!r}')
+            return default
 
     def _restore_shape(self):
         """Take the shape function last set at run time (``shape.json``) over the parameters."""

@@ -225,6 +225,9 @@ class BatchContactResult:
             positions about the centre of pressure, weighted by their force (how far the
             force is spread; zero where a pose has no contact force); with
             ``centres_of_pressure``.
+        deepest_contacts: (B,) metres, the largest nominal displacement ``d`` of a touching
+            contact per pose (0 without contact): how far past the scanned surface the body
+            presses (the contact service's extrapolation note).
 
     """
 
@@ -236,6 +239,7 @@ class BatchContactResult:
     frame: str = 'base'
     centres_of_pressure: Optional[np.ndarray] = None
     pressure_spreads: Optional[np.ndarray] = None
+    deepest_contacts: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         """Return the number of poses ``B``."""
@@ -500,6 +504,7 @@ class ContactSimulator:
         out = np.zeros((n, 6))
         count = np.zeros(n, dtype=np.int64)
         umax = np.zeros(n)
+        deepest = np.zeros(n)
         resid = np.zeros(n)
         cop = centres.copy() if centre_of_pressure else None
         spread = np.zeros((n, 3, 3)) if centre_of_pressure else None
@@ -511,10 +516,12 @@ class ContactSimulator:
                                 detail=centre_of_pressure)
                 out[sl], count[sl] = run['wrench'], run['count']
                 umax[sl], resid[sl] = run['umax'], run['residual']
+                deepest[sl] = run['deepest']
                 if centre_of_pressure and 'f' in run:
                     _centres_of_pressure(run, cop[sl], spread[sl])
         return BatchContactResult(wrenches=out, contact_count=count, max_displacement=umax,
                                   lcp_residual=resid, torque_centres=centres.copy(),
+                                  deepest_contacts=deepest,
                                   frame=self.surface.frame, centres_of_pressure=cop,
                                   pressure_spreads=spread)
 
@@ -647,7 +654,7 @@ class ContactSimulator:
         B = len(rot)
         proj = self.projection(a)
         empty = dict(wrench=np.zeros((B, 6)), count=np.zeros(B, dtype=np.int64),
-                     umax=np.zeros(B), residual=np.zeros(B))
+                     umax=np.zeros(B), residual=np.zeros(B), deepest=np.zeros(B))
         if proj.tree is None or len(local) == 0 or B == 0:
             return empty
         if B == 1 and self._compiled:
@@ -724,7 +731,9 @@ class ContactSimulator:
         count = np.bincount(b_idx[x > 0.0], minlength=B)
         umax = np.zeros(B)
         umax[poses] = np.maximum(np.maximum.reduceat(u, starts), 0.0)
-        run = dict(wrench=wrench, count=count, umax=umax, residual=residual)
+        deepest = np.zeros(B)
+        deepest[poses] = np.maximum(np.maximum.reduceat(np.where(x > 0.0, d, 0.0), starts), 0.0)
+        run = dict(wrench=wrench, count=count, umax=umax, residual=residual, deepest=deepest)
         if detail:
             run.update(b=b_idx, p=p, nbr=nbr, q=q, nq=nq, d=d, e=e, x=x, f=f)
         return run
@@ -783,8 +792,11 @@ class ContactSimulator:
         else:
             f = self._contact_forces(nbr, d, x)
             wrench = _force_torque(f, nq, p - centre).sum(axis=0)
+        touching = d[x > 0.0]
         run = dict(wrench=wrench[None], count=np.array([np.count_nonzero(x > 0.0)]),
-                   umax=np.array([max(float(u.max()), 0.0)]), residual=np.array([residual]))
+                   umax=np.array([max(float(u.max()), 0.0)]), residual=np.array([residual]),
+                   deepest=np.array([max(float(touching.max()), 0.0) if len(touching)
+                                     else 0.0]))
         if detail:
             run.update(b=np.zeros(len(d), dtype=np.int64), p=p, nbr=nbr, q=q, nq=nq, d=d, e=e,
                        x=x, f=f)

@@ -364,24 +364,31 @@ class WrenchServer:
     def depth_note(self, result) -> str:
         """Return ``''``, or a note that ``result`` presses deeper than any poke reached.
 
-        ``result``: a :class:`~pointforce_ros.contact.simulator.ContactResult` of the current
-        model. The point response past its pokes' deepest nominal displacement (the model's
+        ``result``: a :class:`~pointforce_ros.contact.simulator.ContactResult` or
+        :class:`~pointforce_ros.contact.simulator.BatchContactResult` of the current model.
+        The point response past its pokes' deepest nominal displacement (the model's
         ``meta['learned_depth']``, written by the learner) is the baked table's straight-line
         extrapolation, which the wrench's standard deviation does not cover: a contact more
-        than :data:`DEPTH_MARGIN` deeper than that gets the note (a model without the entry,
-        from before it, gets none).
+        than :data:`DEPTH_MARGIN` deeper than that gets the note, naming the first such poses
+        of a batch (a model without the entry, from before it, gets none).
         """
         learned = self._snapshot()[0].meta.get('learned_depth')
-        pressed = np.asarray(result.nominal_displacements, dtype=float)
+        batch = isinstance(result, BatchContactResult)
+        pressed = np.asarray(result.deepest_contacts if batch else
+                             result.nominal_displacements, dtype=float).reshape(-1)
         if not isinstance(learned, (int, float)) or not len(pressed):
             return ''
-        deepest = float(np.max(pressed))
-        if not deepest > float(learned) + DEPTH_MARGIN:
+        past = np.flatnonzero(pressed > float(learned) + DEPTH_MARGIN)
+        if not len(past):
             return ''
-        return (f'extrapolated: a contact {1e3 * deepest:.1f} mm past the scanned surface, '
-                f'the pokes reached {1e3 * float(learned):.1f} mm; the force beyond is the '
-                'point response extrapolated along a straight line, which wrench_std does not '
-                'cover')
+        where = ''
+        if batch:
+            named = ', '.join(str(int(i)) for i in past[:5]) + (', ...' if len(past) > 5 else '')
+            where = f' in {len(past)} of {len(pressed)} poses ({named})'
+        return (f'extrapolated{where}: a contact {1e3 * float(pressed.max()):.1f} mm past the '
+                f'scanned surface, the pokes reached {1e3 * float(learned):.1f} mm; the force '
+                'beyond is the point response extrapolated along a straight line, which '
+                'wrench_std does not cover')
 
     def answer_batch(self, query: ContactQuery):
         """Answer every pose of ``query``: returns (BatchContactResult, model version).
@@ -708,7 +715,8 @@ class WrenchServer:
             max_displacement=np.concatenate([p.max_displacement for p in parts]),
             lcp_residual=np.concatenate([p.lcp_residual for p in parts]),
             torque_centres=np.concatenate([p.torque_centres for p in parts]),
-            frame=parts[0].frame)
+            frame=parts[0].frame,
+            deepest_contacts=np.concatenate([p.deepest_contacts for p in parts]))
 
     def _pool(self) -> ThreadPoolExecutor:
         with self._swap_lock:

@@ -325,6 +325,7 @@ class ContactWrenchNode(Node):
             query = batch_arrays_from_request(request)
             batch, version = self.server.answer_rows(*query)
             fill_batch_response(response, batch, version)
+            response.message = self.server.depth_note(batch)
             if self.uncertainty and not request.skip_uncertainty:
                 self._add_uncertainty(response, *query, version)
             self.requests_served += 1

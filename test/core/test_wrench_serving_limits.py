@@ -228,3 +228,11 @@ def test_an_answer_pressed_past_the_pokes_depth_is_noted_as_extrapolated():
     assert note.startswith(f'extrapolated: a contact {1e3 * deepest:.1f} mm past')
     assert 'the pokes reached 3.0 mm' in note
     assert served.depth_note(served.answer(_query(SPHERE, [0.5, 0.0, top + 0.01]))[0]) == ''
+    # a batch (the stacked path) names its poses past the depth
+    rows = np.array([[0.5, 0.0, top - 0.002, 0, 0, 0, 1], [0.5, 0.0, top - 0.006, 0, 0, 0, 1],
+                     [0.5, 0.0, top + 0.01, 0, 0, 0, 1]], dtype=float)
+    batch, _ = served.answer_rows(SPHERE, rows, [0.0, 0.0, -1.0], [0.5, 0.0, top])
+    np.testing.assert_allclose(batch.deepest_contacts,
+                               [np.max(shallow.nominal_displacements), deepest, 0.0], rtol=1e-9)
+    assert served.depth_note(batch).startswith(
+        f'extrapolated in 1 of 3 poses (1): a contact {1e3 * deepest:.1f} mm past')

@@ -76,6 +76,12 @@ def test_an_answer_past_the_pokes_depth_says_it_is_extrapolated(ros_graph, tmp_p
     assert deep.message.startswith('extrapolated: a contact ') and 'reached 3.0 mm' in deep.message
     # the note comes first; why the spread is missing (this model carries no sources) follows
     assert shallow.message and deep.message.endswith('; ' + shallow.message)
+    request = ContactWrenchBatch.Request(mesh=mesh_to_msg(SPHERE),
+                                         approach=Vector3(x=0.0, y=0.0, z=-1.0),
+                                         torque_centre=to_point([0.5, 0.0, 0.06]))
+    request.poses = [pose_to_msg(_request(d)[1]) for d in (0.002, 0.006, 0.007)]
+    batch = node._on_batch(request, ContactWrenchBatch.Response())
+    assert batch.success and batch.message.startswith('extrapolated in 2 of 3 poses (1, 2): ')
 
 
 @pytest.mark.parametrize('breakage, match', [

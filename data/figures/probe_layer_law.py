@@ -18,10 +18,10 @@ proxy's dependence on the point model: ``(c, L)`` are identified with the model 
 the trials answered by 10-poke models, whose proxy at the trial sites is 0.6-1.0 against the
 full model's 0.4-0.67 (the thin rim unresolved). With every simulator given the full model's
 proxy (``--proxy frozen``) the dome scores 0.333 N (penetration law 0.311); with each model's
-own proxy against the full model's median stiffening (``--proxy absolute``) 0.454 N. So the law
-helps where the model that calibrated ``(c, L)`` and the one that answers resolve the layer
-alike (the demo: one model, both), and hurts where they do not: it stays a choice
-(``shape_decay_law``), not the default.
+own proxy against the full model's median stiffening (``--proxy absolute``) 0.454 N. But the
+frozen proxy does not rescue the others: lamb 1.216 N, thin layer 2.564 N (12.4 %): there the
+law itself misfits the trials (their leave-one-out ``(c, L)`` scatter, c 1.5-17 mm, L 8-32 mm).
+It stays a choice (``shape_decay_law``), not the default.
 
 Usage: python data/figures/probe_layer_law.py [--objects plush,lamb] [--laws penetration,layer]
        [--repeats 10]

@@ -50,11 +50,7 @@ def freeze(how, curves, surface):
     full = ContactGpModel().fit(list(curves), surface).bake(surface, bake_depths(curves))
     onsets = np.asarray(full.onsets(), dtype=float)
     onsets = np.where(np.isfinite(onsets), onsets, 0.0)
-    every = np.arange(len(surface))
-    shallow = np.asarray(full.force(every, onsets + simulator.LAYER_DEPTHS[0]))
-    ratio = np.asarray(full.force(every, onsets + simulator.LAYER_DEPTHS[1])) / np.maximum(
-        shallow, 1e-3)
-    ok = shallow > 0.05 * np.median(shallow[shallow > 0])
+    ratio, ok = simulator.layer_stiffening(full, onsets)
     reference = float(np.median(ratio[ok]))
     fixed = simulator.layer_proxy(full, onsets)
     simulator.layer_proxy = OWN_PROXY

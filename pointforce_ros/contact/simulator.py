@@ -121,28 +121,37 @@ LAYER_CLIP = (0.25, 4.0)
 layer a hundred times thicker)."""
 
 
-def layer_proxy(response, onsets: np.ndarray, reference: Optional[float] = None) -> np.ndarray:
-    """(N,) each surface point's layer proxy ``t_i = s_ref / s_i`` read off the point response.
+def layer_stiffening(response, onsets: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Return ``(s, ok)``: each point's stiffening (N,) and where it is read (N,) bool.
 
-    ``s_i = F(d0 + 8 mm) / F(d0 + 3 mm)`` (:data:`LAYER_DEPTHS`, ``d0`` the point's onset) is how
-    much the response stiffens: soft material over a stiff substrate stiffens more the thinner
-    it is, so a thinner layer gives a smaller ``t``. ``s_ref`` is the median over the points
-    whose shallow force is at least 5 % of the median one (the rest, and non-finite ratios,
-    get ``t = 1``); ``t`` is clipped to :data:`LAYER_CLIP`. A surface where no point qualifies
-    gets ones (the ``'penetration'`` law). ``reference``: a given ``s_ref`` instead.
+    ``s_i = F(d0 + 8 mm) / F(d0 + 3 mm)`` (:data:`LAYER_DEPTHS`, ``d0`` the point's onset); read
+    where the shallow force is at least 5 % of the median positive one and the ratio finite
+    and positive.
     """
-    n = len(onsets)
-    every = np.arange(n)
+    every = np.arange(len(onsets))
     shallow = np.asarray(response.force(every, onsets + LAYER_DEPTHS[0]), dtype=np.float64)
     deep = np.asarray(response.force(every, onsets + LAYER_DEPTHS[1]), dtype=np.float64)
     with np.errstate(divide='ignore', invalid='ignore'):
         ratio = deep / np.maximum(shallow, 1e-3)
     positive = shallow[np.isfinite(shallow) & (shallow > 0.0)]
     if len(positive) == 0:
-        return np.ones(n)
+        return ratio, np.zeros(len(onsets), dtype=bool)
     ok = (shallow > 0.05 * float(np.median(positive))) & np.isfinite(ratio) & (ratio > 0.0)
+    return ratio, ok
+
+
+def layer_proxy(response, onsets: np.ndarray, reference: Optional[float] = None) -> np.ndarray:
+    """(N,) each surface point's layer proxy ``t_i = s_ref / s_i`` read off the point response.
+
+    ``s_i`` (:func:`layer_stiffening`) is how much the response stiffens: soft material over a
+    stiff substrate stiffens more the thinner it is, so a thinner layer gives a smaller ``t``.
+    ``s_ref`` is the median over the points where ``s`` is read (the rest get ``t = 1``); ``t``
+    is clipped to :data:`LAYER_CLIP`. A surface where no point qualifies gets ones (the
+    ``'penetration'`` law). ``reference``: a given ``s_ref`` instead.
+    """
+    ratio, ok = layer_stiffening(response, onsets)
     if not np.any(ok):
-        return np.ones(n)
+        return np.ones(len(onsets))
     if reference is None:
         reference = float(np.median(ratio[ok]))
     return np.clip(np.where(ok, reference / np.where(ok, ratio, 1.0), 1.0), *LAYER_CLIP)
@@ -567,15 +576,17 @@ class ContactSimulator:
                 layer_proxy(self.response, self._onset), dtype=np.float64)
         return proxy
 
-    def layer_scales(self, b_idx: np.ndarray, nbr: np.ndarray) -> np.ndarray:
+    def layer_scales(self, b_idx: np.ndarray, nbr: np.ndarray) -> Optional[np.ndarray]:
         """(K,) the ``'layer'`` law's factor of each candidate: its pose's median proxy.
 
         ``b_idx`` (K,) the candidates' poses (sorted), ``nbr`` (K, 3) their neighbours; each
-        candidate's proxy is its neighbours' mean :meth:`layer_thickness`. Ones under the other
-        laws.
+        candidate's proxy is its neighbours' mean :meth:`layer_thickness`. ``None`` under the
+        other laws (no factor).
         """
-        if self.decay_law != 'layer' or len(b_idx) == 0:
-            return np.ones(len(b_idx))
+        if self.decay_law != 'layer':
+            return None
+        if len(b_idx) == 0:
+            return np.ones(0)
         t = self.layer_thickness()[nbr].mean(axis=1)
         order = np.lexsort((t, b_idx))
         ts = t[order]
@@ -803,10 +814,11 @@ class ContactSimulator:
         return run
 
     def _solve_grouped(self, b_idx: np.ndarray, q: np.ndarray, d: np.ndarray, B: int,
-                       scale: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       scale: Optional[np.ndarray]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Solve every pose's LCP; candidates are sorted by pose. Returns x, u = G x, residual.
 
-        ``scale`` (K,): each candidate's decay-length factor (:meth:`layer_scales`).
+        ``scale`` (K,): each candidate's decay-length factor (:meth:`layer_scales`; ``None``:
+        none).
         """
         counts = np.bincount(b_idx, minlength=B)
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -837,8 +849,10 @@ class ContactSimulator:
             dp = np.zeros((len(members), m))
             valid = np.zeros((len(members), m), dtype=bool)
             qp[gi, si], dp[gi, si], valid[gi, si] = q[rows], d[rows], True
-            sp = np.ones((len(members), m))
-            sp[gi, si] = scale[rows]
+            sp = 1.0
+            if scale is not None:
+                sp = np.ones((len(members), m))
+                sp[gi, si] = scale[rows]
             # Pairwise distances by the Gram identity, centred per pose against cancellation.
             qp -= qp.sum(axis=1, keepdims=True) / np.maximum(valid.sum(axis=1), 1)[:, None, None]
             qp[~valid] = 0.0
@@ -873,8 +887,9 @@ class ContactSimulator:
         q, x = run['q'][act], run['x'][act]
         if return_displacements:
             disp_idx = np.arange(len(self._points))
-            disp = self.surface_displacement(
-                q, x, run['e'][act], float(self.layer_scales(run['b'], run['nbr'])[0]))
+            scale = self.layer_scales(run['b'], run['nbr'])
+            disp = self.surface_displacement(q, x, run['e'][act],
+                                             1.0 if scale is None else float(scale[0]))
         else:
             disp_idx = run['nbr'][act, 0]
             disp = run['d'][act]
@@ -989,6 +1004,6 @@ def _positive(name: str, value) -> float:
 __all__: List[str] = ['APPROACH_TOLERANCE', 'BatchContactResult', 'ContactResult',
                       'ContactSimulator', 'DECAY_FLOOR', 'DECAY_LAW', 'DECAY_LAWS',
                       'DECAY_REFERENCE', 'LAYER_CLIP', 'LAYER_DEPTHS', 'check_decay_law',
-                      'layer_proxy', 'normalise_approach',
+                      'layer_proxy', 'layer_stiffening', 'normalise_approach',
                       'poses_as_arrays',
                       ]

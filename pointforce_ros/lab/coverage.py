@@ -17,6 +17,7 @@ against the nominal normal).
 """
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 from typing import Callable, Dict, Mapping, Optional, Sequence
@@ -32,9 +33,19 @@ from pointforce_ros.lab.figures import (bake_depths, DATA_DIR, DEFAULT_C, load_p
                                         load_probe_fixture, OBJECTS, PROBE_TRAIN_POKES,
                                         trial_poses)
 from pointforce_ros.model.files import ContactModel
-from pointforce_ros.pokes.curves import PokeCurve
+from pointforce_ros.pokes.curves import learned_depth, PokeCurve
+from pointforce_ros.response.baked import EXTRAPOLATION_KAPPA
 from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.types import Surface
+
+
+def cut_curve(curve: PokeCurve, depth: float) -> Optional[PokeCurve]:
+    """Return ``curve`` without its samples deeper than ``depth`` (m); ``None``: under 20 left."""
+    keep = np.asarray(curve.d) <= depth
+    if int(keep.sum()) < 20:
+        return None
+    return dataclasses.replace(curve, d=np.asarray(curve.d)[keep],
+                               f=np.asarray(curve.f)[keep], t=np.asarray(curve.t)[keep])
 
 
 def _push(trial: Mapping) -> tuple:
@@ -44,7 +55,8 @@ def _push(trial: Mapping) -> tuple:
 def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequence[Mapping],
                    n_train: int = PROBE_TRAIN_POKES, seed: int = 0,
                    say: Callable[[str], None] = print, sources: str = 'calibrated',
-                   nears: Sequence[str] = NEARS) -> Dict:
+                   nears: Sequence[str] = NEARS, cut: Optional[float] = None,
+                   kappa: float = EXTRAPOLATION_KAPPA) -> Dict:
     """Score the 90 % intervals of every probe-trial step of one object (module docstring).
 
     Args:
@@ -60,6 +72,12 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
             ``'fit_only'`` (the joint fit's own covariance and relative residual).
         nears: the near fields the other trials choose from, as figure 2's
             (:func:`~pointforce_ros.contact.identify.choose_near`).
+        cut: metres; the training pokes' samples deeper than this are dropped (pokes that
+            stopped there: the trials press past them), a poke left with fewer than 20
+            samples is not trained on; ``None``: whole pokes.
+        kappa: growth of the response's std past the training pokes' deepest displacement
+            (:meth:`~pointforce_ros.response.baked.BakedResponse.with_extrapolation`; 0: the
+            model's own spread alone, as before it).
 
     Returns:
         ``{'normal': (S,) normalised error err/std of the force along the push, 'force': (S, 3)
@@ -82,7 +100,10 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
         raise InvalidInput(f'probe_coverage: need >= {n_train} curves, got {len(curves)}')
     rng = np.random.default_rng([int(seed), 17])
     train = [curves[i] for i in rng.choice(len(curves), size=n_train, replace=False)]
-    baked = ContactGpModel().fit(train, surface).bake(surface, bake_depths(curves))
+    if cut is not None:
+        train = [c for c in (cut_curve(c, cut) for c in train) if c is not None]
+    baked = ContactGpModel().fit(train, surface).bake(surface, bake_depths(curves)) \
+        .with_extrapolation(learned_depth(train), kappa)
     nominal = ContactSimulator(surface, baked, DEFAULT_C)
     rows = {'normal': [], 'force': [], 'torque': [], 'pred': [], 'std': [], 'true': [],
             'kinds': [], 'relative_std': []}
@@ -180,6 +201,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument('--sources', choices=('calibrated', 'fit_only'), default='calibrated',
                         help="uncertainty sources: calibrate_shape's (default) or the joint "
                         "fit's own covariance and residual (before issue 17's second pass)")
+    parser.add_argument('--cut', type=float, default=None, metavar='M',
+                        help='train on the pokes cut at this depth (m): the trials then press '
+                        'past them')
+    parser.add_argument('--kappa', type=float, default=EXTRAPOLATION_KAPPA,
+                        help='growth of the std past the pokes (0: the model\'s spread alone)')
     args = parser.parse_args(argv)
     results, table = {}, {}
     for name in args.objects:
@@ -188,7 +214,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f'[coverage] {name}: {len(trials)} probe trials, point model on {args.train} '
               f'of {len(curves)} pokes')
         results[name] = probe_coverage(curves, surface, trials, args.train, args.seed,
-                                       sources=args.sources)
+                                       sources=args.sources, cut=args.cut, kappa=args.kappa)
         table[name] = summary(results[name])
         s = table[name]
         print(f'[coverage] {name}: 90 % intervals cover {s["coverage_normal"]:.0%} of '

@@ -34,7 +34,7 @@ from pointforce_ros.effects.correct import correct_record
 from pointforce_ros.effects.library import count_earlier, PLASTIC_RADIUS
 from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
 from pointforce_ros.model.files import ContactModel, model_path, save_model
-from pointforce_ros.pokes.curves import extract_curve, PokeCurve
+from pointforce_ros.pokes.curves import extract_curve, learned_depth, PokeCurve
 from pointforce_ros.pokes.store import PokeStore
 from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.response.suggest import (greedy_picks, reference_depth, suggest_pokes,
@@ -386,8 +386,12 @@ class OnlineLearner:
             if self.model is None:
                 raise ModelNotReady('no model yet: no poke has been learned from')
             corrected = [k for k in ('surface_offset', 'plastic_set') if k in self.effects]
+            # the deepest the pokes pressed: past it an answer is extrapolated, its std grows
+            # (BakedResponse.with_extrapolation) and the service says so (depth_note)
+            learned = learned_depth(self.curves)
             return ContactModel(surface=self.model_surface(),
-                                response=self.model.bake(self.surface, self.depths),
+                                response=self.model.bake(self.surface, self.depths)
+                                .with_extrapolation(learned),
                                 shape_constant=self.shape_constant,
                                 version=len(self.curves) + self._c_updates,
                                 shape_decay=self.shape_decay, effects=self.effects,
@@ -395,11 +399,7 @@ class OnlineLearner:
                                 shape_near=self.shape_near,
                                 meta={'kind': getattr(self.model, 'kind', 'unknown'),
                                       'pokes': [c.poke_id for c in self.curves],
-                                      # the deepest the pokes pressed: past it an answer
-                                      # is extrapolated (WrenchServer.depth_note)
-                                      'learned_depth': max(
-                                          (float(np.max(c.d)) for c in self.curves
-                                           if len(c.d)), default=0.0),
+                                      'learned_depth': learned,
                                       'surface_corrected': corrected,
                                       **self.uncertainty})
 

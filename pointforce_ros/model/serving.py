@@ -367,9 +367,11 @@ class WrenchServer:
         ``result``: a :class:`~pointforce_ros.contact.simulator.ContactResult` or
         :class:`~pointforce_ros.contact.simulator.BatchContactResult` of the current model.
         The point response past its pokes' deepest nominal displacement (the model's
-        ``meta['learned_depth']``, written by the learner) is the baked table's straight-line
-        extrapolation, which the wrench's standard deviation does not cover: a contact more
-        than :data:`DEPTH_MARGIN` deeper than that gets the note, naming the first such poses
+        ``meta['learned_depth']``, written by the learner) is the model's law continued past its
+        data (and a straight line past the baked table): the table's ``std`` grows there
+        (:meth:`~pointforce_ros.response.baked.BakedResponse.with_extrapolation`), but how far
+        the law holds is not measured on this object. A contact more than
+        :data:`DEPTH_MARGIN` deeper than that gets the note, naming the first such poses
         of a batch (a model without the entry, from before it, gets none).
         """
         learned = self._snapshot()[0].meta.get('learned_depth')
@@ -387,8 +389,8 @@ class WrenchServer:
             where = f' in {len(past)} of {len(pressed)} poses ({named})'
         return (f'extrapolated{where}: a contact {1e3 * float(pressed.max()):.1f} mm past the '
                 f'scanned surface, the pokes reached {1e3 * float(learned):.1f} mm; the force '
-                'beyond is the point response extrapolated along a straight line, which '
-                'wrench_std does not cover')
+                'beyond is the point model continued past its data: wrench_std widens with the '
+                'distance, poke deeper to measure it')
 
     def answer_batch(self, query: ContactQuery):
         """Answer every pose of ``query``: returns (BatchContactResult, model version).

@@ -92,6 +92,15 @@ class PokeCurve:
         return len(self.d)
 
 
+def learned_depth(curves: Sequence[PokeCurve]) -> float:
+    """Return the deepest nominal displacement (m) any of ``curves`` reached; 0 with none.
+
+    A point model trained on them is measured to there; past it its force is extrapolated
+    (:meth:`~pointforce_ros.response.baked.BakedResponse.with_extrapolation`).
+    """
+    return max((float(np.max(c.d)) for c in curves if len(c.d)), default=0.0)
+
+
 @dataclass(frozen=True)
 class PowerFit:
     """Result of :func:`fit_power_onset`: ``f = bias + a * (d - d0)_+ ** p``.

@@ -225,3 +225,32 @@ def test_response_part_reaches_contacts_before_the_observed_surface():
     assert out.wrench[0, 2] > 0.01                       # in contact, wholly at d <= 0
     np.testing.assert_allclose(out.parts['response'], 0.1 * np.abs(out.wrench),
                                rtol=1e-6, atol=1e-9)
+
+
+def test_the_response_std_grows_past_the_learned_depth():
+    # the table: sqrt(std^2 + (kappa F (d - D) / D)^2) past D, the model's own std before it
+    model = _with_std(patch_contact_model(), 0.02)
+    r = model.response
+    grown = r.with_extrapolation(0.004, kappa=0.1)
+    past = r.depths > 0.004
+    assert past.any() and (~past).any()
+    want = np.sqrt(r.std ** 2 + (0.1 * r.forces * (r.depths - 0.004) / 0.004) ** 2)
+    np.testing.assert_allclose(grown.std[:, past], want[:, past], rtol=1e-12)
+    np.testing.assert_array_equal(grown.std[:, ~past], r.std[:, ~past])
+    np.testing.assert_array_equal(grown.forces, r.forces)
+    assert grown.meta['learned_depth'] == 0.004 and grown.meta['extrapolation_kappa'] == 0.1
+    # nothing to grow: no std, no depth, kappa 0
+    for same in (replace(model, response=BakedResponse(r.depths, r.forces, r.slopes))
+                 .response.with_extrapolation(0.004), r.with_extrapolation(None),
+                 r.with_extrapolation(float('nan')), r.with_extrapolation(0.0),
+                 r.with_extrapolation(0.004, kappa=0.0)):
+        assert same.std is None or np.array_equal(same.std, r.std)
+    # the wrench: queries pressing 2-3 mm keep their response part when the pokes reached
+    # 10 mm and get a wider one when they reached 1 mm, wider still at a larger kappa
+    mesh, poses, centre = _queries()[0]
+    parts = [wrench_uncertainty(replace(model, response=r.with_extrapolation(depth, kappa)),
+                                mesh, poses, DOWN, centre).parts['response'][:, 2]
+             for depth, kappa in ((0.010, 0.1), (0.001, 0.1), (0.001, 0.3))]
+    own = wrench_uncertainty(model, mesh, poses, DOWN, centre).parts['response'][:, 2]
+    np.testing.assert_allclose(parts[0], own, rtol=1e-12)
+    assert np.all(parts[1] > 1.5 * own) and np.all(parts[2] > 1.5 * parts[1])

@@ -59,6 +59,13 @@ def test_refits_as_pokes_land_and_restart_reproduces_the_model(tmp_path):
     deepest = max(float(np.max(c.d)) for c in learner.curves)
     assert saved.meta['learned_depth'] == pytest.approx(deepest, rel=1e-12)
     assert 0.003 < deepest < 0.013
+    # past it the served table's std grows (BakedResponse.with_extrapolation), not before it
+    own = learner.model.bake(surface, learner.depths).std
+    past = saved.response.depths > deepest
+    np.testing.assert_allclose(saved.response.std[:, ~past], own[:, ~past], rtol=1e-9,
+                               atol=1e-12)
+    grown = saved.response.std[:, past] - own[:, past]
+    assert np.all(grown >= -1e-12) and np.median(grown[:, -1]) > 0.05
     restarted = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
                               shape_constant=0.004)
     again = restarted.update()

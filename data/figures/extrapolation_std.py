@@ -25,8 +25,12 @@ one (the smallest whose coverage past the learned depth reaches their coverage w
 it) and scores it on the one left out (leave one object out), so no object's coverage is
 judged with a ``K`` it chose.
 
+With ``--spread S`` each training poke is cut at ``cut`` plus a uniform draw in ``[0, S]`` (pokes
+that stopped at different depths, as the force cap stops them), and with ``--local`` ``D`` is
+the depth the nearest training poke reached instead of the deepest of all.
+
 Usage: python data/figures/extrapolation_std.py [--objects lamb dome] [--cut 0.005]
-       [--size 10] [--repeats 4] [--kappa 0.3] [--fit]
+       [--size 10] [--repeats 4] [--kappa 0.3] [--fit] [--spread 0.004] [--local]
 (about 20 s per object and draw on one core; set OPENBLAS_NUM_THREADS=1.)
 """
 
@@ -38,6 +42,7 @@ import numpy as np
 
 from pointforce_ros.lab.coverage import cut_curve
 from pointforce_ros.lab.figures import full_depth_truth, load_poke_fixture, OBJECTS
+from pointforce_ros.pokes.curves import learned_depth
 from pointforce_ros.response.baked import extrapolation_std
 from pointforce_ros.response.common import curve_features
 from pointforce_ros.response.ours import ContactGpModel
@@ -48,8 +53,13 @@ BINS = (-np.inf, 0.0, 0.25, 0.5, 1.0, np.inf)
 HERE = Path(__file__).resolve().parent
 
 
-def samples(name, cut, size, repeats, seed=0):
-    """Per held-out true sample: ``(x, F, err, std)`` arrays over every draw of ``name``."""
+def samples(name, cut, size, repeats, seed=0, spread=0.0, local=False):
+    """Per held-out true sample: ``(x, F, err, std, D, d, mean)`` over every draw of ``name``.
+
+    ``spread``: each training poke is cut at ``cut`` plus a uniform draw in ``[0, spread]``
+    (pokes stopped by the force cap at different depths); ``local``: ``D`` is the depth the
+    nearest training poke (by position) reached, not the deepest of all.
+    """
     surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
     truth = full_depth_truth(name, curves)
     feats = dict(zip((c.poke_id for c in curves), curve_features(curves, surface)))
@@ -57,10 +67,13 @@ def samples(name, cut, size, repeats, seed=0):
     rows = []
     for k in range(repeats):
         pick = rng.choice(len(curves), size=size, replace=False)
-        train = [cut_curve(curves[i], cut) for i in pick]
+        cuts = cut + spread * rng.random(len(pick))
+        train = [cut_curve(curves[i], at) for i, at in zip(pick, cuts)]
         train = [c for c in train if c is not None]
         model = ContactGpModel().fit(train, surface)
-        learned = max(float(np.max(c.d)) for c in train)
+        learned = learned_depth(train)
+        where = np.stack([c.point for c in train])
+        reached = np.array([learned_depth([c]) for c in train])
         for c in (curves[i] for i in range(len(curves)) if i not in set(pick)):
             d, f = truth[c.poke_id]
             on = f > 0.05
@@ -70,8 +83,10 @@ def samples(name, cut, size, repeats, seed=0):
             x = np.repeat(feats[c.poke_id][None], len(d), axis=0)
             mean = model.predict(x, d)
             std = model.predict_std(x, d)
-            rows.append(np.stack([(d - learned) / learned, f, mean - f, std,
-                                  np.full(len(d), learned), d, mean], axis=1))
+            D = float(reached[np.argmin(np.linalg.norm(where - c.point, axis=1))]) if local \
+                else learned
+            rows.append(np.stack([(d - D) / D, f, mean - f, std, np.full(len(d), D), d, mean],
+                                 axis=1))
         print(f'  {name} draw {k + 1}/{repeats}: learned depth {1e3 * learned:.1f} mm',
               flush=True)
     return np.concatenate(rows)
@@ -126,10 +141,13 @@ def main():
     parser.add_argument('--repeats', type=int, default=4)
     parser.add_argument('--kappa', type=float, default=0.0)
     parser.add_argument('--fit', action='store_true')
+    parser.add_argument('--spread', type=float, default=0.0)
+    parser.add_argument('--local', action='store_true')
     args = parser.parse_args()
     rows = {}
     for name in args.objects:
-        rows[name] = samples(name, args.cut, args.size, args.repeats)
+        rows[name] = samples(name, args.cut, args.size, args.repeats, spread=args.spread,
+                             local=args.local)
     labels = ['inside D'] + [f'{lo:g}-{hi:g} D' for lo, hi in zip(BINS[1:-1], BINS[2:])]
     record = {}
     for name, r in rows.items():
@@ -156,7 +174,8 @@ def main():
               f'{100 * past_coverage(pooled, 0.0):.1f} %; within it '
               f'{100 * inside_coverage(pooled):.1f} %)')
         record['pooled_kappa'] = kappa
-    tag = f'_cut{1e3 * args.cut:g}'
+    tag = f'_cut{1e3 * args.cut:g}' + (f'_spread{1e3 * args.spread:g}' if args.spread else '') \
+        + ('_local' if args.local else '')
     (HERE / f'extrapolation_std{tag}.json').write_text(json.dumps(record, indent=1))
 
 

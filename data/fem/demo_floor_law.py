@@ -75,7 +75,8 @@ rest go high. Not kept.
 Also session 22, the default law (``Lpd``) on the learned models of 13 stored lamb demo runs
 (sessions 17-21; ``demo_floor_law_lamb_learned_sweep_s22.log``): replayed as served, 6.9-8.8 %
 (mean 7.75 %), both demo goals met by 8 of 13. A third calibration push, the rod across the bone
-(``--extra-push demo_floor_rod_over_bone_lamb.npz``, 7.9 and 17.1 N at 2 and 4 mm against the
+(``--extra-push demo_floor_rod_over_bone_lamb.npz``, since session 31 the demo's third push
+``demo_calibration_streak_lamb.npz``, 7.9 and 17.1 N at 2 and 4 mm against the
 beside-the-bone rod's 3.6 and 10.3 N): mean 7.56 %, but 7 of 13 meet both goals (it lifts
 everything: paddle #2 to 1.16-1.19, 2 of 9 below in four runs, while cylinder #2 moves only
 0.78 -> 0.85); in place of the first rod (``--drop rod``) no better. The fit averaged over the

@@ -5,7 +5,8 @@ Issue 17's demo goal (force RMSE under 8 % of the largest true force, at most 6 
 one side of the truth) and its uncertainty goal (nominal 90 % intervals covering 85-95 % of
 held-out truths, planner queries and probe trials pooled) are judged on single runs, whose
 results move with the live cell (the pokes' noise and timing). This reads the summary line
-each run prints after the calibration (``after: c and L from sphere and rod: force RMSE ...``)
+each run prints after the calibration (``after: c and L from sphere and rod[ and the streak]:
+force RMSE ...``)
 from any number of logs and prints one row per run, the share of runs meeting the demo goal,
 and the intervals' coverage of the true ``Fz`` over all runs' queries, alone and pooled with
 the probe trials' steps of a coverage record (``python -m pointforce_ros.lab.coverage``'s
@@ -20,7 +21,7 @@ import re
 from pathlib import Path
 
 AFTER = re.compile(
-    r'after: c and L from sphere and rod: force RMSE (?P<rmse>[0-9.]+) N over (?P<n>[0-9]+) '
+    r'after: c and L from [^:]+: force RMSE (?P<rmse>[0-9.]+) N over (?P<n>[0-9]+) '
     r'queries \((?P<pct>[0-9.]+) % of the largest true force, (?P<peak>[0-9.]+) N\); Fz below '
     r'truth in (?P<below>[0-9]+), above in (?P<above>[0-9]+); nominal 90 % intervals cover '
     r'(?P<cover>[0-9]+) % of true Fz \(mean width (?P<width>[0-9.]+) N\)')
@@ -34,7 +35,7 @@ def read_run(path) -> dict:
     """The last calibrated summary of one demo log; ``ValueError`` if it has none."""
     hits = list(AFTER.finditer(Path(path).read_text(errors='replace')))
     if not hits:
-        raise ValueError(f'{path}: no "after: c and L from sphere and rod" summary line')
+        raise ValueError(f'{path}: no "after: c and L from ..." summary line')
     m = hits[-1].groupdict()
     n = int(m['n'])
     run = {'log': str(path), 'queries': n, 'pct': float(m['pct']),

@@ -9,15 +9,17 @@ solve (:func:`pointforce_ros.sim.fem.indentation.probe_wrench_full`, element siz
 
 A second push with a rod (``--probe rod``, :func:`~pointforce_ros.bringup.demo.
 calibration_rod_push`) writes ``demo_calibration_rod_<object>.npz``: with the sphere it fixes
-both ``c`` and the tail decay length ``L``.
+both ``c`` and the tail decay length ``L``. The third (``--probe streak``, :func:`~pointforce_ros.
+bringup.demo.calibration_streak_push`: the rod across the paler streak over the lamb's bone,
+15 mm beyond query site 2, 3 min) writes ``demo_calibration_streak_<object>.npz`` (session 22
+made it as ``demo_floor_rod_over_bone_lamb.npz`` with ``--probe rod --site 0.03,0``, a study
+push; session 31 made it the demo's third).
 
-``--site DX,DY --out NAME`` moves the rod (its axis along y) to ``(DX, DY)`` from the centre and
+``--site DX,DY --out NAME`` moves a rod (its axis along y) to ``(DX, DY)`` from the centre and
 writes ``NAME`` in this folder instead: a push for studies, not read by the demo
-(``demo_floor_rod_over_bone_lamb.npz``: ``--object lamb --probe rod --site 0.03,0 --out
-demo_floor_rod_over_bone_lamb.npz``, across the bone 15 mm beyond query site 2, 3 min;
-``demo_floor_law.py --extra-push``).
+(``demo_floor_law.py --extra-push``).
 
-Usage: python data/fem/make_demo_calibration.py [--object lamb] [--probe sphere|rod]
+Usage: python data/fem/make_demo_calibration.py [--object lamb] [--probe sphere|rod|streak]
        [--site DX,DY --out NAME] (minutes)
 """
 
@@ -44,8 +46,8 @@ def main():
     args = parser.parse_args()
     spec = load_object(args.object)
     pattern, push = CALIBRATIONS[args.probe]
-    if (args.site is None) != (args.out is None) or (args.site and args.probe != 'rod'):
-        parser.error('--site and --out go together, with --probe rod')
+    if (args.site is None) != (args.out is None) or (args.site and args.probe == 'sphere'):
+        parser.error('--site and --out go together, with --probe rod or streak')
     if args.site:
         mesh, poses, depths = push(spec, tuple(float(v) for v in args.site.split(',')))
         pattern = args.out

@@ -8,11 +8,11 @@ from pointforce_ros.contact.uncertainty import lateral_share, Z90
 from pointforce_ros.sim.objects import load_object
 
 
-def test_two_calibration_pushes_with_different_tools():
+def test_calibration_pushes_with_different_tools_and_on_both_looks_of_the_lamb():
     spec = load_object('lamb')
     pokes = demo._calibration_pokes(spec)
-    assert set(pokes) == {'sphere', 'rod'}
-    sphere, rod = pokes['sphere'], pokes['rod']
+    assert set(pokes) == {'sphere', 'rod', 'streak'}
+    sphere, rod, streak = pokes['sphere'], pokes['rod'], pokes['streak']
     # the sphere where the first poke lands, the rod at its own site with its axis along y
     np.testing.assert_allclose(sphere[1][0].position[:2],
                                np.asarray(spec.centre) + demo.CALIBRATION_OFFSET)
@@ -20,11 +20,22 @@ def test_two_calibration_pushes_with_different_tools():
     world = rod[0].vertices @ rod[1][0].rotation().T
     assert np.ptp(world[:, 1]) == pytest.approx(demo.ROD_LENGTH, rel=1e-6)
     assert np.ptp(sphere[0].vertices, axis=0)[0] == pytest.approx(0.04, rel=1e-3)
-    # measured push-back grows with depth for both (the fixtures are FEM full solves)
-    for _, poses, approach, force in (sphere, rod):
+    # the third: the rod again, across the paler streak the camera sees over the bone
+    np.testing.assert_allclose(streak[1][0].position[:2],
+                               np.asarray(spec.centre) + demo.STREAK_SITE)
+    top = streak[1][0].position + [0.0, 0.0, demo.ROD_DEPTHS[0]]
+    pale, red = spec.colour_at(np.array([top, rod[1][0].position + [0, 0, 0.002]]))
+    assert pale.mean() > red.mean() + 0.2     # the streak is pale, the muscle red
+    np.testing.assert_allclose(streak[1][0].orientation, rod[1][0].orientation)
+    # measured push-back grows with depth for all (the fixtures are FEM full solves), and
+    # over the bone the same rod meets more than twice the muscle's
+    for _, poses, approach, force in (sphere, rod, streak):
         assert len(poses) == 2 and np.all(np.diff(force) > 0) and np.all(force > 1.0)
+    assert np.all(streak[3] > 1.5 * rod[3])
     vectors = demo._calibration_pokes(spec, vectors=True)
     np.testing.assert_allclose(vectors['rod'][3][:, 2], rod[3])
+    # an object without the streak's fixture keeps two pushes
+    assert set(demo._calibration_pokes(load_object('foam_block'))) == {'sphere', 'rod'}
 
 
 def test_a_calibration_file_for_another_probe_pose_is_not_used(tmp_path, monkeypatch, capsys):

@@ -5,7 +5,8 @@ Also the force of one query's LCP solution (:func:`lcp_force_z`), the step after
 
 And the replay of a stored demo's last model with ``(c, L)`` from its two pushes
 (:func:`served_last_model`, :func:`pushed_answers`), which ``demo_near_replay.py`` and
-``demo_layer_replay.py`` share.
+``demo_layer_replay.py`` share, and the queries' score and goals (:func:`query_score`,
+:func:`meets_demo_goals`) the replays share.
 
 Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py``,
 ``demo_floor_pokes.py`` and the two replays import it from this folder (a script's folder is on
@@ -157,3 +158,15 @@ def pushed_answers(sim: ContactSimulator, pushes, queries):
     fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
     pred = np.array([fitted.query(m, p, a, ctr).wrench.force for _, m, p, a, ctr in queries])
     return cal, fitted, pred
+
+
+def query_score(pred, true, largest: float):
+    """``(RMSE of the force vectors as a % of ``largest``, how many Fz lie below the truth)``."""
+    pred, true = np.asarray(pred, dtype=float), np.asarray(true, dtype=float)
+    pct = 100 * float(np.sqrt(np.mean(np.sum((pred - true) ** 2, axis=1)))) / largest
+    return pct, int(np.sum(pred[:, 2] < true[:, 2]))
+
+
+def meets_demo_goals(pct: float, below: int, queries: int = 9) -> bool:
+    """Issue 17's demo goals: under 8 % and at most 6 of the 9 queries on one side."""
+    return pct < 8.0 and queries - 6 <= below <= 6

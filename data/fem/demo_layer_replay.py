@@ -18,8 +18,8 @@ Usage: python data/fem/demo_layer_replay.py DEMO_OUT [DEMO_OUT ...] [--object la
 
 import numpy as np
 
-from demo_floor_setup import (pushed_answers, replay_arguments,  # this folder
-                              served_last_model)
+from demo_floor_setup import (meets_demo_goals, pushed_answers,  # this folder
+                              query_score, replay_arguments, served_last_model)
 
 LAWS = ('penetration', 'layer')
 
@@ -36,17 +36,16 @@ def main():
             batch = np.array([fitted.query_batch(m, [p, p], a, ctr).wrenches[0, :3]
                               for _, m, p, a, ctr in demo.queries])
             gap = float(np.max(np.abs(batch - pred)))
-            vector = float(np.sqrt(np.mean(np.sum((pred - true) ** 2, axis=1))))
-            below = int(np.sum(pred[:, 2] < true[:, 2]))
-            scores[law].append((100 * vector / big, below))
+            pct, below = query_score(pred, true, big)
+            scores[law].append((pct, below))
             print(f'{out} {law:11s}: c {1e3 * cal.fit.c:.2f} mm, L {1e3 * cal.fit.decay:.0f} '
                   f'mm, push fit {100 * cal.in_sample_std:.1f} %; queries '
-                  f'{100 * vector / big:.1f} %, {below} of 9 below; batch - single '
+                  f'{pct:.1f} %, {below} of 9 below; batch - single '
                   f'{gap:.1e} N; Fz pred / true '
                   + ' '.join(f'{v:.2f}' for v in pred[:, 2] / true[:, 2]), flush=True)
     for law, rows in scores.items():
         pct = np.array([r[0] for r in rows])
-        meet = sum(1 for p, b in rows if p < 8.0 and 3 <= b <= 6)
+        meet = sum(1 for p, b in rows if meets_demo_goals(p, b))
         print(f'{law:11s}: {len(rows)} runs, RMSE {pct.min():.1f}-{pct.max():.1f} % (mean '
               f'{pct.mean():.2f} %), both goals {meet} of {len(rows)}')
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from demo_floor_setup import replay_arguments  # this folder
+from demo_floor_setup import meets_demo_goals, query_score, replay_arguments  # this folder
 from pointforce_ros.bringup.demo import _calibration_pokes
 from pointforce_ros.contact.identify import calibrate_shape, decay_grid
 from pointforce_ros.contact.lcp import NEARS
@@ -63,8 +63,7 @@ def main():
                        for _, mesh, pose, a, centre in demo.queries]
             pred = np.array([u.wrench[0, :3] for u in answers])
             std = np.array([u.std[0, 2] for u in answers])
-            pct = 100 * float(np.sqrt(np.mean(np.sum((pred - true) ** 2, axis=1)))) / big
-            below = int(np.sum(pred[:, 2] < true[:, 2]))
+            pct, below = query_score(pred, true, big)
             inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
             width = float(np.mean(2 * Z90 * std))
             scores[name].append((pct, below, inside, width))
@@ -75,7 +74,7 @@ def main():
                   + ' '.join(f'{v:.2f}' for v in pred[:, 2] / true[:, 2]), flush=True)
     for name, rows in scores.items():
         pct = np.array([r[0] for r in rows])
-        meet = sum(1 for p, b, _, _ in rows if p < 8.0 and 9 - 6 <= b <= 6)
+        meet = sum(1 for p, b, _, _ in rows if meets_demo_goals(p, b))
         print(f'{name:6s}: {len(rows)} runs, RMSE {pct.min():.1f}-{pct.max():.1f} % (mean '
               f'{pct.mean():.2f} %, median {np.median(pct):.2f} %), both goals {meet} of '
               f'{len(rows)}; true Fz inside {sum(r[2] for r in rows)} of {9 * len(rows)}, mean '

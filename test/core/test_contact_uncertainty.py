@@ -240,8 +240,8 @@ def test_the_response_std_grows_past_the_learned_depth():
     np.testing.assert_array_equal(grown.forces, r.forces)
     assert grown.meta['learned_depth'] == 0.004 and grown.meta['extrapolation_kappa'] == 0.1
     # nothing to grow: no std, no depth, kappa 0
-    for same in (replace(model, response=BakedResponse(r.depths, r.forces, r.slopes))
-                 .response.with_extrapolation(0.004), r.with_extrapolation(None),
+    for same in (BakedResponse(r.depths, r.forces, r.slopes).with_extrapolation(0.004),
+                 r.with_extrapolation(None),
                  r.with_extrapolation(float('nan')), r.with_extrapolation(0.0),
                  r.with_extrapolation(0.004, kappa=0.0)):
         assert same.std is None or np.array_equal(same.std, r.std)

@@ -30,14 +30,12 @@ from pointforce_ros.bringup import plots
 from pointforce_ros.bringup.camera_check import camera_force_checks
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.bringup.domain import private_domain
+from pointforce_ros.bringup.worker import in_fresh_process, shape_calibration
 from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.contact.simulator import check_decay_law
-from pointforce_ros.contact.identify import (calibrate_shape, decay_grid,
-                                             identify_shape_constant_from_probe)
 from pointforce_ros.contact.uncertainty import uncertainty_sources, Z90
 from pointforce_ros.paths import share_path
 from pointforce_ros.errors import DeviceFault, InvalidInput, ModelNotReady, PointforceError
-from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.fem.probes import cylinder_probe, paddle_probe, pose_for_push, sphere_probe
@@ -236,49 +234,48 @@ def _calibrate(cell, spec):
     relative residual) and the RMS of the measured force across the push not predicted, as a
     share of the RMS normal force (:func:`~pointforce_ros.contact.identify.calibrate_shape`).
     """
-    pokes = _calibration_pokes(spec)
-    if 'sphere' not in pokes:
+    vectors = _calibration_pokes(spec, vectors=True)
+    if 'sphere' not in vectors:
         return None, None, None, 0.0, 0.0, ''
-    server = WrenchServer()
-    server.load(cell.models[-1].model_path)
-    simulator = server.simulator()
-    c_only = c_and_l = cov = None
+    names = [n for n in ('sphere', 'rod', 'streak') if n in vectors] if 'rod' in vectors else []
+    along = {n: (*v[:3], -np.asarray(v[3]) @ np.asarray(v[2], dtype=float))
+             for n, v in vectors.items()}
+    # in a process of its own: the nodes' threads here would take the interpreter lock from it
+    fits = in_fresh_process(shape_calibration, str(cell.models[-1].model_path),
+                            along['sphere'], [vectors[n] for n in names])
+    c_only, cal = fits['c_only'], fits['calibration']
+    c_and_l = cov = None
     rel = lat = 0.0
     used = ''
-    try:
-        c_only = identify_shape_constant_from_probe(simulator, *pokes['sphere'])
+    if c_only is not None:
         print(f'[demo] calibration push 1 (20 mm sphere at {1e3 * CALIBRATION_DEPTHS[0]:.0f} '
               f'and {1e3 * CALIBRATION_DEPTHS[-1]:.0f} mm, '
-              f'{", ".join(f"{f:.2f}" for f in pokes["sphere"][3])} N measured): c = '
+              f'{", ".join(f"{f:.2f}" for f in along["sphere"][3])} N measured): c = '
               f'{1e3 * c_only.c:.2f} mm alone (fit RMSE {c_only.rmse:.2f} N)')
-    except PointforceError as exc:
-        print(f'[demo] calibration with the sphere failed ({exc})')
-    if 'rod' in pokes:
-        vectors = _calibration_pokes(spec, vectors=True)
-        names = [n for n in ('sphere', 'rod', 'streak') if n in vectors]
-        for k, name in enumerate(names[1:], start=2):
-            where = ('' if name == 'rod' else ' across the paler streak, '
-                     + ', '.join(f'{1e3 * v:+.0f}' for v in STREAK_SITE) + ' mm from the centre')
-            print(f'[demo] calibration push {k} ({1e3 * ROD_LENGTH:.0f} mm rod, r 10 mm{where}, '
-                  f'at {1e3 * ROD_DEPTHS[0]:.0f} and {1e3 * ROD_DEPTHS[-1]:.0f} mm, '
-                  f'{", ".join(f"{f:.2f}" for f in pokes[name][3])} N measured)')
-        try:
-            # (c, L) and the spread of a new probe's answer from the pushes alone: each push
-            # predicted by (c, L) refitted on the others, and the pushes' own c scattered
-            cal = calibrate_shape(simulator, [vectors[n] for n in names],
-                                  decays=decay_grid(simulator.surface))
-            c_and_l, cov, rel, lat = cal.fit, cal.shape_cov, cal.relative_std, cal.lateral_std
-            decay = (f'{1e3 * c_and_l.decay:.0f} mm' if np.isfinite(c_and_l.decay)
-                     else "none (the paper's g)")
-            print(f'[demo] (c, L) from the {len(names)} pushes ({", ".join(names)}): c = '
-                  f'{1e3 * c_and_l.c:.2f} mm and tail decay length L = {decay} '
-                  f'(fit RMSE {c_and_l.rmse:.2f} N, {100 * cal.in_sample_std:.0f} % of the '
-                  f'pushes\' force; each push predicted from the others: {100 * rel:.0f} %; '
-                  f'std of log c {np.sqrt(cov[0, 0]):.2f}, of 1/L {np.sqrt(cov[1, 1]):.0f} /m; '
-                  f'lateral force not predicted: {100 * lat:.0f} % of the normal force)')
-            used = ' and '.join({'streak': 'the streak'}.get(n, n) for n in names)
-        except PointforceError as exc:
-            print(f'[demo] calibration with the sphere and the rods failed ({exc})')
+    else:
+        print(f'[demo] calibration with the sphere failed ({fits["errors"].get("sphere")})')
+    for k, name in enumerate(names[1:], start=2):
+        where = ('' if name == 'rod' else ' across the paler streak, '
+                 + ', '.join(f'{1e3 * v:+.0f}' for v in STREAK_SITE) + ' mm from the centre')
+        print(f'[demo] calibration push {k} ({1e3 * ROD_LENGTH:.0f} mm rod, r 10 mm{where}, '
+              f'at {1e3 * ROD_DEPTHS[0]:.0f} and {1e3 * ROD_DEPTHS[-1]:.0f} mm, '
+              f'{", ".join(f"{f:.2f}" for f in along[name][3])} N measured)')
+    if cal is not None:
+        # (c, L) and the spread of a new probe's answer from the pushes alone: each push
+        # predicted by (c, L) refitted on the others, and the pushes' own c scattered
+        c_and_l, cov, rel, lat = cal.fit, cal.shape_cov, cal.relative_std, cal.lateral_std
+        decay = (f'{1e3 * c_and_l.decay:.0f} mm' if np.isfinite(c_and_l.decay)
+                 else "none (the paper's g)")
+        print(f'[demo] (c, L) from the {len(names)} pushes ({", ".join(names)}): c = '
+              f'{1e3 * c_and_l.c:.2f} mm and tail decay length L = {decay} '
+              f'(fit RMSE {c_and_l.rmse:.2f} N, {100 * cal.in_sample_std:.0f} % of the '
+              f'pushes\' force; each push predicted from the others: {100 * rel:.0f} %; '
+              f'std of log c {np.sqrt(cov[0, 0]):.2f}, of 1/L {np.sqrt(cov[1, 1]):.0f} /m; '
+              f'lateral force not predicted: {100 * lat:.0f} % of the normal force)')
+        used = ' and '.join({'streak': 'the streak'}.get(n, n) for n in names)
+    elif 'pushes' in fits['errors']:
+        print(f'[demo] calibration with the sphere and the rods failed '
+              f'({fits["errors"]["pushes"]})')
     return c_only, c_and_l, cov, rel, lat, used
 
 

@@ -146,6 +146,49 @@ def _check_bounds(c_bounds) -> Tuple[float, float]:
     return lo, hi
 
 
+class _Push(tuple):
+    """A push ``(mesh, poses, approach, measured_force)`` with its contact candidates kept.
+
+    A fit of ``(c, L)`` solves the same poses under hundreds of ``(c, L)``; which rigid samples
+    touch where does not change with them (:meth:`~pointforce_ros.contact.simulator.
+    ContactSimulator.prepare_batch`), so each push is prepared once (it unpacks as the
+    4-tuple it was made from).
+    """
+
+    def __new__(cls, simulator, poke):
+        """Validate ``poke`` and prepare it on ``simulator`` (where it can prepare)."""
+        mesh, poses, approach, measured_force = poke
+        self = super().__new__(cls, (mesh, poses, approach, measured_force))
+        self.approach = np.asarray(approach, dtype=np.float64)
+        measured = np.asarray(measured_force, dtype=np.float64)
+        n = len(poses)
+        if measured.shape not in ((n,), (n, 3)):
+            raise InvalidInput(f'measured_force: expected ({n},) or ({n}, 3), got '
+                               f'{measured.shape}')
+        self.measured = as_array(measured, 'measured_force', measured.shape)
+        self.prepared = (simulator.prepare_batch(mesh, poses, self.approach, np.zeros(3))
+                         if hasattr(simulator, 'prepare_batch') else None)
+        return self
+
+    def forces(self, sim) -> np.ndarray:
+        """(T, 3) force vectors ``sim`` predicts at the push's poses, N."""
+        if self.prepared is not None and self.prepared.table is getattr(sim, '_table', None):
+            return sim.solve_prepared(self.prepared)[:, :3]
+        return sim.query_batch(self[0], self[1], self.approach, np.zeros(3)).wrenches[:, :3]
+
+    def predicted(self, sim) -> np.ndarray:
+        """The prediction in the measurement's form: along ``-approach`` or (T, 3) vectors."""
+        force = self.forces(sim)
+        return -force @ self.approach if self.measured.ndim == 1 else force
+
+
+def _pushes(simulator, pokes: Sequence[tuple]) -> List[_Push]:
+    """``pokes`` as :class:`_Push` on ``simulator`` (one already prepared on it is kept)."""
+    table = getattr(simulator, '_table', None)
+    return [p if isinstance(p, _Push) and (p.prepared is None or p.prepared.table is table)
+            else _Push(simulator, p) for p in pokes]
+
+
 def identify_shape_constant(r: np.ndarray, u: np.ndarray, u0: Optional[float] = None,
                             r_min: float = 0.0,
                             c_bounds: Tuple[float, float] = (1e-5, 1.0)) -> ShapeFit:
@@ -323,15 +366,7 @@ def shape_fits_from_probes(simulator, pokes: Sequence[tuple],
     pokes = list(pokes)
     if not pokes:
         raise InvalidInput('identify_shape_constant_from_probes: no pokes')
-    prepared = []
-    for mesh, poses, approach, measured_force in pokes:
-        a = np.asarray(approach, dtype=np.float64)
-        measured = np.asarray(measured_force, dtype=np.float64)
-        n = len(poses)
-        if measured.shape not in ((n,), (n, 3)):
-            raise InvalidInput(f'measured_force: expected ({n},) or ({n}, 3), got '
-                               f'{measured.shape}')
-        prepared.append((mesh, poses, a, as_array(measured, 'measured_force', measured.shape)))
+    prepared = _pushes(simulator, pokes)
     if decays is None:
         decays = (getattr(simulator, 'decay', np.inf),)
     decays = [check_decay(v, 'decays') for v in decays]
@@ -340,12 +375,7 @@ def shape_fits_from_probes(simulator, pokes: Sequence[tuple],
 
     def cost(c, decay):
         sim = simulator.with_shape_constant(c, decay)
-        total = 0.0
-        for mesh, poses, a, measured in prepared:
-            force = sim.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3]
-            pred = -force @ a if measured.ndim == 1 else force
-            total += float(np.sum((pred - measured) ** 2))
-        return total
+        return sum(float(np.sum((p.predicted(sim) - p.measured) ** 2)) for p in prepared)
 
     count = sum(len(p[1]) for p in prepared)
     fits, failure = [], None
@@ -368,12 +398,8 @@ SHAPE_PRIOR_STD = (1.0, 200.0)
 where the pushes do not determine a direction (``1 / L`` = 200 /m is a 5 mm decay length)."""
 
 
-def _predicted(sim, prepared) -> np.ndarray:
-    out = []
-    for mesh, poses, a, measured in prepared:
-        force = sim.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3]
-        out.append((-force @ a if measured.ndim == 1 else force).ravel())
-    return np.concatenate(out)
+def _predicted(sim, prepared: Sequence[_Push]) -> np.ndarray:
+    return np.concatenate([p.predicted(sim).ravel() for p in prepared])
 
 
 def shape_fit_covariance(simulator, pokes: Sequence[tuple], fit: ShapeFit,
@@ -401,9 +427,8 @@ def shape_fit_covariance(simulator, pokes: Sequence[tuple], fit: ShapeFit,
         raise InvalidInput('shape_fit_covariance: no pokes')
     if min(steps) <= 0 or min(prior_std) <= 0:
         raise InvalidInput('shape_fit_covariance: steps and prior_std must be > 0')
-    prepared = [(mesh, poses, np.asarray(a, dtype=np.float64),
-                 np.asarray(m, dtype=np.float64)) for mesh, poses, a, m in pokes]
-    measured = np.concatenate([m.ravel() for *_, m in prepared])
+    prepared = _pushes(simulator, pokes)
+    measured = np.concatenate([p.measured.ravel() for p in prepared])
     inv = 0.0 if not np.isfinite(fit.decay) else 1.0 / fit.decay
     base = _predicted(simulator.with_shape_constant(fit.c, fit.decay), prepared)
     jac = np.column_stack([
@@ -492,11 +517,9 @@ def small_sample_factor(n: int) -> float:
 
 def _along(sim, poke) -> Tuple[np.ndarray, np.ndarray]:
     """Predicted and measured force along the push (``-approach``), N, of one push."""
-    mesh, poses, approach, measured = poke
-    a = np.asarray(approach, dtype=np.float64)
-    measured = np.asarray(measured, dtype=np.float64)
-    pred = -sim.query_batch(mesh, poses, a, np.zeros(3)).wrenches[:, :3] @ a
-    return pred, (measured if measured.ndim == 1 else -measured @ a)
+    push = _pushes(sim, [poke])[0]
+    a, measured = push.approach, push.measured
+    return -push.forces(sim) @ a, (measured if measured.ndim == 1 else -measured @ a)
 
 
 def _relative_error(sim, poke) -> float:
@@ -558,7 +581,8 @@ def choose_near(simulator, pokes: Sequence[tuple], decays: Optional[Sequence[flo
         InvalidInput: an unknown near field, or as :func:`identify_shape_constant_from_probes`.
 
     """
-    near, errors, _ = _choose_near(simulator, list(pokes), decays, c_bounds, nears)
+    near, errors, _ = _choose_near(simulator, _pushes(simulator, pokes), decays, c_bounds,
+                                   nears)
     return near, errors
 
 
@@ -630,7 +654,7 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
         NotConverged: the joint fit's ``c`` lies on a search bound at every decay length.
 
     """
-    pokes = list(pokes)
+    pokes = _pushes(simulator, pokes)   # the copies below share what they were prepared on
     if decay_law is not None:
         simulator = simulator.with_shape_constant(simulator.c, decay_law=decay_law)
     near_errors, refits = {}, None

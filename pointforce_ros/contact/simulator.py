@@ -260,6 +260,24 @@ class BatchContactResult:
                       torque_centre=self.torque_centres[i])
 
 
+@dataclass(frozen=True)
+class PreparedBatch:
+    """Contact candidates of one body at ``count`` poses (:meth:`ContactSimulator.prepare_batch`).
+
+    Attributes:
+        table: the preparing simulator's per-point table (its surface and response).
+        count: number of poses.
+        centres: (count, 3) torque centres, metres.
+        candidates: the candidates (``None``: no pose touches).
+
+    """
+
+    table: np.ndarray = field(repr=False)
+    count: int
+    centres: np.ndarray = field(repr=False)
+    candidates: Optional[dict] = field(repr=False)
+
+
 @dataclass
 class _Projection:
     """Per-approach cache: plane basis, KD-tree, the penetration bound grid and its cells."""
@@ -534,6 +552,46 @@ class ContactSimulator:
                                   frame=self.surface.frame, centres_of_pressure=cop,
                                   pressure_spreads=spread)
 
+    def prepare_batch(self, mesh: Mesh, poses: Union[Sequence[Pose], np.ndarray], approach,
+                      torque_centre) -> 'PreparedBatch':
+        """The contact candidates of :meth:`query_batch`'s arguments, for :meth:`solve_prepared`.
+
+        What the candidates are (which rigid samples touch where, and how deep) depends on the
+        surface, the response's onsets and the body, not on ``c``, the decay length, its law or
+        the near field: a fit of those solves the same poses many times, and keeps them here.
+
+        Raises:
+            InvalidInput: as :meth:`query_batch`.
+
+        """
+        a = normalise_approach(approach)
+        pos, rot = poses_as_arrays(poses, self.surface.frame)
+        n = len(pos)
+        centre = np.asarray(torque_centre, dtype=np.float64)
+        centres = as_array(np.broadcast_to(centre, (n, 3)) if centre.shape == (3,) else centre,
+                           'torque_centre', (n, 3))
+        with single_threaded_blas():
+            cand = self._candidates(self._samples(mesh), rot, pos, a)
+        return PreparedBatch(table=self._table, count=n, centres=centres.copy(),
+                             candidates=cand)
+
+    def solve_prepared(self, prepared: 'PreparedBatch') -> np.ndarray:
+        """(B, 6) wrenches of a :meth:`prepare_batch` under this simulator's ``c`` and ``L``.
+
+        Equal (to round-off) to ``query_batch(...).wrenches`` with the same arguments.
+
+        Raises:
+            InvalidInput: ``prepared`` was made by a simulator of another surface or response
+                (one :meth:`with_shape_constant` copies share theirs).
+
+        """
+        if prepared.table is not self._table:
+            raise InvalidInput('solve_prepared: the candidates were prepared on another '
+                               'surface or response; prepare them with this simulator')
+        with single_threaded_blas():
+            return self._solve_candidates(prepared.candidates, prepared.count,
+                                          prepared.centres, False)['wrench']
+
     def surface_displacement(self, contact_points: np.ndarray, actual: np.ndarray,
                              penetrations: Optional[np.ndarray] = None,
                              scale: float = 1.0) -> np.ndarray:
@@ -664,12 +722,23 @@ class ContactSimulator:
         """
         B = len(rot)
         proj = self.projection(a)
-        empty = dict(wrench=np.zeros((B, 6)), count=np.zeros(B, dtype=np.int64),
-                     umax=np.zeros(B), residual=np.zeros(B), deepest=np.zeros(B))
+        if B == 1 and self._compiled and proj.tree is not None and len(local):
+            return self._run_single(local, rot[0], pos[0], a, centres[0], detail, proj,
+                                    _empty_run(1))
+        return self._solve_candidates(self._candidates(local, rot, pos, a), B, centres, detail)
+
+    def _candidates(self, local: np.ndarray, rot: np.ndarray, pos: np.ndarray,
+                    a: np.ndarray) -> Optional[dict]:
+        """Steps 1-3 of :meth:`_run`: the contact candidates of ``B`` poses, or ``None``.
+
+        Nothing here depends on ``c``, the decay length, its law or the near field (only on
+        the surface, the response's onsets and the body): :meth:`prepare_batch` keeps it for
+        fits that solve the same poses under many of those.
+        """
+        B = len(rot)
+        proj = self.projection(a)
         if proj.tree is None or len(local) == 0 or B == 0:
-            return empty
-        if B == 1 and self._compiled:
-            return self._run_single(local, rot[0], pos[0], a, centres[0], detail, proj, empty)
+            return None
         # 1. Discard samples that cannot penetrate (conservative per-cell height bound). The
         # height along the approach comes first: a sample below the lowest bound of the whole
         # grid cannot penetrate anywhere (on a planner's query most of the body), so the
@@ -686,7 +755,7 @@ class ContactSimulator:
             rise = np.matmul(to_frame[:, :, 0], local.T)
         b_idx, r_idx = np.nonzero(rise > (proj.floor - offset[:, 0])[:, None])
         if len(b_idx) == 0:
-            return empty
+            return None
         # in-plane (0:2) and base (2:5) coordinates of the samples, one product per sample
         maps = np.concatenate([to_frame[:, :, 1:], rot.transpose(0, 2, 1)], axis=2)
         posed = np.einsum('kj,kji->ki', local[r_idx], maps[b_idx])
@@ -697,7 +766,7 @@ class ContactSimulator:
         near = rise[b_idx, r_idx] + offset[b_idx, 0] > proj.bound[cij[:, 0], cij[:, 1]]
         b_idx, uv, posed = b_idx[near], uv[near], posed[near]
         if len(b_idx) == 0:
-            return empty
+            return None
         # 2. Three nearest surface points in the projection plane (eq. 1), within max_gap: the
         # single-pose path's search, so that ties (a sample equidistant from grid points) go
         # the same way in both
@@ -718,7 +787,7 @@ class ContactSimulator:
         # the selections are composed on indices and applied to the arrays once.
         idx = np.flatnonzero(e > 0.0)
         if len(idx) == 0:
-            return empty
+            return None
         sel = _deepest_per_key(b_idx[idx] * len(self._points) + nbr[idx, 0], e[idx])
         if sel is not None:
             idx = idx[sel]
@@ -726,9 +795,16 @@ class ContactSimulator:
         if sel is not None:
             idx = idx[sel]
         b_idx, p, nbr, sums, d, e = b_idx[idx], p[idx], nbr[idx], sums[idx], d[idx], e[idx]
-        q = sums[:, 5:] / 3.0
         nsum = sums[:, :3]
-        nq = nsum / np.linalg.norm(nsum, axis=1, keepdims=True)
+        return dict(b=b_idx, p=p, nbr=nbr, q=sums[:, 5:] / 3.0,
+                    nq=nsum / np.linalg.norm(nsum, axis=1, keepdims=True), d=d, e=e)
+
+    def _solve_candidates(self, cand: Optional[dict], B: int, centres: np.ndarray,
+                          detail: bool) -> dict:
+        """Steps 4-5 of :meth:`_run` on :meth:`_candidates` (``None``: no contact)."""
+        if cand is None:
+            return _empty_run(B)
+        b_idx, p, nbr, q, nq, d, e = (cand[k] for k in ('b', 'p', 'nbr', 'q', 'nq', 'd', 'e'))
         # 4. LCP per pose, padded stacks of similar size.
         x, u, residual = self._solve_grouped(b_idx, q, e, B, self.layer_scales(b_idx, nbr))
         # 5. Forces and wrench (eq. 4).
@@ -901,6 +977,12 @@ class ContactSimulator:
             contact_normals=run['nq'][act], nominal_displacements=run['d'][act],
             actual_displacements=x, contact_forces=run['f'][act],
             candidate_count=len(run['x']))
+
+
+def _empty_run(B: int) -> dict:
+    """:meth:`ContactSimulator._run` of ``B`` poses without contact."""
+    return dict(wrench=np.zeros((B, 6)), count=np.zeros(B, dtype=np.int64), umax=np.zeros(B),
+                residual=np.zeros(B), deepest=np.zeros(B))
 
 
 def _force_torque(f: np.ndarray, nq: np.ndarray, arm: np.ndarray) -> np.ndarray:

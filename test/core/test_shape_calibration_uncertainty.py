@@ -137,3 +137,24 @@ def test_a_share_from_few_held_out_errors_covers_the_next_error_nine_times_in_te
 def test_the_widening_needs_a_held_out_error():
     with pytest.raises(InvalidInput, match='held-out error'):
         small_sample_factor(0)
+
+
+@pytest.mark.parametrize('law', ['fixed', 'penetration', 'layer'])
+def test_prepared_pushes_solve_as_the_batch_does_under_every_shape(law):
+    start, pokes = _truth_and_pokes()
+    sim = start.with_shape_constant(start.c, decay_law=law)
+    for mesh, poses, approach, _ in pokes:
+        prepared = sim.prepare_batch(mesh, poses, approach, AT)
+        for c, decay, near in ((0.002, np.inf, 'paper'), (0.004, DECAY, 'paper'),
+                               (0.009, 0.008, 'flat')):
+            other = sim.with_shape_constant(c, decay, near=near)
+            np.testing.assert_allclose(other.solve_prepared(prepared),
+                                       other.query_batch(mesh, poses, approach, AT).wrenches,
+                                       rtol=1e-10, atol=1e-12)
+    # candidates made by another simulator (its own surface table) are refused, not solved
+    with pytest.raises(InvalidInput, match='another surface or response'):
+        ContactSimulator(start.surface, start.response, 0.004).solve_prepared(prepared)
+    # a push that touches nothing solves to a zero wrench
+    mesh, poses, approach, _ = pokes[0]
+    lifted = [Pose(position=p.position + [0, 0, 0.05]) for p in poses]
+    assert not np.any(sim.solve_prepared(sim.prepare_batch(mesh, lifted, approach, AT)))

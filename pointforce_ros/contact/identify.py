@@ -171,13 +171,13 @@ class _Push(tuple):
         return self
 
     def forces(self, sim) -> np.ndarray:
-        """(T, 3) force vectors ``sim`` predicts at the push's poses, N."""
+        """Return the (T, 3) force vectors ``sim`` predicts at the push's poses, N."""
         if self.prepared is not None and self.prepared.table is getattr(sim, '_table', None):
             return sim.solve_prepared(self.prepared)[:, :3]
         return sim.query_batch(self[0], self[1], self.approach, np.zeros(3)).wrenches[:, :3]
 
     def predicted(self, sim) -> np.ndarray:
-        """The prediction in the measurement's form: along ``-approach`` or (T, 3) vectors."""
+        """Return the prediction in the measurement's form: along ``-approach`` or (T, 3)."""
         force = self.forces(sim)
         return -force @ self.approach if self.measured.ndim == 1 else force
 

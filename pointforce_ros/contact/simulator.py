@@ -554,7 +554,7 @@ class ContactSimulator:
 
     def prepare_batch(self, mesh: Mesh, poses: Union[Sequence[Pose], np.ndarray], approach,
                       torque_centre) -> 'PreparedBatch':
-        """The contact candidates of :meth:`query_batch`'s arguments, for :meth:`solve_prepared`.
+        """Return the contact candidates of :meth:`query_batch`'s arguments, to solve again.
 
         What the candidates are (which rigid samples touch where, and how deep) depends on the
         surface, the response's onsets and the body, not on ``c``, the decay length, its law or
@@ -576,7 +576,7 @@ class ContactSimulator:
                              candidates=cand)
 
     def solve_prepared(self, prepared: 'PreparedBatch') -> np.ndarray:
-        """(B, 6) wrenches of a :meth:`prepare_batch` under this simulator's ``c`` and ``L``.
+        """Return the (B, 6) wrenches of a :meth:`prepare_batch` under this ``c`` and ``L``.
 
         Equal (to round-off) to ``query_batch(...).wrenches`` with the same arguments.
 
@@ -729,7 +729,7 @@ class ContactSimulator:
 
     def _candidates(self, local: np.ndarray, rot: np.ndarray, pos: np.ndarray,
                     a: np.ndarray) -> Optional[dict]:
-        """Steps 1-3 of :meth:`_run`: the contact candidates of ``B`` poses, or ``None``.
+        """Return the contact candidates of ``B`` poses (steps 1-3 of :meth:`_run`), or ``None``.
 
         Nothing here depends on ``c``, the decay length, its law or the near field (only on
         the surface, the response's onsets and the body): :meth:`prepare_batch` keeps it for
@@ -801,7 +801,7 @@ class ContactSimulator:
 
     def _solve_candidates(self, cand: Optional[dict], B: int, centres: np.ndarray,
                           detail: bool) -> dict:
-        """Steps 4-5 of :meth:`_run` on :meth:`_candidates` (``None``: no contact)."""
+        """Solve :meth:`_candidates` (steps 4-5 of :meth:`_run`; ``None``: no contact)."""
         if cand is None:
             return _empty_run(B)
         b_idx, p, nbr, q, nq, d, e = (cand[k] for k in ('b', 'p', 'nbr', 'q', 'nq', 'd', 'e'))

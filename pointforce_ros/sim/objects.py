@@ -128,6 +128,11 @@ class ObjectSpec:
                 2 * np.pi * y / wave[1] + phase[1])
         return z
 
+    @property
+    def top_bound(self) -> float:
+        """Height (metres) no point of the undeformed top surface lies above."""
+        return float(max(self.size[2], self.rim_height) + abs(self.undulation[0]))
+
     def top_normal(self, x, y) -> np.ndarray:
         """(..., 3) outward unit normal of the undeformed top surface at (x, y)."""
         e = 1e-5

@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 
+from pointforce_ros.sim.fem import live as live_module
 from pointforce_ros.sim.fem.live import LiveContact, uv_to_xy
 from pointforce_ros.sim.objects import list_objects
 from pointforce_ros.errors import DataError, InvalidInput
@@ -73,6 +74,29 @@ def test_wrench_geometry(live):
         np.testing.assert_allclose(t_c, np.cross(tip - centre, f), atol=1e-12)
     off, _ = live.point_probe_wrench([0.9, 0.5, 0.01], [0, 0, -1])
     assert np.all(off == 0)
+
+
+def test_no_point_of_the_top_lies_above_its_bound_and_the_answer_there_is_unchanged(
+        live, monkeypatch):
+    spec = live.spec
+    rng = np.random.default_rng(2)
+    x = spec.centre[0] + spec.size[0] * rng.uniform(-0.5, 0.5, 20000)
+    y = spec.centre[1] + spec.size[1] * rng.uniform(-0.5, 0.5, 20000)
+    top = spec.top_height(x, y)
+    assert np.max(top) <= spec.top_bound < np.max(top) + 0.002
+    # tips around the bound, moving down (some tilted): the quick "nothing above" answer is
+    # the surface search's (a bound too low would cut off real contact)
+    tips = np.column_stack([x[:200], y[:200], spec.top_bound + rng.uniform(-0.004, 0.004, 200)])
+    axes = np.column_stack([rng.uniform(-0.3, 0.3, (200, 2)), -np.ones(200)])
+    quick = [live.point_probe_wrench(t, a) for t, a in zip(tips, axes)]
+    above = np.sum(tips[:, 2] > spec.top_bound + live_module.ABOVE_MARGIN)
+    monkeypatch.setattr(live_module, 'ABOVE_MARGIN', np.inf)
+    full = [live.point_probe_wrench(t, a) for t, a in zip(tips, axes)]
+    for (fq, tq), (ff, tf) in zip(quick, full):
+        np.testing.assert_array_equal(fq, ff)
+        np.testing.assert_array_equal(tq, tf)
+    assert sum(np.any(f != 0) for f, _ in full) >= 3         # the band reaches into contact
+    assert above > 50                                        # and above it
 
 
 def test_emulator_force_model_uses_the_tcp_z_axis():

@@ -43,6 +43,12 @@ POINT_PROBE = dict(tip_radius=0.002, half_angle_deg=25.0, length=0.03)
 
 CACHE_VERSION = 1
 
+ABOVE_MARGIN = 1e-3
+"""A point probe moving down whose tip is this far (metres) above the highest point of the
+undeformed top (:attr:`~pointforce_ros.sim.objects.ObjectSpec.top_bound`) touches nothing:
+:meth:`LiveContact.point_probe_wrench` answers zero without the surface search (the emulator
+asks 500 times a second, mostly with the arm at rest above the object)."""
+
 
 def spec_hash(spec: ObjectSpec) -> str:
     """Return a short hash of the object's YAML text and the cache's probe/solver settings."""
@@ -316,6 +322,8 @@ class LiveContact:
             raise InvalidInput('point_probe_wrench: axis must be non-zero')
         a = a / na
         zero = np.zeros(3)
+        if a[2] < 0.0 and p[2] > self.spec.top_bound + ABOVE_MARGIN:
+            return zero, zero.copy()    # moving down from above every point: no contact
         q = self._surface_hit(p, a)
         if q is None:
             return zero, zero.copy()

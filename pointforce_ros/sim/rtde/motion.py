@@ -16,10 +16,15 @@ class Kinematics:
         self.r = rotvec_to_matrix(pose6[3:6])
         self.v = np.zeros(3)
         self.w = np.zeros(3)
+        self._rotvec_of = (None, None)
 
     def pose6(self) -> np.ndarray:
         """Return the TCP pose [x, y, z, rx, ry, rz] (m, rad, base)."""
-        return np.concatenate([self.p, matrix_to_rotvec(self.r)])
+        rot, rotvec = self._rotvec_of
+        if rot is not self.r:   # a TCP at rest keeps its matrix: convert it once (~100 us)
+            rot, rotvec = self.r, matrix_to_rotvec(self.r)
+            self._rotvec_of = (rot, rotvec)
+        return np.concatenate([self.p, rotvec])
 
     def twist6(self) -> np.ndarray:
         """Return the TCP twist [vx, vy, vz, wx, wy, wz] (m/s, rad/s, base)."""

@@ -241,6 +241,9 @@ def _calibrate(cell, spec):
     along = {n: (*v[:3], -np.asarray(v[3]) @ np.asarray(v[2], dtype=float))
              for n, v in vectors.items()}
     # in a process of its own: the nodes' threads here would take the interpreter lock from it
+    print(f'[demo] fitting c (sphere) and (c, L) ({", ".join(names) or "no rod push"}) to the '
+          f'measured pushes, on model v{cell.models[-1].version}, in a process of its own ...',
+          flush=True)
     fits = in_fresh_process(shape_calibration, str(cell.models[-1].model_path),
                             along['sphere'], [vectors[n] for n in names])
     c_only, cal = fits['c_only'], fits['calibration']

@@ -24,6 +24,7 @@ BENCHMARKS: Dict[str, str] = {
     'contact': 'pointforce_ros.lab.bench_contact:bench_contact',
     'batch': 'pointforce_ros.lab.bench_contact:bench_batch',
     'learn': 'pointforce_ros.lab.bench_learn:bench_learn',
+    'calibrate': 'pointforce_ros.lab.bench_calibrate:bench_calibrate',
     'cell': 'pointforce_ros.sim.fem.bench:bench_cell',
     'ros': 'pointforce_ros.bringup.bench_ros:bench_ros',
     'deformation': 'pointforce_ros.deformation.bench:bench_deformation',

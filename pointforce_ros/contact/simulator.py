@@ -521,12 +521,8 @@ class ContactSimulator:
             InvalidInput: as :meth:`query`.
 
         """
-        a = normalise_approach(approach)
-        pos, rot = poses_as_arrays(poses, self.surface.frame)
+        a, pos, rot, centres = self._batch_arguments(poses, approach, torque_centre)
         n = len(pos)
-        centre = np.asarray(torque_centre, dtype=np.float64)
-        centres = as_array(np.broadcast_to(centre, (n, 3)) if centre.shape == (3,) else centre,
-                           'torque_centre', (n, 3))
         local = self._samples(mesh)
         out = np.zeros((n, 6))
         count = np.zeros(n, dtype=np.int64)
@@ -552,6 +548,16 @@ class ContactSimulator:
                                   frame=self.surface.frame, centres_of_pressure=cop,
                                   pressure_spreads=spread)
 
+    def _batch_arguments(self, poses, approach, torque_centre) -> Tuple[np.ndarray, ...]:
+        """Return ``(approach, positions (B, 3), rotations (B, 3, 3), centres (B, 3))``."""
+        a = normalise_approach(approach)
+        pos, rot = poses_as_arrays(poses, self.surface.frame)
+        n = len(pos)
+        centre = np.asarray(torque_centre, dtype=np.float64)
+        centres = as_array(np.broadcast_to(centre, (n, 3)) if centre.shape == (3,) else centre,
+                           'torque_centre', (n, 3))
+        return a, pos, rot, centres
+
     def prepare_batch(self, mesh: Mesh, poses: Union[Sequence[Pose], np.ndarray], approach,
                       torque_centre) -> 'PreparedBatch':
         """Return the contact candidates of :meth:`query_batch`'s arguments, to solve again.
@@ -564,12 +570,8 @@ class ContactSimulator:
             InvalidInput: as :meth:`query_batch`.
 
         """
-        a = normalise_approach(approach)
-        pos, rot = poses_as_arrays(poses, self.surface.frame)
+        a, pos, rot, centres = self._batch_arguments(poses, approach, torque_centre)
         n = len(pos)
-        centre = np.asarray(torque_centre, dtype=np.float64)
-        centres = as_array(np.broadcast_to(centre, (n, 3)) if centre.shape == (3,) else centre,
-                           'torque_centre', (n, 3))
         with single_threaded_blas():
             cand = self._candidates(self._samples(mesh), rot, pos, a)
         return PreparedBatch(table=self._table, count=n, centres=centres.copy(),

@@ -46,7 +46,7 @@ from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.rotations import (matrix_to_quaternion, rotvec_aligning_z,
                                       rotvec_to_matrix)
 from pointforce_ros.types import PokeRecord
-from pointforce_ros.drivers.ur_arm import UrArm
+from pointforce_ros.drivers.ur_arm import STREAM_RT_PRIORITY, UrArm
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -103,6 +103,11 @@ class PokeServerNode(Node):
                                       bounds=(0.001, 0.25))
         self.feedback_hz = declare(self, 'feedback_rate', 25.0, 'Action feedback rate, Hz',
                                    bounds=(1.0, 250.0))
+        self.stream_rt_priority = declare(
+            self, 'stream_rt_priority', STREAM_RT_PRIORITY,
+            'SCHED_FIFO priority of the F/T stream worker where the OS permits it (root, '
+            'CAP_SYS_NICE or an rtprio limit); 0 keeps it at normal priority',
+            bounds=(0, 98), read_only=True)
         self._arm_factory = arm_factory or self._default_arm
         self._arm = None
         self._arm_lock = threading.Lock()
@@ -144,9 +149,8 @@ class PokeServerNode(Node):
         return applier
 
     # ------------------------------------------------------------------ arm and streaming
-    @staticmethod
-    def _default_arm(host):
-        return UrArm(host)
+    def _default_arm(self, host):
+        return UrArm(host, rt_priority=self.stream_rt_priority)
 
     def _connect(self):
         with self._arm_lock:
@@ -159,6 +163,11 @@ class PokeServerNode(Node):
             arm.add_sample_callback(self._stream_sample)
             self._arm = arm
             self.get_logger().info(f'connected to the UR controller at {self.robot_ip}')
+            scheduling = getattr(arm, 'stream_scheduling', None)
+            if scheduling is not None:
+                log = (self.get_logger().warn if 'refused' in scheduling
+                       else self.get_logger().info)
+                log(f'F/T stream worker: {scheduling}')
             return arm
 
     def _stream_sample(self, sample):

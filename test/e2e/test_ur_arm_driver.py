@@ -2,13 +2,15 @@
 
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 
 import numpy as np
 import pytest
 
-from pointforce_ros.drivers.ur_arm import (active_fault_message, ArmEvent,
+from pointforce_ros.drivers.ur_arm import (_realtime_poller, active_fault_message, ArmEvent,
                                            EVENT_CONNECTION_LOST, EVENT_FT_FROZEN,
                                            EVENT_PROTECTIVE_STOP, EVENT_STALL, PushFault, UrArm)
 from pointforce_ros.errors import DeviceFault, InvalidInput, UnsafeCommand
@@ -76,6 +78,63 @@ def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
     assert np.diff(wall).max() < 0.05
     assert len(arm.samples()) >= len(got)
     assert not arm.active_faults()
+
+
+def _fifo_permitted() -> bool:
+    """Whether a process of ours may take SCHED_FIFO here (tried in a child)."""
+    probe = subprocess.run([sys.executable, '-c', 'import os; os.sched_setscheduler('
+                            '0, os.SCHED_FIFO, os.sched_param(1))'], capture_output=True)
+    return probe.returncode == 0
+
+
+def _worker_threads(pid):
+    tids = [int(t) for t in os.listdir(f'/proc/{pid}/task')]
+    return ({os.sched_getscheduler(t) for t in tids},
+            sorted(os.sched_getparam(t).sched_priority for t in tids))
+
+
+def test_stream_worker_runs_under_the_scheduling_the_os_permits(start_emulator):
+    emu = start_emulator(initial_pose=[0.3, 0.0, 0.27, 3.14159265, 0.0, 0.0])
+    permitted = _fifo_permitted()
+    for priority in (40, 0):
+        arm = UrArm(emu.host, rt_priority=priority)
+        try:
+            policies, priorities = _worker_threads(arm.stream_pid)
+            print(priority, arm.stream_scheduling, policies, priorities)
+            if priority and permitted:
+                assert arm.stream_scheduling.startswith('SCHED_FIFO'), arm.stream_scheduling
+                # the poller one below ur_rtde's threads, every thread of the worker real-time
+                assert policies == {os.SCHED_FIFO}
+                assert priorities[0] == priority - 1 and priorities[-1] == priority
+            else:
+                assert arm.stream_scheduling.startswith('normal priority')
+                assert policies == {os.SCHED_OTHER} and set(priorities) == {0}
+            assert arm.wait_samples(25, 2.0), 'the stream does not flow'
+        finally:
+            arm.close()
+    with pytest.raises(InvalidInput, match='rt_priority'):
+        UrArm(emu.host, rt_priority=99)
+    with pytest.raises(InvalidInput, match='rt_priority'):
+        UrArm(emu.host, rt_priority=True)
+
+
+def test_a_refused_real_time_priority_is_reported_and_the_poller_stays_normal():
+    # a child without the right: no rtprio limit and, where we are root, not root any more
+    code = ('import os, resource\n'
+            'from pointforce_ros.drivers.ur_arm import _realtime_poller\n'
+            'resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))\n'
+            'if os.geteuid() == 0:\n'
+            '    os.setgid(65534); os.setuid(65534)\n'
+            'print(_realtime_poller(80))\n'
+            'print(os.sched_getscheduler(0) == os.SCHED_OTHER)\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=60, cwd=os.path.dirname(os.path.dirname(os.path.dirname(
+                             os.path.abspath(__file__)))))
+    assert out.returncode == 0, out.stderr[-2000:]
+    message, normal = out.stdout.strip().splitlines()[-2:]
+    assert message.startswith('normal priority: SCHED_FIFO 79 refused'), message
+    assert 'CAP_SYS_NICE' in message and normal == 'True'
+    assert _realtime_poller(0) == 'normal priority (rt_priority 0)'
 
 
 def test_move_speed_and_stop_commands(cell):

@@ -29,6 +29,7 @@ BENCHMARKS: Dict[str, str] = {
     'ros': 'pointforce_ros.bringup.bench_ros:bench_ros',
     'deformation': 'pointforce_ros.deformation.bench:bench_deformation',
     'faults': 'pointforce_ros.bringup.bench_faults:bench_faults',
+    'streams': 'pointforce_ros.bringup.bench_streams:bench_streams',
 }
 
 

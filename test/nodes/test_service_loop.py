@@ -5,6 +5,8 @@ import time
 
 import pytest
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from std_msgs.msg import Int64
 from std_srvs.srv import Trigger
 
 from pointforce_ros.nodes.contact_wrench import REQUESTS
@@ -126,3 +128,57 @@ def test_stop_ends_the_loop_thread_and_its_services(ros_graph):
     assert not thread.is_alive()
     assert node.loop.services == []
     ros_graph.wait_for(lambda: not client.service_is_ready(), 10.0, 'the service to go away')
+
+
+class _Listener(Node):
+    """A node whose ServiceLoop takes ``/loop_test_topic`` (std_msgs/Int64) and a service.
+
+    The callback records each value; a value in ``raise_on`` raises what the dict names there.
+    """
+
+    def __init__(self, context, raise_on=None):
+        super().__init__('loop_test', context=context)
+        self.values = []
+        self.raise_on = dict(raise_on or {})
+        self.loop = ServiceLoop(self)
+        self.loop.add_subscription(Int64, '/loop_test_topic', self._on_value,
+                                   QoSProfile(depth=500))
+        self.loop.add(Trigger, '~/ping', lambda req, res: Trigger.Response(success=True),
+                      REQUESTS)
+        self.loop.start()
+
+    def _on_value(self, msg):
+        self.values.append(msg.data)
+        if msg.data in self.raise_on:
+            raise self.raise_on[msg.data]
+
+    def destroy_node(self):
+        self.loop.stop()
+        return super().destroy_node()
+
+
+def test_loop_subscriptions_take_every_message_in_order_past_callbacks_that_raise(ros_graph):
+    # a publisher of 600 numbers at about 2 kHz; the listener's callback raises on four of
+    # them (a MemoryError among them): every message still arrives, once and in order, the
+    # faults are counted, and the loop's service answers all along
+    node = ros_graph.add(_Listener(ros_graph.context, raise_on={
+        10: ValueError('bad'), 200: MemoryError(), 201: RuntimeError('x'), 599: KeyError(3)}))
+    talker = Node('loop_talker', context=ros_graph.context)
+    ros_graph.nodes.append(talker)
+    pub = talker.create_publisher(Int64, '/loop_test_topic', QoSProfile(depth=500))
+    ros_graph.wait_for(lambda: pub.get_subscription_count() > 0, 15.0, 'the loop to subscribe')
+    ping = _client(ros_graph, 'ping')
+    for value in range(600):
+        pub.publish(Int64(data=value))
+        if value % 100 == 0:
+            assert ping.call(Trigger.Request(), timeout_sec=5.0).success
+        time.sleep(0.0005)
+    ros_graph.wait_for(lambda: len(node.values) >= 600, 15.0, 'all 600 messages')
+    assert node.values == list(range(600))
+    assert node.loop.messages_taken == 600 and node.loop.faults == 4
+    assert node.count_subscribers('/loop_test_topic') == 1
+    node.loop.stop()
+    assert node.count_subscribers('/loop_test_topic') == 0
+    pub.publish(Int64(data=600))
+    time.sleep(0.3)
+    assert len(node.values) == 600

@@ -74,7 +74,9 @@ def test_poke_end_to_end_with_feedback_and_a_250hz_bag(cell):
     dt = np.diff(record.t_controller)
     rate = 1.0 / np.median(dt)
     assert rate == pytest.approx(250.0, rel=0.05)
-    assert dt.max() < 0.012, f'gap of {1e3 * dt.max():.1f} ms in the 250 Hz stream'
+    # the same bound as the driver's own stream test (test_ur_arm_driver.py): at most two
+    # 250 Hz samples in a row missing, where the emulator's late ticks came back to back
+    assert dt.max() <= 0.012 + 1e-9, f'gap of {1e3 * dt.max():.1f} ms in the 250 Hz stream'
     assert np.all(dt > 0)
     # force against depth in the bag is the spring the emulator simulates
     d, f = record.displacement(), record.normal_force()

@@ -68,9 +68,10 @@ def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
           f'{np.diff(t).max() * 1e3:.1f} ms, max wall gap {np.diff(wall).max() * 1e3:.1f} ms')
     assert abs(rate - 250.0) / 250.0 < 0.05, f'{rate:.1f} Hz'
     # no sample lost against the controller clock (a starved emulator slows its own clock
-    # rather than bursting, so wall time is only a loose bound)
+    # rather than bursting: 2.1-2.6 s of controller time in these 3 s on a busy machine, so
+    # wall time only says that the emulator ran at all)
     assert len(got) >= 0.95 * 250 * (t[-1] - t[0])
-    assert len(got) >= 0.8 * 750
+    assert t[-1] - t[0] >= 1.5
     assert np.all(np.diff(t) > 0), 'duplicated or reordered controller timestamps'
     assert np.diff(t).max() <= 0.012 + 1e-9, f'gap of {np.diff(t).max() * 1e3:.1f} ms'
     # delivery to callbacks: below the poke server's F/T stall threshold (50 ms), which is the

@@ -23,10 +23,10 @@ controller):
   a late reader delays samples but loses none. ``waitPeriod`` is not used: it truncates the
   period to whole milliseconds. Where the OS permits it (root, ``CAP_SYS_NICE`` or an
   ``rtprio`` limit, as on a real-time robot PC), the worker runs under ``SCHED_FIFO``: ur_rtde's
-  threads at ``rt_priority`` and the poller one below, so a loaded
-  machine's other work cannot starve them for a slot (two busy processes at normal priority
-  cost an unprivileged poller 5-10 % of its slots here); where it does not, both stay at normal
-  priority and :attr:`UrArm.stream_scheduling` says why.
+  threads at ``rt_priority`` and the poller one below, so that a loaded machine's other work
+  cannot starve them for a slot (with two busy processes beside it, the stream tests failed 4
+  of 9 runs at normal priority here, 0 of 9 under ``SCHED_FIFO``); where it does not, all stay
+  at normal priority and :attr:`UrArm.stream_scheduling` says why.
 
 Faults are reported as :class:`ArmEvent` records, never silently: ``stall`` (no new controller
 sample for ``stall_timeout``), ``ft_frozen`` (``actual_TCP_force`` bitwise identical for
@@ -66,7 +66,7 @@ STREAM_VARIABLES = ['timestamp', 'actual_TCP_pose', 'actual_TCP_force', 'safety_
                     'runtime_state', 'robot_mode', 'safety_mode']
 STATUS_VARIABLES = STREAM_VARIABLES + ['actual_TCP_speed', 'robot_status_bits']
 STREAM_RT_PRIORITY = 80
-"""Default ``SCHED_FIFO`` priority of the stream worker's receive thread (see the module)."""
+"""Default ``SCHED_FIFO`` priority of the stream worker's ur_rtde threads (see the module)."""
 RUNTIME_PLAYING = 2
 CONTROLLER_PORTS = ((29999, 'dashboard'), (30004, 'RTDE'), (30003, 'script'))
 
@@ -245,8 +245,9 @@ class UrArm:
         buffer_size: capacity of the ring buffer of recent samples.
         max_speed: largest accepted TCP speed for moves, m/s.
         max_accel: largest accepted TCP acceleration, m/s^2.
-        rt_priority: ``SCHED_FIFO`` priority (1-98) of the stream worker's receive thread (the
-            poller gets one less), where the OS permits it; 0 leaves both at normal priority.
+        rt_priority: ``SCHED_FIFO`` priority (1-98) of the stream worker's ur_rtde threads (the
+            poller gets one less, at least 1), where the OS permits it; 0 leaves the worker
+            at normal priority.
 
     Raises:
         InvalidInput: malformed arguments.
@@ -1018,18 +1019,19 @@ class _StreamPoller:
 
 
 def _realtime_poller(rt_priority: int) -> str:
-    """Put the calling thread under ``SCHED_FIFO`` at ``rt_priority - 1``; say what was got.
+    """Put the calling thread under ``SCHED_FIFO`` one below ``rt_priority``, the others at it.
 
-    Returns a line for :attr:`UrArm.stream_scheduling`: the poller's policy and how many of
-    the process's threads (ur_rtde's receive thread among them) run under ``SCHED_FIFO``.
+    Returns a line for :attr:`UrArm.stream_scheduling`: the priorities got and how many of
+    the process's threads (ur_rtde's among them) run under ``SCHED_FIFO``, or why none does.
     """
     if rt_priority <= 0:
         return 'normal priority (rt_priority 0)'
     me = threading.get_native_id()
+    poller = max(rt_priority - 1, 1)
     try:
-        os.sched_setscheduler(me, os.SCHED_FIFO, os.sched_param(max(rt_priority - 1, 1)))
+        os.sched_setscheduler(me, os.SCHED_FIFO, os.sched_param(poller))
     except (OSError, AttributeError) as exc:
-        return (f'normal priority: SCHED_FIFO {rt_priority - 1} refused ({exc}); grant '
+        return (f'normal priority: SCHED_FIFO {poller} refused ({exc}); grant '
                 'CAP_SYS_NICE or an rtprio limit to keep the stream on a loaded machine')
     # ur_rtde 1.6.5's Python interface leaves its receive thread at normal priority whatever
     # its rt_priority argument says: the worker's other threads are ur_rtde's, set them here
@@ -1041,7 +1043,7 @@ def _realtime_poller(rt_priority: int) -> str:
             fifo.append(os.sched_getparam(tid).sched_priority)
         except OSError:
             continue
-    return (f'SCHED_FIFO: poller {rt_priority - 1}, ur_rtde\'s threads {rt_priority} '
+    return (f'SCHED_FIFO: poller {poller}, ur_rtde\'s threads {rt_priority} '
             f'({len(fifo)} of the worker\'s threads under SCHED_FIFO)')
 
 

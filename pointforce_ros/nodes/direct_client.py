@@ -11,6 +11,13 @@ The client is a real rcl client of the node (QoS, remapping and namespaces as us
 not in ``node.clients``, so no executor takes its responses. One call at a time per client
 (a lock); a response to an earlier call that timed out is discarded by its sequence number.
 Replies to other clients of the same service are filtered by the middleware.
+
+A first call right after :meth:`DirectClient.wait_for_service` can go unanswered: Fast DDS
+drops a response when the server has not yet matched the client's response reader (the
+server logs ``failed to send response (timeout)``; ``wait_for_service`` only says that the
+client sees the server). A query that may be asked twice, as a contact-wrench query may, can
+pass ``attempts`` to :meth:`DirectClient.call`: each attempt sends the request again and waits
+``timeout_sec``.
 """
 
 import threading
@@ -59,14 +66,30 @@ class DirectClient:
         """Wait until a server is matched (rclpy's check every 0.25 s; set-up only)."""
         return self._client.wait_for_service(timeout_sec)
 
-    def call(self, request, timeout_sec: float = 5.0):
+    def call(self, request, timeout_sec: float = 5.0, attempts: int = 1):
         """Send ``request`` and return the service's response.
 
+        ``attempts`` > 1 sends the request again when an attempt gets no response within
+        ``timeout_sec`` (only for a request that may be served twice; see the module).
+
         Raises:
-            ServiceTimeout: no response within ``timeout_sec`` seconds.
+            ServiceTimeout: no response to any attempt within ``timeout_sec`` seconds.
             RuntimeError: the ROS context was shut down while waiting.
+            ValueError: ``attempts`` below 1.
 
         """
+        if int(attempts) < 1:
+            raise ValueError(f'attempts must be >= 1, got {attempts!r}')
+        for attempt in range(1, int(attempts) + 1):
+            try:
+                return self._call_once(request, timeout_sec)
+            except ServiceTimeout:
+                if attempt == int(attempts):
+                    raise ServiceTimeout(
+                        f'{self.srv_name}: no response within {timeout_sec:g} s'
+                        + (f' to any of {attempt} attempts' if attempt > 1 else '')) from None
+
+    def _call_once(self, request, timeout_sec: float):
         impl = self._client.handle
         with self._lock, impl, self._context.handle:
             sequence = impl.send_request(request)

@@ -103,6 +103,24 @@ def test_a_timed_out_call_does_not_take_a_later_calls_answer(ros_graph):
     assert node.calls == 2
 
 
+def test_a_call_with_attempts_asks_again_and_takes_only_its_own_answer(ros_graph):
+    # the first request is answered late (as if its response had been lost): the second
+    # attempt's answer comes back, the late one to the first is discarded
+    slow = lambda: time.sleep(1.2)   # noqa: E731
+    node = ros_graph.add(_Served(ros_graph.context, answers=[slow, None, slow, slow]))
+    client = _client(ros_graph, 'on_loop')
+    answer = client.call(Trigger.Request(), timeout_sec=1.0, attempts=3)
+    assert answer.message == 'call 2', answer.message
+    # two slow answers in a row and two attempts: no answer, and the message says so
+    with pytest.raises(ServiceTimeout, match='no response within 1 s to any of 2 attempts'):
+        client.call(Trigger.Request(), timeout_sec=1.0, attempts=2)
+    time.sleep(1.0)
+    assert client.call(Trigger.Request(), timeout_sec=5.0).message == 'call 5'
+    assert node.calls == 5
+    with pytest.raises(ValueError, match='attempts'):
+        client.call(Trigger.Request(), attempts=0)
+
+
 def test_the_loop_times_each_stage_of_its_answers(ros_graph):
     # eight answers, the last three with a 30 ms callback: the callback stage holds them,
     # taking and sending stay small, and p99 sees the slow ones where p50 does not

@@ -67,7 +67,8 @@ def _send(graph, client, goal, feedback=None):
 
 
 def test_poke_end_to_end_with_feedback_and_a_250hz_bag(cell):
-    graph, _, server, client_node, client, tmp_path = cell
+    graph, emulator, server, client_node, client, tmp_path = cell
+    before = emulator.control.state()
     landed = []
     client_node.create_subscription(String, '/poke_server/poke_landed',
                                     lambda m: landed.append(m.data), STREAM)
@@ -80,14 +81,17 @@ def test_poke_end_to_end_with_feedback_and_a_250hz_bag(cell):
     assert result.max_depth == pytest.approx(0.003, abs=0.0006)  # F = k d
     assert len(feedback) >= 10 and max(f.normal_force for f in feedback) > 1.0
     graph.wait_for(lambda: landed == [result.poke_id], 5, 'poke_landed')
+    starved = emulator.control.starved_share(before, emulator.control.state())
     record = read_poke_bag(tmp_path / 'pokes' / result.poke_id)
     assert len(record) == result.samples
     dt = np.diff(record.t_controller)
     rate = 1.0 / np.median(dt)
     assert rate == pytest.approx(250.0, rel=0.05)
     # the same bound as the driver's own stream test (test_ur_arm_driver.py): at most two
-    # 250 Hz samples in a row missing, where the emulator's late ticks came back to back
-    assert dt.max() <= 0.012 + 1e-9, f'gap of {1e3 * dt.max():.1f} ms in the 250 Hz stream'
+    # 250 Hz samples in a row missing, where the emulator's late ticks came back to back;
+    # judged where the emulator was not starved itself (the driver test says why)
+    if starved <= 0.05:
+        assert dt.max() <= 0.012 + 1e-9, f'gap of {1e3 * dt.max():.1f} ms in the 250 Hz stream'
     assert np.all(dt > 0)
     # force against depth in the bag is the spring the emulator simulates
     d, f = record.displacement(), record.normal_force()

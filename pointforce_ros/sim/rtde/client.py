@@ -48,6 +48,18 @@ class EmulatorControl:
         """Return a snapshot: pose, twist, force, modes, clients, recent events."""
         return self.command('state')
 
+    @staticmethod
+    def starved_share(before: dict, after: dict) -> float:
+        """Return the share of periods between two :meth:`state` snapshots dropped starved.
+
+        The emulator drops a period when its process was starved (its clock dilates). A
+        starved emulator's stream says nothing about a reader's losses: tests judge stream
+        quality only where this is small.
+        """
+        ticks = after['tick'] - before['tick']
+        dropped = after['late_ticks'] - before['late_ticks']
+        return dropped / max(ticks + dropped, 1)
+
     def protective_stop(self) -> None:
         """Inject a protective stop."""
         self.command('protective_stop')

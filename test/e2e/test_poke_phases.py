@@ -33,7 +33,7 @@ def poke_cell(ros_graph, start_emulator, tmp_path):
         Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
     client = ActionClient(ros_graph.add(Node('phase_client', context=ros_graph.context)), Poke,
                           '/poke_server/poke')
-    assert client.wait_for_server(timeout_sec=15.0)
+    assert client.wait_for_server(timeout_sec=30.0)
     return ros_graph, emulator, server, client
 
 

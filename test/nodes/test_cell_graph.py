@@ -202,7 +202,7 @@ def test_five_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp
     ros_graph.wait_for(matched, 15, 'the five nodes discovered')
     assert _incompatible_pairs(probe) == []
     client = ActionClient(probe, Poke, '/poke_server/poke')
-    assert client.wait_for_server(timeout_sec=15.0)
+    assert client.wait_for_server(timeout_sec=30.0)
     goal = poke_goal_to_msg(PokeGoal(point=[0.5, 0.0, 0.04], normal=[0.0, 0.0, 1.0],
                                      force_limit=3.0, depth_limit=0.008, speed=0.005,
                                      standoff=0.008))

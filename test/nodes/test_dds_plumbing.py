@@ -58,7 +58,7 @@ def test_poke_action_goal_feedback_result_and_rejection_over_dds(ros_graph):
     ros_graph.add(CountingPokeServer(ros_graph.context))
     client_node = ros_graph.add(Node('plumbing_client', context=ros_graph.context))
     client = ActionClient(client_node, Poke, '/plumbing_poke_server/poke')
-    assert client.wait_for_server(timeout_sec=15.0), 'poke action server not discovered'
+    assert client.wait_for_server(timeout_sec=30.0), 'poke action server not discovered'
     feedback = []
     lock = threading.Lock()
 

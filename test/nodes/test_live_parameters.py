@@ -152,7 +152,7 @@ def test_poke_limits_apply_to_the_next_goal_never_to_the_running_one(ros_graph, 
                                      Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
     probe = ros_graph.add(Node('poke_live_probe', context=ros_graph.context))
     client = ActionClient(probe, Poke, '/poke_server/poke')
-    assert client.wait_for_server(timeout_sec=15.0)
+    assert client.wait_for_server(timeout_sec=30.0)
     setter = Setter(ros_graph, probe, 'poke_server')
 
     def goal(force):

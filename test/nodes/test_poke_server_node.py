@@ -83,7 +83,7 @@ def scripted(ros_graph, tmp_path):
         parameter_overrides=[Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
     client_node = ros_graph.add(Node('scripted_client', context=ros_graph.context))
     client = ActionClient(client_node, Poke, '/poke_server/poke')
-    assert client.wait_for_server(timeout_sec=15.0)
+    assert client.wait_for_server(timeout_sec=30.0)
     return ros_graph, server, client, arms, tmp_path
 
 
@@ -120,7 +120,7 @@ def test_twenty_simultaneous_goals_one_accepted_none_accepted_then_aborted(scrip
     graph, server, _, arms, tmp_path = scripted
     burst = Burst()
     try:
-        assert burst.client.wait_for_server(timeout_sec=15.0)
+        assert burst.client.wait_for_server(timeout_sec=30.0)
         handles = burst.wait([burst.client.send_goal_async(_goal()) for _ in range(20)], 30,
                              'goal responses')
         accepted = [h for h in handles if h.accepted]

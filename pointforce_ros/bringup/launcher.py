@@ -20,7 +20,7 @@ from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedE
                              SingleThreadedExecutor)
 from rclpy.node import Node
 
-from pointforce_ros.nodes.common import stop_executor
+from pointforce_ros.nodes.common import destroy_node, stop_executor
 
 
 class InProcessLauncher:
@@ -101,7 +101,7 @@ class InProcessLauncher:
                 stop_executor(executor, thread.name, thread)
             else:
                 self.executor.remove_node(node)
-            node.destroy_node()
+            destroy_node(node)
 
     def wait_for(self, predicate, timeout: float, what: str, period: float = 0.01):
         """Poll ``predicate()`` until truthy; raise RuntimeError naming ``what`` on timeout."""
@@ -122,6 +122,10 @@ class InProcessLauncher:
     def close(self) -> None:
         """Stop spinning, then destroy every node and shut the context down.
 
+        Nodes go with their action servers and clients
+        (:func:`~pointforce_ros.nodes.common.destroy_node`), so the participant leaves every
+        other participant's graph now, not at the next garbage collection.
+
         Each spinning thread ends first, then the callbacks it handed to its pool finish, then
         its executor shuts down (:func:`~pointforce_ros.nodes.common.stop_executor`), and only
         then are nodes destroyed.
@@ -138,8 +142,9 @@ class InProcessLauncher:
             stop_executor(executor, thread.name, thread)
         for node in list(self.nodes):
             self.nodes.remove(node)
-            node.destroy_node()
+            destroy_node(node)
         rclpy.try_shutdown(context=self.context)
+        self.context.destroy()
 
     def __enter__(self):
         return self

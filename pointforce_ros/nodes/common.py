@@ -162,6 +162,27 @@ def drain(executor: Executor, name: str, timeout: float) -> bool:
     return True
 
 
+def destroy_node(node: Node) -> None:
+    """Destroy ``node`` with its action servers and clients, so its participant goes at once.
+
+    ``Node.destroy_node`` destroys publishers, services and timers but not waitables: an action
+    server's or client's handle keeps the node, and so the context's DDS participant, alive
+    until garbage collection. Such ghosts stay on every other participant's graph; a test
+    process gathered dozens, and then a new launcher could not discover its own poke server in
+    30 s. Destroying a node twice is harmless.
+    """
+    destroy_waitables(node)
+    node.destroy_node()
+
+
+def destroy_waitables(node: Node) -> None:
+    """Destroy the action servers and clients (any waitable with ``destroy``) of ``node``."""
+    for waitable in list(node.waitables):
+        destroy = getattr(waitable, 'destroy', None)
+        if callable(destroy):
+            destroy()
+
+
 def stop_executor(executor: Executor, name: str,
                   thread: Optional[threading.Thread] = None) -> bool:
     """Stop ``executor`` in the order its work needs; True if its callbacks finished in time.
@@ -273,5 +294,5 @@ def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
         if executor is not None:     # callbacks in flight finish before the node goes
             stop_executor(executor, node.get_name())
         if node is not None:
-            node.destroy_node()
+            destroy_node(node)
         rclpy.try_shutdown()

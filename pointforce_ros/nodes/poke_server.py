@@ -40,7 +40,7 @@ from msg_adapters.geometry import sec_to_stamp
 from msg_adapters.interfaces import (poke_feedback_msg, poke_goal_from_msg, poke_result_msg)
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.errors import DeviceFault, PointforceError
-from pointforce_ros.nodes.common import declare, live, run
+from pointforce_ros.nodes.common import declare, destroy_waitables, live, run
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.rotations import (matrix_to_quaternion, rotvec_aligning_z,
@@ -407,11 +407,12 @@ class PokeServerNode(Node):
                 f'({type(error).__name__}: {error}); its {len(result)} samples are {where}')
 
     def destroy_node(self):
-        """Close the arm connection with the node."""
+        """Close the arm connection and the action server with the node."""
         with self._arm_lock:
             if self._arm is not None:
                 self._arm.close()
                 self._arm = None
+        destroy_waitables(self)
         return super().destroy_node()
 
 

@@ -10,6 +10,8 @@ import threading
 import time
 
 import pytest
+from pointforce_interfaces.action import Poke
+from rclpy.action import ActionClient, ActionServer
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import String
@@ -146,3 +148,27 @@ def test_a_callback_queued_on_the_pool_at_close_still_runs_and_nothing_is_droppe
         clients.wait_for(answer.done, 10, 'the queued call answered')
     assert slow.calls == 2 and slow.outcome == ['published', 'published']
     assert 'InvalidHandle' not in caplog.text and 'raised' not in caplog.text
+
+
+def test_close_takes_every_participant_off_the_graph_action_servers_and_clients_included():
+    """Closing a launcher removes its nodes from other participants' graphs at once.
+
+    ``Node.destroy_node`` leaves action servers and clients alone, and their handles keep the
+    node, and so its DDS participant, alive until garbage collection: a test suite collected
+    dozens of such ghosts in one process, and once a run's 26th launcher could no longer
+    discover its own poke server within 30 s (a CI failure).
+    """
+    with InProcessLauncher(threads=2) as observer:
+        watcher = observer.add(Node('watcher', context=observer.context))
+        launcher = InProcessLauncher(threads=2)
+        server_node = launcher.add(Node('ghost_server', context=launcher.context))
+        server = ActionServer(server_node, Poke, '~/poke', lambda handle: Poke.Result())
+        client_node = launcher.add(Node('ghost_client', context=launcher.context))
+        client = ActionClient(client_node, Poke, '/ghost_server/poke')
+        ghosts = {'ghost_server', 'ghost_client'}
+        observer.wait_for(lambda: ghosts <= set(watcher.get_node_names()), 30, 'both nodes')
+        assert client.wait_for_server(timeout_sec=30)
+        launcher.close()
+        assert server.__class__ is ActionServer           # still referenced: no GC rescue
+        observer.wait_for(lambda: not ghosts & set(watcher.get_node_names()), 10,
+                          'both nodes gone from the graph')

@@ -21,6 +21,7 @@ from rclpy.parameter import Parameter
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.drivers.ur_arm import PushResult
 from pointforce_ros.errors import DataError
+from pointforce_ros.nodes.common import destroy_node
 from pointforce_ros.nodes.poke_server import PokeServerNode, REQUESTS
 from pointforce_ros.pokes.store import load_recovery, PokeStore
 from pointforce_ros.types import PokeGoal
@@ -112,8 +113,9 @@ class Burst:
 
     def close(self):
         self.executor.shutdown(timeout_sec=5.0)
-        self.node.destroy_node()
+        destroy_node(self.node)
         rclpy.try_shutdown(context=self.context)
+        self.context.destroy()
 
 
 def test_twenty_simultaneous_goals_one_accepted_none_accepted_then_aborted(scripted):

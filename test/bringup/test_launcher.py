@@ -52,10 +52,10 @@ def test_a_callback_that_raises_memory_error_does_not_stop_the_other_nodes(isola
         caller = clients.add(Node('caller', context=clients.context))
         explode = caller.create_client(Trigger, '/faulty/explode')
         ping = caller.create_client(Trigger, '/healthy/ping')
-        assert explode.wait_for_service(timeout_sec=15) and ping.wait_for_service(timeout_sec=15)
+        assert explode.wait_for_service(timeout_sec=30) and ping.wait_for_service(timeout_sec=30)
         for _ in range(3):
             explode.call_async(Trigger.Request())
-        launcher.wait_for(lambda: len(launcher.faults) == 3, 15, 'three recorded faults')
+        launcher.wait_for(lambda: len(launcher.faults) == 3, 30, 'three recorded faults')
         for _ in range(5):
             answer = clients.wait_future(ping.call_async(Trigger.Request()), 10, 'ping')
             assert answer.success and answer.message == 'pong'
@@ -96,7 +96,7 @@ def _busy(launcher, clients, seconds, isolated):
     slow = launcher.add(_Slow(seconds, context=launcher.context), isolated=isolated)
     caller = clients.add(Node('caller', context=clients.context))
     work = caller.create_client(Trigger, '/slow/work')
-    assert work.wait_for_service(timeout_sec=15)
+    assert work.wait_for_service(timeout_sec=30.0)
     work.call_async(Trigger.Request())
     assert slow.started.wait(15)
     return slow
@@ -139,7 +139,7 @@ def test_a_callback_queued_on_the_pool_at_close_still_runs_and_nothing_is_droppe
     with InProcessLauncher(threads=2) as clients:
         slow = _busy(launcher, clients, 0.8, False)
         client = clients.nodes[-1].create_client(Trigger, '/slow/work')
-        assert client.wait_for_service(timeout_sec=15)
+        assert client.wait_for_service(timeout_sec=30.0)
         answer = client.call_async(Trigger.Request())
         launcher.wait_for(lambda: len(getattr(launcher.executor, '_futures', [])) >= 2, 10,
                           'the second call queued on the pool')

@@ -59,7 +59,7 @@ def _plane_cloud(half: float) -> PointCloud2:
 
 
 def _call(graph, client, what):
-    assert client.wait_for_service(timeout_sec=10.0), f'{what} service missing'
+    assert client.wait_for_service(timeout_sec=30.0), f'{what} service missing'
     return graph.wait_future(client.call_async(Trigger.Request()), 30, what)
 
 
@@ -276,7 +276,7 @@ def test_learner_publishes_latched_stiffness_and_suggestion_markers(ros_graph, t
     assert gaps.max() < 1e-6              # each arrow ends on a surface point
     # the arrows are the pokes ~/suggest_poke suggests next, in its frame
     client = probe.create_client(SuggestPoke, '/stiffness_learner/suggest_poke')
-    assert client.wait_for_service(timeout_sec=10)
+    assert client.wait_for_service(timeout_sec=30.0)
     answer = ros_graph.wait_future(client.call_async(SuggestPoke.Request(count=3)), 20,
                                    'suggest_poke')
     assert answer.success and answer.header.frame_id == arrows[0].header.frame_id

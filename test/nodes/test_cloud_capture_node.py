@@ -28,7 +28,7 @@ def _block():
 
 
 def _call(graph, client, what):
-    assert client.wait_for_service(timeout_sec=10.0), f'{what} service missing'
+    assert client.wait_for_service(timeout_sec=30.0), f'{what} service missing'
     return graph.wait_future(client.call_async(Trigger.Request()), 30, what)
 
 

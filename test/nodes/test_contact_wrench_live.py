@@ -31,7 +31,7 @@ pytestmark = pytest.mark.ros
 
 def _set(graph, client_node, name, value):
     client = client_node.create_client(SetParameters, '/contact_wrench/set_parameters')
-    assert client.wait_for_service(timeout_sec=10.0)
+    assert client.wait_for_service(timeout_sec=30.0)
     request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
     return graph.wait_future(client.call_async(request), 20, name).results[0]
 
@@ -130,7 +130,7 @@ def test_series_compliance_and_hold_time_apply_to_the_next_request(ros_graph, tm
         Parameter('model_dir', value=str(tmp_path / 'models'))]))
     client_node = ros_graph.add(Node('live_effects', context=ros_graph.context))
     single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
-    assert single.wait_for_service(timeout_sec=15.0)
+    assert single.wait_for_service(timeout_sec=30.0)
     request, pose = _request(0.003)
     compliant = _call(ros_graph, single, request).wrench.force.z
     assert _set(ros_graph, client_node, 'series_compliance', False).successful

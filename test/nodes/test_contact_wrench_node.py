@@ -42,7 +42,7 @@ def served(ros_graph, tmp_path):
     client_node = ros_graph.add(Node('test_planner', context=ros_graph.context))
     single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
     batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
-    assert single.wait_for_service(timeout_sec=15.0) and batch.wait_for_service(timeout_sec=15.0)
+    assert single.wait_for_service(timeout_sec=30.0) and batch.wait_for_service(timeout_sec=30.0)
     return ros_graph, node, client_node, single, batch, model, tmp_path
 
 
@@ -226,7 +226,7 @@ def test_eight_concurrent_clients_500_calls_each_no_failure(served, planners):
     for i in range(8):
         n = planners.add(Node(f'planner_{i}', context=planners.context))
         c = n.create_client(ContactWrench, '/contact_wrench/contact_wrench')
-        assert c.wait_for_service(timeout_sec=15.0)
+        assert c.wait_for_service(timeout_sec=30.0)
         clients.append(c)
     failures, forces = [], [[] for _ in clients]
     rng = np.random.default_rng(8)
@@ -276,7 +276,7 @@ def test_stored_effects_add_their_forward_terms(ros_graph, tmp_path):
     client_node = ros_graph.add(Node('effects_planner', context=ros_graph.context))
     single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
     batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
-    assert single.wait_for_service(timeout_sec=15.0) and batch.wait_for_service(timeout_sec=15.0)
+    assert single.wait_for_service(timeout_sec=30.0) and batch.wait_for_service(timeout_sec=30.0)
     assert node.server.version == 3
     assert set(node.server.forward_terms.applied) == {'series_compliance', 'viscoelastic'}
     assert dict(node.server.forward_terms.skipped).keys() == {'ft_bias'}
@@ -324,7 +324,7 @@ def test_a_restarted_service_with_a_corrupt_newest_file_serves_the_last_good_one
                              Parameter('poll_period', value=0.1)]))
     client_node = ros_graph.add(Node('restart_planner', context=ros_graph.context))
     single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
-    assert single.wait_for_service(timeout_sec=15.0)
+    assert single.wait_for_service(timeout_sec=30.0)
     response = ros_graph.wait_future(single.call_async(_request(0.003)[0]), 10, 'after restart')
     assert response.success and response.model_version == 1
     assert node.server.version == 1 and not bad.exists()
@@ -369,7 +369,7 @@ def test_client_lanes_answer_as_the_shared_service_does(ros_graph, tmp_path):
     names = ['/contact_wrench/contact_wrench', '/contact_wrench/lane_0/contact_wrench',
              '/contact_wrench/lane_1/contact_wrench']
     clients = [planner.create_client(ContactWrench, name) for name in names]
-    assert all(c.wait_for_service(timeout_sec=15.0) for c in clients)
+    assert all(c.wait_for_service(timeout_sec=30.0) for c in clients)
     served = {name for name, _ in planner.get_service_names_and_types()}
     assert '/contact_wrench/lane_2/contact_wrench' not in served
     for depth in (0.002, 0.004):

@@ -100,7 +100,7 @@ class Cell:
         self.estimate = io.create_client(EstimateForce, '/deformation_force/estimate_force')
         self.observe = io.create_client(Trigger, '/deformation_force/observe')
         for client in (self.identify, self.estimate, self.observe):
-            assert client.wait_for_service(timeout_sec=15.0), client.srv_name
+            assert client.wait_for_service(timeout_sec=30.0), client.srv_name
         self.stamp = 0.0
 
     def call(self, client, request, what, timeout=60.0):

@@ -38,7 +38,7 @@ class Setter:
     def __init__(self, graph, probe, node_name):
         self.graph = graph
         self.client = probe.create_client(SetParameters, f'/{node_name}/set_parameters')
-        assert self.client.wait_for_service(timeout_sec=10.0)
+        assert self.client.wait_for_service(timeout_sec=30.0)
 
     def __call__(self, name, value):
         request = SetParameters.Request(
@@ -47,7 +47,7 @@ class Setter:
 
 
 def _capture(graph, client):
-    assert client.wait_for_service(timeout_sec=10.0)
+    assert client.wait_for_service(timeout_sec=30.0)
     result = graph.wait_future(client.call_async(Trigger.Request()), 30, 'capture')
     assert result.success, result.message
 

@@ -62,7 +62,7 @@ class _Served(Node):
 def _client(graph, name):
     node = Node(f'loop_test_client_{name}', context=graph.context)
     client = DirectClient(node, Trigger, f'/loop_test/{name}', REQUESTS)
-    assert client.wait_for_service(timeout_sec=15.0)
+    assert client.wait_for_service(timeout_sec=30.0)
     graph.nodes.append(node)   # destroyed with the graph
     return client
 

@@ -33,7 +33,7 @@ def test_a_request_in_another_frame_is_refused_with_the_reason(ros_graph, tmp_pa
     probe = ros_graph.add(Node('frame_probe', context=ros_graph.context))
     single = probe.create_client(ContactWrench, '/contact_wrench/contact_wrench')
     batch = probe.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
-    assert single.wait_for_service(timeout_sec=10) and batch.wait_for_service(timeout_sec=10)
+    assert single.wait_for_service(timeout_sec=30.0) and batch.wait_for_service(timeout_sec=30.0)
     common = dict(mesh=mesh_to_msg(icosphere(0.02, 1)), approach=Vector3(x=0.0, y=0.0, z=-1.0),
                   torque_centre=to_point([0.5, 0.0, 0.06]))
     pose = pose_to_msg(Pose(position=[0.5, 0.0, 0.058]))
@@ -72,7 +72,7 @@ def test_the_flat_mesh_form_answers_as_the_mesh_message(ros_graph, tmp_path):
     probe = ros_graph.add(Node('flat_probe', context=ros_graph.context))
     single = probe.create_client(ContactWrench, '/contact_wrench/contact_wrench')
     batch = probe.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
-    assert single.wait_for_service(timeout_sec=10) and batch.wait_for_service(timeout_sec=10)
+    assert single.wait_for_service(timeout_sec=30.0) and batch.wait_for_service(timeout_sec=30.0)
     sphere = icosphere(0.02, 2)
     vertices, triangles = mesh_to_flat(sphere)
     common = dict(approach=Vector3(x=0.0, y=0.0, z=-1.0),

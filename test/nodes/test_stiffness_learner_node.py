@@ -67,7 +67,7 @@ class LearnerProbe:
 
     def set(self, name: str, value):
         """Set one learner parameter over its service; return the SetParametersResult."""
-        assert self.client.wait_for_service(timeout_sec=10)
+        assert self.client.wait_for_service(timeout_sec=30.0)
         request = SetParameters.Request(
             parameters=[Parameter(name, value=value).to_parameter_msg()])
         return self.graph.wait_future(self.client.call_async(request), 20, name).results[0]
@@ -89,7 +89,7 @@ def test_refit_on_landed_poke_survives_restart_and_suggests(ros_graph, tmp_path)
     assert v5.num_pokes == 5 and np.isfinite(v5.validation_rmse)
     before = load_model(v5.model_path).response.forces
     client = probe.create_client(SuggestPoke, '/stiffness_learner/suggest_poke')
-    assert client.wait_for_service(timeout_sec=10)
+    assert client.wait_for_service(timeout_sec=30.0)
     bad = ros_graph.wait_future(client.call_async(SuggestPoke.Request(count=0)), 20, 'bad')
     assert not bad.success and 'count' in bad.message
     good = ros_graph.wait_future(client.call_async(SuggestPoke.Request(count=2)), 20, 'good')

@@ -46,7 +46,7 @@ def _serve(ros_graph, model_dir):
     client_node = ros_graph.add(Node('test_uncertainty_client', context=ros_graph.context))
     single = client_node.create_client(ContactWrench, '/contact_wrench/contact_wrench')
     batch = client_node.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
-    assert single.wait_for_service(timeout_sec=15.0) and batch.wait_for_service(timeout_sec=15.0)
+    assert single.wait_for_service(timeout_sec=30.0) and batch.wait_for_service(timeout_sec=30.0)
     return node, single, batch
 
 

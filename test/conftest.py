@@ -37,6 +37,38 @@ def ros_graph():
         graph.close()
 
 
+PARTICIPANT_SOCKETS = 5
+"""A Fast DDS participant holds 6 sockets (the first in a process also opens 3 that stay)."""
+
+
+def _open_sockets() -> int:
+    count = 0
+    for fd in os.listdir('/proc/self/fd'):
+        try:
+            count += os.readlink(f'/proc/self/fd/{fd}').startswith('socket:')
+        except OSError:    # the listing's own descriptor, or one closed meanwhile
+            pass
+    return count
+
+
+@pytest.fixture(autouse=True)
+def no_participant_outlives_its_test():
+    """Fail a test after which this process holds a DDS participant more than before it.
+
+    A participant left to the garbage collector (a node destroyed while an action client or
+    server still held it) stays on every other participant's graph: dozens piled up in one
+    test process, and then a launcher could not discover its own poke server in 30 s.
+    """
+    before = _open_sockets()
+    yield
+    extra = _open_sockets() - before
+    if extra >= PARTICIPANT_SOCKETS:
+        pytest.fail(f'{extra} more sockets open after this test than before it: a DDS '
+                    'participant outlived the test (destroy nodes with '
+                    'pointforce_ros.nodes.common.destroy_node, contexts with destroy())',
+                    pytrace=False)
+
+
 _PHASE_FILE = os.environ.get('PYTEST_PHASE_FILE')
 
 

@@ -38,7 +38,7 @@ def ros_graph():
 
 
 PARTICIPANT_SOCKETS = 5
-"""A Fast DDS participant holds 6 sockets (the first in a process also opens 3 that stay)."""
+"""A Fast DDS participant holds 5-6 sockets (the first in a process also opens 3 that stay)."""
 
 
 def _open_sockets() -> int:
@@ -64,7 +64,7 @@ def no_participant_outlives_its_test():
     extra = _open_sockets() - before
     if extra >= PARTICIPANT_SOCKETS:
         pytest.fail(f'{extra} more sockets open after this test than before it: a DDS '
-                    'participant outlived the test (destroy nodes with '
+                    'participant (5-6 sockets) outlived the test (destroy nodes with '
                     'pointforce_ros.nodes.common.destroy_node, contexts with destroy())',
                     pytrace=False)
 

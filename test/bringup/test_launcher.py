@@ -155,7 +155,7 @@ def test_close_takes_every_participant_off_the_graph_action_servers_and_clients_
 
     ``Node.destroy_node`` leaves action servers and clients alone, and their handles keep the
     node, and so its DDS participant, alive until garbage collection: a test suite collected
-    dozens of such ghosts in one process, and once a run's 26th launcher could no longer
+    dozens of such ghosts in one process, and once a run's 27th launcher could no longer
     discover its own poke server within 30 s (a CI failure).
     """
     with InProcessLauncher(threads=2) as observer:
@@ -168,7 +168,8 @@ def test_close_takes_every_participant_off_the_graph_action_servers_and_clients_
         ghosts = {'ghost_server', 'ghost_client'}
         observer.wait_for(lambda: ghosts <= set(watcher.get_node_names()), 30, 'both nodes')
         assert client.wait_for_server(timeout_sec=30)
-        launcher.close()
-        assert server.__class__ is ActionServer           # still referenced: no GC rescue
+        launcher.close()        # server and client stay referenced: no collector helps
+        assert server not in list(server_node.waitables)
+        assert client not in list(client_node.waitables)
         observer.wait_for(lambda: not ghosts & set(watcher.get_node_names()), 10,
                           'both nodes gone from the graph')

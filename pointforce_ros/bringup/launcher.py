@@ -39,6 +39,7 @@ class InProcessLauncher:
         """(wall time, executor name, exception) of every exception a callback let escape."""
         self._spinners: List[Tuple[Executor, threading.Thread, threading.Event]] = []
         self._own: dict = {}
+        self._closed = False
         self._start(self.executor, 'ros-executor')
 
     def _start(self, executor: Executor, name: str) -> None:
@@ -136,6 +137,9 @@ class InProcessLauncher:
         guard condition, which ``shutdown`` destroys at once (``InvalidHandle`` in the demo's
         last lines, the message it had taken dropped).
         """
+        if self._closed:   # a second close (an explicit one, then the with block's) is a no-op
+            return
+        self._closed = True
         for _, _, stop in self._spinners:
             stop.set()
         for executor, thread, _ in self._spinners:

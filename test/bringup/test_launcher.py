@@ -173,3 +173,5 @@ def test_close_takes_every_participant_off_the_graph_action_servers_and_clients_
         assert client not in list(client_node.waitables)
         observer.wait_for(lambda: not ghosts & set(watcher.get_node_names()), 10,
                           'both nodes gone from the graph')
+        launcher.close()        # a second close, as a with block after an explicit one
+        assert not launcher.nodes and launcher.alive() == []

@@ -38,6 +38,38 @@ def matrix_to_quaternion(rot) -> np.ndarray:
     return Rotation.from_matrix(flat).as_quat(canonical=True).reshape(lead + (4,))
 
 
+def rotvec_matrix_and_quaternion(rotvec) -> tuple:
+    """One rotation vector -> ``(3x3 matrix, (x, y, z, w) quaternion with w >= 0)``, closed form.
+
+    The 250 Hz stream's path (one pose per sample): about 12 us against scipy's 90 us for the
+    matrix and the quaternion from it (``pointforce bench streams``). Agrees with
+    :func:`rotvec_to_matrix` and :func:`matrix_to_quaternion` to rounding, sign convention
+    included (``test/core/test_rotations.py``); angles past pi are fine (the quaternion's sign
+    is flipped to keep ``w >= 0``). A non-finite vector raises ``ValueError``.
+    """
+    x, y, z = (float(v) for v in np.asarray(rotvec, dtype=np.float64).reshape(3))
+    t2 = x * x + y * y + z * z
+    if not np.isfinite(t2):
+        raise ValueError(f'rotvec_matrix_and_quaternion: non-finite rotation vector '
+                         f'{[x, y, z]}')
+    t = t2 ** 0.5
+    if t < 1e-4:   # series: the closed form's 1 - cos loses digits near zero
+        a, b, h = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0, 0.5 - t2 / 48.0
+        w = 1.0 - t2 / 8.0
+    else:
+        s, c = np.sin(t), np.cos(t)
+        a, b = s / t, (1.0 - c) / t2
+        h, w = np.sin(0.5 * t) / t, np.cos(0.5 * t)
+    matrix = np.array([[1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+                       [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+                       [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)]])
+    q = [h * x, h * y, h * z, w]
+    first = next((v for v in (q[3], q[0], q[1], q[2]) if v != 0.0), 1.0)
+    if first < 0:   # scipy's canonical sign: w > 0, else the first non-zero of x, y, z
+        q = [-v for v in q]
+    return matrix, np.array(q)
+
+
 def quaternion_to_matrix(q) -> np.ndarray:
     """(..., 4) quaternions (x, y, z, w; normalised here) -> (..., 3, 3) rotation matrices.
 

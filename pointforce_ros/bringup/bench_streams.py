@@ -16,6 +16,12 @@ one ``rcl_wait``, one take and the callback. This benchmark measures both in the
   window), the share of a core at the streams' rate (``*_core_share``) and messages lost
   (sequence gaps), and ``executor_over_loop``, the ratio of the two per-message costs.
 
+The poke server's side of the same streams, in the same run: the CPU per arm sample of
+building its two messages (:func:`~pointforce_ros.nodes.poke_server.stream_messages`) with the
+closed-form rotation (``publish_us_per_sample``) against scipy's ``Rotation`` path it used
+before (``publish_scipy_us_per_sample``), on ``samples`` seeded poses, alternating in rounds,
+and ``scipy_over_closed_form``.
+
 Everything runs in a private ROS domain (:func:`~pointforce_ros.bringup.domain.private_domain`).
 """
 
@@ -26,6 +32,7 @@ import threading
 import time
 from typing import Dict, List
 
+import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.executors import SingleThreadedExecutor
@@ -34,6 +41,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from pointforce_ros.bringup.domain import private_domain
+from pointforce_ros.drivers.ur_arm import ArmSample
+from pointforce_ros.nodes.poke_server import stream_messages
+from pointforce_ros.rotations import (matrix_to_quaternion, rotvec_matrix_and_quaternion,
+                                      rotvec_to_matrix)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 
 QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
@@ -110,11 +121,43 @@ def _window(context, on_loop: bool, seconds: float) -> Dict[str, float]:
     return {'messages': count, 'lost': lost, 'cpu_s': cpu, 'wall_s': wall}
 
 
+def _scipy_convert(rotvec):
+    """The stream's rotation before the closed form: scipy's matrix, then its quaternion."""
+    matrix = rotvec_to_matrix(rotvec)
+    return matrix, matrix_to_quaternion(matrix)
+
+
+def publisher_cost(samples: int = 2000, rounds: int = 3, seed: int = 0) -> Dict[str, float]:
+    """CPU per arm sample of the poke server's two stream messages, both rotation paths."""
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(samples, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    rotvecs = axes * rng.uniform(0.0, np.pi, size=(samples, 1))
+    arm = [ArmSample(1.7e9 + 0.004 * k, 0.002 * k,
+                     np.r_[rng.uniform(-0.5, 0.5, 3), rotvecs[k]], rng.normal(size=6))
+           for k in range(samples)]
+    cpu = {'closed': 0.0, 'scipy': 0.0}
+    for _ in range(rounds):
+        for name, convert in (('closed', rotvec_matrix_and_quaternion),
+                              ('scipy', _scipy_convert)):
+            start = time.process_time()
+            for sample in arm:
+                stream_messages(sample, convert)
+            cpu[name] += time.process_time() - start
+    count = samples * rounds
+    return {'publish_samples': count,
+            'publish_us_per_sample': 1e6 * cpu['closed'] / count,
+            'publish_scipy_us_per_sample': 1e6 * cpu['scipy'] / count,
+            'scipy_over_closed_form': cpu['scipy'] / max(cpu['closed'], 1e-12)}
+
+
 def bench_streams(seconds: float = 6.0, rounds: int = 2, rate: float = 250.0,
                   quick: bool = False) -> Dict[str, float]:
     """Run the benchmark (see the module); ``quick``: 2 s windows, one round."""
     if quick:
         seconds, rounds = 2.0, 1
+    publisher = publisher_cost(rounds=1 if quick else 3)
+    print(f'[bench streams] poke server messages: {publisher}', file=sys.stderr, flush=True)
     total = rounds * 2 * (seconds + 8.0) + 20.0
     with private_domain():
         talker = subprocess.Popen([sys.executable, '-m', 'pointforce_ros.bringup.bench_streams',
@@ -144,6 +187,7 @@ def bench_streams(seconds: float = 6.0, rounds: int = 2, rate: float = 250.0,
         out[f'{mode}_core_share'] = cpu / sum(r['wall_s'] for r in rows)
     out['executor_over_loop'] = (out['executor_us_per_message']
                                  / max(out['loop_us_per_message'], 1e-9))
+    out.update(publisher)
     return out
 
 

@@ -427,6 +427,20 @@ def true_point_response(spec, live, points: np.ndarray, depths: np.ndarray) -> B
     return BakedResponse(depths=depths, forces=table, slopes=slopes)
 
 
+def demo_sites(spec) -> dict:
+    """Return the demo's sites, ``{name: (x, y)}`` in ``base`` (metres).
+
+    ``'calibration'`` (the sphere push and the first poke), ``'rod site'`` and ``'query site
+    #k'`` for each of :data:`QUERY_OFFSETS`, in that order.
+    """
+    cx, cy = spec.centre
+    sites = {'calibration': (cx + CALIBRATION_OFFSET[0], cy + CALIBRATION_OFFSET[1]),
+             'rod site': (cx + ROD_SITE[0], cy + ROD_SITE[1])}
+    for k, (dx, dy) in enumerate(QUERY_OFFSETS):
+        sites[f'query site #{k + 1}'] = (cx + dx, cy + dy)
+    return sites
+
+
 def point_model_check(spec, live, surface, response, depth: float = 0.003,
                       radius: float = 0.006) -> dict:
     """Learned point force against the FEM truth at the calibration site and the query sites.
@@ -441,13 +455,8 @@ def point_model_check(spec, live, surface, response, depth: float = 0.003,
         ``{site name: ratio}`` with sites ``'calibration'`` and each query offset.
 
     """
-    cx, cy = spec.centre
-    sites = {'calibration': (cx + CALIBRATION_OFFSET[0], cy + CALIBRATION_OFFSET[1]),
-             'rod site': (cx + ROD_SITE[0], cy + ROD_SITE[1])}
-    for k, (dx, dy) in enumerate(QUERY_OFFSETS):
-        sites[f'query site #{k + 1}'] = (cx + dx, cy + dy)
     out = {}
-    for name, (x0, y0) in sites.items():
+    for name, (x0, y0) in demo_sites(spec).items():
         near = np.flatnonzero(np.hypot(surface.points[:, 0] - x0,
                                        surface.points[:, 1] - y0) < radius)
         if not len(near):

@@ -43,8 +43,7 @@ from pointforce_ros.errors import DeviceFault, PointforceError
 from pointforce_ros.nodes.common import declare, destroy_waitables, live, run
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
-from pointforce_ros.rotations import (matrix_to_quaternion, rotvec_aligning_z,
-                                      rotvec_to_matrix)
+from pointforce_ros.rotations import rotvec_aligning_z, rotvec_matrix_and_quaternion
 from pointforce_ros.types import PokeRecord
 from pointforce_ros.drivers.ur_arm import STREAM_RT_PRIORITY, UrArm
 
@@ -54,6 +53,31 @@ STREAM = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 REQUESTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
 """Goal and cancel requests: the default depth of 10 dropped goals of a burst unanswered."""
+
+
+def stream_messages(sample, convert=rotvec_matrix_and_quaternion):
+    """``(PoseStamped in base, WrenchStamped in tool0_controller)`` of one arm sample.
+
+    ``convert``: rotation vector -> ``(matrix, quaternion)``; the closed form by default
+    (``pointforce bench streams`` measures it against scipy's path).
+    """
+    rot, q = convert(sample.pose[3:])
+    pose = PoseStamped()
+    pose.header.frame_id = 'base'
+    sec_to_stamp(sample.t_wall, pose.header.stamp)
+    pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (
+        float(v) for v in sample.pose[:3])
+    (pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z,
+     pose.pose.orientation.w) = (float(v) for v in q)
+    wrench = WrenchStamped()
+    wrench.header.frame_id = 'tool0_controller'
+    wrench.header.stamp = pose.header.stamp
+    force = rot.T @ sample.wrench[:3]
+    torque = rot.T @ sample.wrench[3:]
+    w = wrench.wrench
+    w.force.x, w.force.y, w.force.z = (float(v) for v in force)
+    w.torque.x, w.torque.y, w.torque.z = (float(v) for v in torque)
+    return pose, wrench
 
 
 LIMITS = ('max_force', 'max_depth', 'max_speed', 'surface_tolerance', 'max_normal_angle',
@@ -173,24 +197,7 @@ class PokeServerNode(Node):
     def _stream_sample(self, sample):
         """Publish one 250 Hz sample (driver thread; must not block)."""
         self.samples_streamed += 1
-        stamp = sample.t_wall
-        rot = rotvec_to_matrix(sample.pose[3:])
-        pose = PoseStamped()
-        pose.header.frame_id = 'base'
-        sec_to_stamp(stamp, pose.header.stamp)
-        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (
-            float(v) for v in sample.pose[:3])
-        q = matrix_to_quaternion(rot)
-        (pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z,
-         pose.pose.orientation.w) = (float(v) for v in q)
-        wrench = WrenchStamped()
-        wrench.header.frame_id = 'tool0_controller'
-        wrench.header.stamp = pose.header.stamp
-        force = rot.T @ sample.wrench[:3]
-        torque = rot.T @ sample.wrench[3:]
-        w = wrench.wrench
-        w.force.x, w.force.y, w.force.z = (float(v) for v in force)
-        w.torque.x, w.torque.y, w.torque.z = (float(v) for v in torque)
+        pose, wrench = stream_messages(sample)
         self.pose_pub.publish(pose)
         self.wrench_pub.publish(wrench)
 

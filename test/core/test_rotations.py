@@ -54,6 +54,29 @@ def test_round_trips_over_random_and_edge_rotations(seed):
     assert rot.rotvec_to_matrix(rotvecs.reshape(2, -1, 3)[:, :3]).shape == (2, 3, 3, 3)
 
 
+@pytest.mark.parametrize('seed', [0, 1])
+def test_closed_form_matrix_and_quaternion_match_scipy_at_every_angle(seed):
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(60, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.r_[rng.uniform(0.0, 2.0 * np.pi, 40), 0.0, 1e-12, 1e-9, 3e-5, 9.9e-5, 1.01e-4,
+                   1e-3, np.pi - 1e-9, np.pi, np.pi + 1e-9, 2.0 * np.pi - 1e-3,
+                   rng.uniform(0.0, 1e-3, 9)]
+    rotvecs = np.vstack([axes * angles[:, None], [[np.pi, 0, 0], [0, -np.pi, 0],
+                                                  [0, 0, np.pi], [-2.0, 2.0, 0.0]]])
+    for rotvec in rotvecs:
+        matrix, q = rot.rotvec_matrix_and_quaternion(rotvec)
+        expected = Rotation.from_rotvec(rotvec)
+        np.testing.assert_allclose(matrix, expected.as_matrix(), atol=2e-15)
+        # scipy's canonical sign: w >= 0, and the first non-zero component positive at w == 0
+        np.testing.assert_allclose(q, expected.as_quat(canonical=True), atol=2e-15)
+        np.testing.assert_allclose(q, rot.matrix_to_quaternion(expected.as_matrix()),
+                                   atol=2e-15)
+    for bad in ([np.nan, 0.0, 0.0], [0.0, np.inf, 1.0]):
+        with pytest.raises(ValueError, match='non-finite'):
+            rot.rotvec_matrix_and_quaternion(bad)
+
+
 def test_tool_z_aligned_with_any_axis():
     for axis in ([0, 0, -1.0], [0, 0, 1.0], [1.0, 2.0, -0.5], [0.0, -1e-9, -1.0]):
         a = np.asarray(axis) / np.linalg.norm(axis)

@@ -22,3 +22,9 @@ def test_both_modes_count_every_message_and_the_ratio_is_their_quotient():
         assert share == pytest.approx(out[f'{mode}_core_share'], rel=0.05)
     assert out['executor_over_loop'] == pytest.approx(
         out['executor_us_per_message'] / out['loop_us_per_message'])
+    # the poke server's side: both rotation paths timed over the same samples
+    assert out['publish_samples'] > 0
+    for key in ('publish_us_per_sample', 'publish_scipy_us_per_sample'):
+        assert math.isfinite(out[key]) and out[key] > 0.0, out
+    assert out['scipy_over_closed_form'] == pytest.approx(
+        out['publish_scipy_us_per_sample'] / out['publish_us_per_sample'])

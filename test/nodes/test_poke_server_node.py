@@ -19,16 +19,41 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from msg_adapters.interfaces import poke_goal_to_msg
-from pointforce_ros.drivers.ur_arm import PushResult
+from pointforce_ros.drivers.ur_arm import ArmSample, PushResult
 from pointforce_ros.errors import DataError
 from pointforce_ros.nodes.common import destroy_node
-from pointforce_ros.nodes.poke_server import PokeServerNode, REQUESTS
+from pointforce_ros.nodes.poke_server import PokeServerNode, REQUESTS, stream_messages
 from pointforce_ros.pokes.store import load_recovery, PokeStore
+from pointforce_ros.rotations import quaternion_to_matrix, rotvec_to_matrix
 from pointforce_ros.types import PokeGoal
 
 from idle_arm import IdleArm  # noqa: I100 - the test helper beside this file
 
 pytestmark = pytest.mark.ros
+
+
+def test_stream_messages_carry_the_pose_in_base_and_the_wrench_in_the_tool_frame():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        rotvec = rng.normal(size=3)
+        pose6 = np.r_[rng.uniform(-0.6, 0.6, 3), rotvec]
+        wrench6 = rng.normal(scale=5.0, size=6)
+        t_wall = 1.7e9 + rng.uniform(0.0, 1e6)
+        pose, wrench = stream_messages(ArmSample(t_wall, 12.5, pose6, wrench6))
+        assert pose.header.frame_id == 'base' and wrench.header.frame_id == 'tool0_controller'
+        assert pose.header.stamp == wrench.header.stamp
+        stamp = pose.header.stamp.sec + 1e-9 * pose.header.stamp.nanosec
+        assert stamp == pytest.approx(t_wall, abs=2e-9 * t_wall)
+        p, o = pose.pose.position, pose.pose.orientation
+        np.testing.assert_allclose([p.x, p.y, p.z], pose6[:3])
+        matrix = rotvec_to_matrix(rotvec)
+        assert o.w >= 0.0
+        np.testing.assert_allclose(quaternion_to_matrix([o.x, o.y, o.z, o.w]), matrix,
+                                   atol=1e-12)
+        f, t = wrench.wrench.force, wrench.wrench.torque
+        # rotated back into base, the tool-frame wrench is the controller's base-oriented one
+        np.testing.assert_allclose(matrix @ [f.x, f.y, f.z], wrench6[:3], atol=1e-12)
+        np.testing.assert_allclose(matrix @ [t.x, t.y, t.z], wrench6[3:], atol=1e-12)
 
 
 class ScriptedArm(IdleArm):

@@ -122,7 +122,7 @@ def _window(context, on_loop: bool, seconds: float) -> Dict[str, float]:
 
 
 def _scipy_convert(rotvec):
-    """The stream's rotation before the closed form: scipy's matrix, then its quaternion."""
+    """Convert as the stream did before the closed form: scipy's matrix, then its quaternion."""
     matrix = rotvec_to_matrix(rotvec)
     return matrix, matrix_to_quaternion(matrix)
 

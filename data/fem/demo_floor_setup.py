@@ -5,8 +5,9 @@ Also the force of one query's LCP solution (:func:`lcp_force_z`), the step after
 
 And the replay of a stored demo's last model with ``(c, L)`` from its two pushes
 (:func:`served_last_model`, :func:`pushed_answers`), which ``demo_near_replay.py`` and
-``demo_layer_replay.py`` share, and the queries' score and goals (:func:`query_score`,
-:func:`meets_demo_goals`) the replays share.
+``demo_layer_replay.py`` share, the same through the service's answer and spread
+(:func:`served_variant`, for ``demo_streak_replay.py`` and ``demo_paddle_push.py``), and the
+queries' score and goals (:func:`query_score`, :func:`meets_demo_goals`) the replays share.
 
 Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py``,
 ``demo_floor_pokes.py`` and the two replays import it from this folder (a script's folder is on
@@ -14,7 +15,7 @@ Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py``,
 """
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,8 @@ from pointforce_ros.bringup.demo import (_calibration_pokes, _ground_truth, demo
                                          true_point_response)
 from pointforce_ros.contact.identify import calibrate_shape, decay_grid
 from pointforce_ros.contact.simulator import ContactSimulator
+from pointforce_ros.contact.uncertainty import wrench_uncertainty
+from pointforce_ros.model.files import load_model
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.sim.fem.live import LiveContact
@@ -158,6 +161,29 @@ def pushed_answers(sim: ContactSimulator, pushes, queries):
     fitted = sim.with_shape_constant(cal.fit.c, cal.fit.decay)
     pred = np.array([fitted.query(m, p, a, ctr).wrench.force for _, m, p, a, ctr in queries])
     return cal, fitted, pred
+
+
+def served_variant(demo_out, pushes, queries, nears=None):
+    """``(calibration, (Q, 3) forces, (Q,) Fz std)`` of a stored demo's last model as served.
+
+    ``(c, L)`` (and the near field with ``nears``) from ``pushes`` through
+    :func:`calibrate_shape` with its uncertainty sources, set on the model as the demo sets
+    them, and each query answered through
+    :func:`~pointforce_ros.contact.uncertainty.wrench_uncertainty`: the contact service's
+    answer and ``wrench_std``.
+    """
+    path = sorted((Path(demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
+    model = load_model(path)
+    server = WrenchServer()
+    server.load(path)
+    sim = server.simulator()
+    cal = calibrate_shape(sim, pushes, decays=decay_grid(sim.surface), nears=nears)
+    served = replace(model, shape_constant=cal.fit.c, shape_decay=cal.fit.decay,
+                     shape_near=cal.near, meta={**model.meta, **cal.sources()})
+    answers = [wrench_uncertainty(served, mesh, [pose], a, centre)
+               for _, mesh, pose, a, centre in queries]
+    return (cal, np.array([u.wrench[0, :3] for u in answers]),
+            np.array([u.std[0, 2] for u in answers]))
 
 
 def query_score(pred, true, largest: float):

@@ -20,18 +20,15 @@ Usage: python data/fem/demo_paddle_push.py [--make] DEMO_OUT [...] [--object lam
 """
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 
-from demo_floor_setup import load_demo_queries, meets_demo_goals, query_score  # this folder
+from demo_floor_setup import (load_demo_queries, meets_demo_goals, query_score,  # this folder
+                              served_variant)
 from pointforce_ros.bringup.demo import _calibration_pokes, ROD_SITE
-from pointforce_ros.contact.identify import calibrate_shape, decay_grid
 from pointforce_ros.contact.lcp import NEARS
-from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
-from pointforce_ros.model.files import load_model
-from pointforce_ros.model.serving import WrenchServer
+from pointforce_ros.contact.uncertainty import Z90
 from pointforce_ros.sim.fem.indentation import probe_wrench_full
 from pointforce_ros.sim.fem.probes import paddle_probe, pose_for_push
 
@@ -83,19 +80,8 @@ def main() -> None:
                 ('4near', three + [paddle], NEARS))
     scores = {name: [] for name, _, _ in variants}
     for out in args.demo_out:
-        model_path = sorted((Path(out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
-        model = load_model(model_path)
-        server = WrenchServer()
-        server.load(model_path)
-        sim = server.simulator()
         for name, used, nears in variants:
-            cal = calibrate_shape(sim, used, decays=decay_grid(sim.surface), nears=nears)
-            served = dataclasses.replace(model, shape_constant=cal.fit.c,
-                                         shape_decay=cal.fit.decay, shape_near=cal.near,
-                                         meta={**model.meta, **cal.sources()})
-            answers = [wrench_uncertainty(served, m, [p], a, c) for _, m, p, a, c in demo.queries]
-            pred = np.array([u.wrench[0, :3] for u in answers])
-            std = np.array([u.std[0, 2] for u in answers])
+            cal, pred, std = served_variant(out, used, demo.queries, nears)
             pct, below = query_score(pred, true, big)
             inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
             scores[name].append((pct, below, inside))

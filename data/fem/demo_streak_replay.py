@@ -27,18 +27,14 @@ Usage: python data/fem/demo_streak_replay.py DEMO_OUT [DEMO_OUT ...] [--object l
 (about 25 s per run on one core)
 """
 
-import dataclasses
-from pathlib import Path
 
 import numpy as np
 
-from demo_floor_setup import meets_demo_goals, query_score, replay_arguments  # this folder
+from demo_floor_setup import (meets_demo_goals, query_score, replay_arguments,  # this folder
+                              served_variant)
 from pointforce_ros.bringup.demo import _calibration_pokes
-from pointforce_ros.contact.identify import calibrate_shape, decay_grid
 from pointforce_ros.contact.lcp import NEARS
-from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
-from pointforce_ros.model.files import load_model
-from pointforce_ros.model.serving import WrenchServer
+from pointforce_ros.contact.uncertainty import Z90
 
 
 def main():
@@ -49,20 +45,8 @@ def main():
     variants = (('2', pushes, None), ('3', three, None), ('3near', three, NEARS))
     scores = {name: [] for name, _, _ in variants}
     for out in args.demo_out:
-        path = sorted((Path(out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
-        model = load_model(path)
-        server = WrenchServer()
-        server.load(path)
-        sim = server.simulator()
         for name, used, nears in variants:
-            cal = calibrate_shape(sim, used, decays=decay_grid(sim.surface), nears=nears)
-            served = dataclasses.replace(model, shape_constant=cal.fit.c,
-                                         shape_decay=cal.fit.decay, shape_near=cal.near,
-                                         meta={**model.meta, **cal.sources()})
-            answers = [wrench_uncertainty(served, mesh, [pose], a, centre)
-                       for _, mesh, pose, a, centre in demo.queries]
-            pred = np.array([u.wrench[0, :3] for u in answers])
-            std = np.array([u.std[0, 2] for u in answers])
+            cal, pred, std = served_variant(out, used, demo.queries, nears)
             pct, below = query_score(pred, true, big)
             inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
             width = float(np.mean(2 * Z90 * std))

@@ -6,11 +6,12 @@ Also the force of one query's LCP solution (:func:`lcp_force_z`), the step after
 And the replay of a stored demo's last model with ``(c, L)`` from its two pushes
 (:func:`served_last_model`, :func:`pushed_answers`), which ``demo_near_replay.py`` and
 ``demo_layer_replay.py`` share, the same through the service's answer and spread
-(:func:`served_variant`, for ``demo_streak_replay.py`` and ``demo_paddle_push.py``), and the
-queries' score and goals (:func:`query_score`, :func:`meets_demo_goals`) the replays share.
+(:func:`served_variant`, :func:`replay_variants`, for ``demo_streak_replay.py`` and
+``demo_paddle_push.py``), and the queries' score and goals (:func:`query_score`,
+:func:`meets_demo_goals`) the replays share.
 
 Not a script: ``demo_floor.py``, ``demo_floor_local.py``, ``demo_floor_law.py``,
-``demo_floor_pokes.py`` and the two replays import it from this folder (a script's folder is on
+``demo_floor_pokes.py`` and the replays import it from this folder (a script's folder is on
 ``sys.path``).
 """
 
@@ -24,7 +25,7 @@ from pointforce_ros.bringup.demo import (_calibration_pokes, _ground_truth, demo
                                          true_point_response)
 from pointforce_ros.contact.identify import calibrate_shape, decay_grid
 from pointforce_ros.contact.simulator import ContactSimulator
-from pointforce_ros.contact.uncertainty import wrench_uncertainty
+from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
 from pointforce_ros.model.files import load_model
 from pointforce_ros.model.serving import WrenchServer
 from pointforce_ros.response.baked import BakedResponse
@@ -184,6 +185,36 @@ def served_variant(demo_out, pushes, queries, nears=None):
                for _, mesh, pose, a, centre in queries]
     return (cal, np.array([u.wrench[0, :3] for u in answers]),
             np.array([u.std[0, 2] for u in answers]))
+
+
+def replay_variants(demo_outs, variants, queries, true, largest: float) -> None:
+    """Print each run's answers under each ``(name, pushes, nears)`` variant, then a summary.
+
+    Per run and variant (:func:`served_variant`): the calibration, the queries' force RMSE as
+    a share of ``largest``, how many ``Fz`` lie below the truth and inside the nominal 90 %
+    intervals, the intervals' mean width and each ``Fz`` over its truth; per variant the
+    RMSE range, mean and median, the runs meeting both demo goals and the intervals' hits.
+    """
+    scores = {name: [] for name, _, _ in variants}
+    for out in demo_outs:
+        for name, used, nears in variants:
+            cal, pred, std = served_variant(out, used, queries, nears)
+            pct, below = query_score(pred, true, largest)
+            inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
+            width = float(np.mean(2 * Z90 * std))
+            scores[name].append((pct, below, inside, width))
+            print(f'{out} {name:6s}: {cal.near} near field, c {1e3 * cal.fit.c:.2f} mm, L '
+                  f'{1e3 * cal.fit.decay:.0f} mm, pushes predicted from the others '
+                  f'{100 * cal.relative_std:.0f} %; queries {pct:.1f} %, {below} of 9 below, '
+                  f'{inside} of 9 inside (width {width:.2f} N); Fz pred / true '
+                  + ' '.join(f'{v:.2f}' for v in pred[:, 2] / true[:, 2]), flush=True)
+    for name, rows in scores.items():
+        pct = np.array([r[0] for r in rows])
+        meet = sum(1 for p, b, _, _ in rows if meets_demo_goals(p, b))
+        print(f'{name:6s}: {len(rows)} runs, RMSE {pct.min():.1f}-{pct.max():.1f} % (mean '
+              f'{pct.mean():.2f} %, median {np.median(pct):.2f} %), both goals {meet} of '
+              f'{len(rows)}; true Fz inside {sum(r[2] for r in rows)} of {9 * len(rows)}, mean '
+              f'width {np.mean([r[3] for r in rows]):.2f} N')
 
 
 def query_score(pred, true, largest: float):

@@ -24,11 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from demo_floor_setup import (load_demo_queries, meets_demo_goals, query_score,  # this folder
-                              served_variant)
+from demo_floor_setup import load_demo_queries, replay_variants  # this folder
 from pointforce_ros.bringup.demo import _calibration_pokes, ROD_SITE
 from pointforce_ros.contact.lcp import NEARS
-from pointforce_ros.contact.uncertainty import Z90
 from pointforce_ros.sim.fem.indentation import probe_wrench_full
 from pointforce_ros.sim.fem.probes import paddle_probe, pose_for_push
 
@@ -78,24 +76,7 @@ def main() -> None:
     big = float(np.max(np.linalg.norm(true, axis=1)))
     variants = (('3', three, None), ('4', three + [paddle], None),
                 ('4near', three + [paddle], NEARS))
-    scores = {name: [] for name, _, _ in variants}
-    for out in args.demo_out:
-        for name, used, nears in variants:
-            cal, pred, std = served_variant(out, used, demo.queries, nears)
-            pct, below = query_score(pred, true, big)
-            inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
-            scores[name].append((pct, below, inside))
-            print(f'{out} {name:5s}: {cal.near} near field, c {1e3 * cal.fit.c:.2f} mm, L '
-                  f'{1e3 * cal.fit.decay:.0f} mm, pushes predicted from the others '
-                  f'{100 * cal.relative_std:.0f} %; queries {pct:.1f} %, {below} of 9 below, '
-                  f'{inside} of 9 inside; Fz pred / true '
-                  + ' '.join(f'{v:.2f}' for v in pred[:, 2] / true[:, 2]), flush=True)
-    for name, rows in scores.items():
-        pct = np.array([r[0] for r in rows])
-        meet = sum(1 for p, b, _ in rows if meets_demo_goals(p, b))
-        print(f'{name:5s}: {len(rows)} runs, RMSE mean {pct.mean():.2f} % (median '
-              f'{np.median(pct):.2f} %), both goals {meet} of {len(rows)}, true Fz inside '
-              f'{sum(r[2] for r in rows)} of {9 * len(rows)}')
+    replay_variants(args.demo_out, variants, demo.queries, true, big)
 
 
 if __name__ == '__main__':

@@ -28,13 +28,9 @@ Usage: python data/fem/demo_streak_replay.py DEMO_OUT [DEMO_OUT ...] [--object l
 """
 
 
-import numpy as np
-
-from demo_floor_setup import (meets_demo_goals, query_score, replay_arguments,  # this folder
-                              served_variant)
+from demo_floor_setup import replay_arguments, replay_variants  # this folder
 from pointforce_ros.bringup.demo import _calibration_pokes
 from pointforce_ros.contact.lcp import NEARS
-from pointforce_ros.contact.uncertainty import Z90
 
 
 def main():
@@ -43,26 +39,7 @@ def main():
     vectors = _calibration_pokes(demo.spec, vectors=True)
     three = pushes + [vectors['streak']]
     variants = (('2', pushes, None), ('3', three, None), ('3near', three, NEARS))
-    scores = {name: [] for name, _, _ in variants}
-    for out in args.demo_out:
-        for name, used, nears in variants:
-            cal, pred, std = served_variant(out, used, demo.queries, nears)
-            pct, below = query_score(pred, true, big)
-            inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
-            width = float(np.mean(2 * Z90 * std))
-            scores[name].append((pct, below, inside, width))
-            print(f'{out} {name:6s}: {cal.near} near field, c {1e3 * cal.fit.c:.2f} mm, L '
-                  f'{1e3 * cal.fit.decay:.0f} mm, pushes predicted from the others '
-                  f'{100 * cal.relative_std:.0f} %; queries {pct:.1f} %, {below} of 9 below, '
-                  f'{inside} of 9 inside (width {width:.2f} N); Fz pred / true '
-                  + ' '.join(f'{v:.2f}' for v in pred[:, 2] / true[:, 2]), flush=True)
-    for name, rows in scores.items():
-        pct = np.array([r[0] for r in rows])
-        meet = sum(1 for p, b, _, _ in rows if meets_demo_goals(p, b))
-        print(f'{name:6s}: {len(rows)} runs, RMSE {pct.min():.1f}-{pct.max():.1f} % (mean '
-              f'{pct.mean():.2f} %, median {np.median(pct):.2f} %), both goals {meet} of '
-              f'{len(rows)}; true Fz inside {sum(r[2] for r in rows)} of {9 * len(rows)}, mean '
-              f'width {np.mean([r[3] for r in rows]):.2f} N')
+    replay_variants(args.demo_out, variants, demo.queries, true, big)
 
 
 if __name__ == '__main__':

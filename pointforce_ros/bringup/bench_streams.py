@@ -43,9 +43,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from pointforce_ros.bringup.domain import private_domain
 from pointforce_ros.drivers.ur_arm import ArmSample
 from pointforce_ros.nodes.poke_server import stream_messages
+from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.rotations import (matrix_to_quaternion, rotvec_matrix_and_quaternion,
                                       rotvec_to_matrix)
-from pointforce_ros.nodes.service_loop import ServiceLoop
 
 QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 """The poke server's stream QoS."""

@@ -298,6 +298,9 @@ class UrArm:
         self._worker: Optional[subprocess.Popen] = None
         self._reader: Optional[threading.Thread] = None
         self._worker_state = {'ready': False, 'error': None}
+        self.callback_errors = 0
+        """Sample and event callbacks that raised (each counted, the stream thread went on)."""
+        self.last_callback_error: Optional[str] = None
 
         deadline = time.monotonic() + connect_timeout
         self._probe_ports(deadline)
@@ -453,7 +456,7 @@ class UrArm:
             callbacks = list(self._sample_callbacks)
             self._cond.notify_all()
         for callback in callbacks:
-            callback(sample)
+            self._call(callback, sample)
 
     def _emit(self, kind: str, message: str, t_wall: Optional[float] = None) -> None:
         with self._cond:
@@ -477,11 +480,30 @@ class UrArm:
             callbacks = list(self._event_callbacks)
             self._cond.notify_all()
         for callback in callbacks:
-            callback(event)
+            self._call(callback, event)
+
+    def _call(self, callback, item) -> None:
+        """Run one subscriber's callback; whatever it raises is counted, never the stream's end.
+
+        The stream thread also feeds the ring buffer, the push recorders and every other
+        subscriber: one that raises (a message it cannot build, a full queue, MemoryError) must
+        not stop them. ``callback_errors`` counts such failures, ``last_callback_error`` says
+        the last one.
+        """
+        try:
+            callback(item)
+        except Exception as exc:  # noqa: BLE001 - a subscriber never ends the stream thread
+            with self._cond:
+                self.callback_errors += 1
+                self.last_callback_error = (f'{getattr(callback, "__qualname__", callback)}: '
+                                            f'{type(exc).__name__}: {exc}')
 
     # -- stream access ------------------------------------------------------------------------
     def add_sample_callback(self, callback: Callable[[ArmSample], None]) -> None:
-        """Call ``callback(sample)`` from the stream thread for every sample (keep it short)."""
+        """Call ``callback(sample)`` from the stream thread for every sample (keep it short).
+
+        An exception it raises is counted in ``callback_errors`` and the stream goes on.
+        """
         with self._lock:
             self._sample_callbacks.append(callback)
 

@@ -59,8 +59,13 @@ def stream_messages(sample, convert=rotvec_matrix_and_quaternion):
     """``(PoseStamped in base, WrenchStamped in tool0_controller)`` of one arm sample.
 
     ``convert``: rotation vector -> ``(matrix, quaternion)``; the closed form by default
-    (``pointforce bench streams`` measures it against scipy's path).
+    (``pointforce bench streams`` measures it against scipy's path). A non-finite pose or
+    wrench raises ``ValueError``: no NaN goes out on the streams.
     """
+    if not (np.all(np.isfinite(sample.pose)) and np.all(np.isfinite(sample.wrench))):
+        raise ValueError(f'non-finite arm sample at controller time {sample.t_controller:.3f} s: '
+                         f'pose {np.asarray(sample.pose).tolist()}, wrench '
+                         f'{np.asarray(sample.wrench).tolist()}')
     rot, q = convert(sample.pose[3:])
     pose = PoseStamped()
     pose.header.frame_id = 'base'
@@ -140,6 +145,7 @@ class PokeServerNode(Node):
         self._accepted_at = 0.0
         self._executing = False
         self.samples_streamed = 0
+        self.samples_refused = 0
         self.last_rejection = ''   # why the last goal was rejected (also logged)
         self.surface = None
         group = ReentrantCallbackGroup()
@@ -195,11 +201,21 @@ class PokeServerNode(Node):
             return arm
 
     def _stream_sample(self, sample):
-        """Publish one 250 Hz sample (driver thread; must not block)."""
+        """Publish one 250 Hz sample (driver thread; must neither block nor raise).
+
+        A sample that cannot be published (non-finite from the controller, or any fault of
+        the publishers) is counted in ``samples_refused`` and logged at most every 5 s; the
+        stream goes on.
+        """
         self.samples_streamed += 1
-        pose, wrench = stream_messages(sample)
-        self.pose_pub.publish(pose)
-        self.wrench_pub.publish(wrench)
+        try:
+            pose, wrench = stream_messages(sample)
+            self.pose_pub.publish(pose)
+            self.wrench_pub.publish(wrench)
+        except Exception as exc:  # noqa: BLE001 - the driver's stream thread must go on
+            self.samples_refused += 1
+            self.get_logger().warn(f'arm sample not published ({self.samples_refused} so far): '
+                                   f'{type(exc).__name__}: {exc}', throttle_duration_sec=5.0)
 
     def _on_surface(self, msg):
         try:

@@ -146,6 +146,26 @@ def test_a_refused_real_time_priority_is_reported_and_the_poller_stays_normal():
     assert _realtime_poller(0) == 'normal priority (rt_priority 0)'
 
 
+def test_a_subscriber_that_raises_is_counted_and_the_stream_goes_on(cell):
+    _, arm = cell
+    seen = []
+
+    def broken(sample):
+        raise MemoryError('a subscriber out of memory')
+    arm.add_sample_callback(broken)
+    arm.add_sample_callback(seen.append)   # after the broken one: still called every time
+    assert arm.wait_samples(50, 5.0), 'the stream stopped'
+    times = [s.t_controller for s in seen]   # read before the count: each failure comes first
+    assert arm.callback_errors >= len(times) >= 50
+    assert all(b > a for a, b in zip(times, times[1:]))
+    assert 'broken' in arm.last_callback_error and 'MemoryError' in arm.last_callback_error
+    arm.remove_sample_callback(broken)
+    assert arm.wait_samples(2, 5.0)   # a delivery under way when it was removed has ended
+    errors = arm.callback_errors
+    assert arm.wait_samples(10, 5.0)
+    assert arm.callback_errors == errors and arm.is_connected()
+
+
 def test_move_speed_and_stop_commands(cell):
     emu, arm = cell
     start = arm.tcp_pose()

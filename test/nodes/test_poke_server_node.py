@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from geometry_msgs.msg import WrenchStamped
 from pointforce_interfaces.action import Poke
 from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
@@ -162,6 +163,53 @@ def test_twenty_simultaneous_goals_one_accepted_none_accepted_then_aborted(scrip
     assert again.accepted
     assert graph.wait_future(again.get_result_async(), 30, 'next result').status == 4
     assert PokeStore(tmp_path / 'pokes').ids() == ['poke-000001', 'poke-000002']
+
+
+class StreamingArm(IdleArm):
+    """An idle arm whose stream the test drives: ``emit(sample)`` calls every subscriber."""
+
+    def __init__(self, host):
+        super().__init__(host)
+        self.callbacks = []
+
+    def add_sample_callback(self, callback):
+        self.callbacks.append(callback)
+
+    def emit(self, sample):
+        for callback in self.callbacks:
+            callback(sample)
+
+
+def test_a_non_finite_arm_sample_is_counted_and_not_published_and_the_stream_goes_on(
+        ros_graph, tmp_path):
+    arms = []
+
+    def factory(host):
+        arms.append(StreamingArm(host))
+        return arms[-1]
+    server = ros_graph.add(PokeServerNode(
+        arm_factory=factory, context=ros_graph.context,
+        parameter_overrides=[Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
+    listener = ros_graph.add(Node('stream_listener', context=ros_graph.context))
+    got = []
+    listener.create_subscription(WrenchStamped, '/poke_server/wrench',
+                                 lambda msg: got.append(msg.wrench.force.z), 10)
+    ros_graph.wait_for(lambda: server.count_subscribers('/poke_server/wrench') > 0, 30.0,
+                       'the wrench subscriber')
+    good = np.array([0.3, 0.0, 0.3, np.pi, 0.0, 0.0])
+    bad_pose, bad_wrench = good.copy(), np.zeros(6)
+    bad_pose[4] = np.nan
+    bad_wrench[2] = np.inf
+    samples = [ArmSample(1.7e9, 1.0, bad_pose, np.zeros(6)),
+               ArmSample(1.7e9 + 0.004, 1.004, good, bad_wrench),
+               ArmSample(1.7e9 + 0.008, 1.008, good, np.r_[0.0, 0.0, 2.5, 0.0, 0.0, 0.0])]
+    for sample in samples:   # as the driver's stream thread calls it: nothing may raise
+        arms[0].emit(sample)
+    ros_graph.wait_for(lambda: got, 30.0, 'the published wrench')
+    time.sleep(0.3)   # the refused two would have arrived before the good one
+    # the tool's z axis points down (a half turn about x): +2.5 N along base z is -2.5 N in it
+    assert got == [pytest.approx(-2.5)]
+    assert server.samples_refused == 2 and server.samples_streamed == 3
 
 
 @pytest.mark.parametrize('error', [OSError(28, 'No space left on device'),

@@ -98,16 +98,22 @@ def _goal():
                                      standoff=0.008))
 
 
-@pytest.fixture
-def scripted(ros_graph, tmp_path):
+def _server(ros_graph, tmp_path, arm_class):
+    """``(poke server on the graph, the arms it made)``: each arm an ``arm_class(host)``."""
     arms = []
 
     def factory(host):
-        arms.append(ScriptedArm(host))
+        arms.append(arm_class(host))
         return arms[-1]
     server = ros_graph.add(PokeServerNode(
         arm_factory=factory, context=ros_graph.context,
         parameter_overrides=[Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
+    return server, arms
+
+
+@pytest.fixture
+def scripted(ros_graph, tmp_path):
+    server, arms = _server(ros_graph, tmp_path, ScriptedArm)
     client_node = ros_graph.add(Node('scripted_client', context=ros_graph.context))
     client = ActionClient(client_node, Poke, '/poke_server/poke')
     assert client.wait_for_server(timeout_sec=30.0)
@@ -182,14 +188,7 @@ class StreamingArm(IdleArm):
 
 def test_a_non_finite_arm_sample_is_counted_and_not_published_and_the_stream_goes_on(
         ros_graph, tmp_path):
-    arms = []
-
-    def factory(host):
-        arms.append(StreamingArm(host))
-        return arms[-1]
-    server = ros_graph.add(PokeServerNode(
-        arm_factory=factory, context=ros_graph.context,
-        parameter_overrides=[Parameter('store_dir', value=str(tmp_path / 'pokes'))]))
+    server, arms = _server(ros_graph, tmp_path, StreamingArm)
     listener = ros_graph.add(Node('stream_listener', context=ros_graph.context))
     got = []
     listener.create_subscription(WrenchStamped, '/poke_server/wrench',

@@ -128,7 +128,7 @@ def load_demo_floor(demo_out, object_name: str) -> DemoFloor:
     """
     base = load_demo_queries(object_name)
     server = WrenchServer()
-    model_path = sorted((Path(demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
+    model_path = last_model_path(demo_out)
     server.load(model_path)
     return DemoFloor(base.spec, base.live, base.queries, base.gt, model_path,
                      server.simulator())
@@ -147,11 +147,15 @@ def replay_arguments(description: str):
             float(np.max(np.linalg.norm(true, axis=1))))
 
 
+def last_model_path(demo_out) -> Path:
+    """The last model file a stored demo wrote (``<demo_out>/cell/models/model-v*.npz``)."""
+    return sorted((Path(demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
+
+
 def served_last_model(demo_out) -> ContactSimulator:
     """The simulator the contact service serves the last model of the demo in ``demo_out`` with."""
-    models = sorted((Path(demo_out) / 'cell' / 'models').glob('model-v*.npz'))
     server = WrenchServer()
-    server.load(models[-1])
+    server.load(last_model_path(demo_out))
     return server.simulator()
 
 
@@ -164,20 +168,16 @@ def pushed_answers(sim: ContactSimulator, pushes, queries):
     return cal, fitted, pred
 
 
-def served_variant(demo_out, pushes, queries, nears=None):
-    """``(calibration, (Q, 3) forces, (Q,) Fz std)`` of a stored demo's last model as served.
+def served_variant(model, sim, pushes, queries, nears=None):
+    """``(calibration, (Q, 3) forces, (Q,) Fz std)`` of a stored demo's model as served.
 
-    ``(c, L)`` (and the near field with ``nears``) from ``pushes`` through
-    :func:`calibrate_shape` with its uncertainty sources, set on the model as the demo sets
-    them, and each query answered through
-    :func:`~pointforce_ros.contact.uncertainty.wrench_uncertainty`: the contact service's
-    answer and ``wrench_std``.
+    ``model``: the model file's contents (:func:`~pointforce_ros.model.files.load_model`),
+    ``sim``: its simulator as the service serves it (:func:`served_last_model`). ``(c, L)``
+    (and the near field with ``nears``) from ``pushes`` through :func:`calibrate_shape` with
+    its uncertainty sources, set on the model as the demo sets them, and each query answered
+    through :func:`~pointforce_ros.contact.uncertainty.wrench_uncertainty`: the contact
+    service's answer and ``wrench_std``.
     """
-    path = sorted((Path(demo_out) / 'cell' / 'models').glob('model-v*.npz'))[-1]
-    model = load_model(path)
-    server = WrenchServer()
-    server.load(path)
-    sim = server.simulator()
     cal = calibrate_shape(sim, pushes, decays=decay_grid(sim.surface), nears=nears)
     served = replace(model, shape_constant=cal.fit.c, shape_decay=cal.fit.decay,
                      shape_near=cal.near, meta={**model.meta, **cal.sources()})
@@ -197,8 +197,9 @@ def replay_variants(demo_outs, variants, queries, true, largest: float) -> None:
     """
     scores = {name: [] for name, _, _ in variants}
     for out in demo_outs:
+        model, sim = load_model(last_model_path(out)), served_last_model(out)
         for name, used, nears in variants:
-            cal, pred, std = served_variant(out, used, queries, nears)
+            cal, pred, std = served_variant(model, sim, used, queries, nears)
             pct, below = query_score(pred, true, largest)
             inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
             width = float(np.mean(2 * Z90 * std))

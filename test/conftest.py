@@ -6,6 +6,7 @@ there first, so a run that a native crash ends can still say which test it was i
 """
 
 import os
+import zlib
 
 import pytest
 
@@ -15,9 +16,16 @@ def _isolate_ros_graph():
 
     Parallel or repeated runs on one machine then never see each other's nodes.
     """
-    worker = os.environ.get('PYTEST_XDIST_WORKER', 'gw0')
-    index = int(worker[2:]) if worker.startswith('gw') and worker[2:].isdigit() else 0
-    domain = 1 + (os.getpid() * 7 + index * 31) % 100
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+    run = os.environ.get('PYTEST_XDIST_TESTRUNUID')
+    if worker[2:].isdigit() and run:
+        # the workers of one run: odd domains of their own, so no two meet, nor does a test's
+        # "other domain" (``domain % 100 + 1``, test_dds_plumbing) meet another worker's
+        count = max(1, int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1')))
+        base = zlib.crc32(run.encode()) % max(1, 50 // count)
+        domain = 1 + 2 * ((base * count + int(worker[2:]) % count) % 50)
+    else:
+        domain = 1 + (os.getpid() * 7) % 100
     os.environ['ROS_DOMAIN_ID'] = str(domain)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
@@ -70,6 +78,8 @@ def no_participant_outlives_its_test():
 
 
 _PHASE_FILE = os.environ.get('PYTEST_PHASE_FILE')
+if _PHASE_FILE and os.environ.get('PYTEST_XDIST_WORKER'):
+    _PHASE_FILE = f"{_PHASE_FILE}.{os.environ['PYTEST_XDIST_WORKER']}"     # one per worker
 
 
 def _mark_phase(item, phase):

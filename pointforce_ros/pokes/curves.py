@@ -396,19 +396,15 @@ def _stream_loading(poke_id, t, d, speed, min_samples, speed_band, smooth_time):
         k -= 1
         first = int(starts[k])
     keep = np.ones(deepest + 1 - first, dtype=bool)
+    # A run's edge beside a pause is decided by a smoothed speed near the band's limit, so a
+    # rounding difference between machines can keep one sample of the pause itself: within a
+    # window of each join, a kept sample must reach beyond the depth already reached.
+    seg_d = d[first:deepest + 1]
+    new_depth = np.r_[True, seg_d[1:] > np.maximum.accumulate(seg_d)[:-1]]
     for gap_start, gap_stop in gaps:
         keep[gap_start - first:gap_stop - first] = False
-        # A run's edge beside a pause is decided by a smoothed speed near the band's limit, so
-        # a rounding difference between machines can keep one sample of the pause itself: past
-        # each join, a kept sample must reach beyond the depth already reached.
-        j = gap_start - 1
-        while j > max(first, gap_start - window) and d[j] <= np.max(d[first:j]):
-            keep[j - first] = False
-            j -= 1
-        j = gap_stop
-        while j < min(deepest, gap_stop + window) and d[j] <= np.max(d[first:j]):
-            keep[j - first] = False
-            j += 1
+        edges = slice(max(1, gap_start - window - first + 1), gap_stop + window - first)
+        keep[edges] &= new_depth[edges]
     seg = first + np.flatnonzero(keep)
     if len(seg) < min_samples:
         raise InvalidInput(f'poke {poke_id}: loading phase has {len(seg)} samples, '

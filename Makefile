@@ -11,10 +11,10 @@ PREFIX := $(abspath $(VENV))
 STAMP := $(VENV)/.stamps
 IFACE_SRC := $(shell find pointforce_interfaces -type f -not -path '*/build/*')
 PYTEST_ARGS ?=
-# Test processes: 0 runs the suite in this one process (what CI runs); 2 gives its files to two
-# workers whole (26 -> 16 min on a 2-core machine, session 36), but under that contention a
-# latency test and a discovery wait each failed once in two fresh-clone runs.
-PYTEST_WORKERS ?= 0
+# Test processes: 2 gives the test files to two pytest-xdist workers whole (the default and
+# what CI runs: 26 -> 16 min on a 2-core machine, session 36); 0 runs the suite in this one
+# process (easier to read a native crash in; `make test PYTEST_WORKERS=0`).
+PYTEST_WORKERS ?= 2
 
 .PHONY: setup deps interfaces install test demo lint lock clean bench
 

@@ -1,5 +1,7 @@
 """The RTDE controller emulator, driven only through the real ur_rtde 1.6.5 (+ fault channel)."""
 
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -7,7 +9,7 @@ import pytest
 
 from pointforce_ros.drivers.rtde_host import RtdeHost
 from pointforce_ros.errors import DeviceFault
-from pointforce_ros.sim.rtde.process import start_emulator as start_process
+from pointforce_ros.sim.rtde.process import _ready_or_exit_code, start_emulator as start_process
 
 pytestmark = pytest.mark.e2e
 
@@ -302,3 +304,23 @@ def test_an_emulator_that_exits_at_start_says_so_with_its_reason(tmp_path):
     with pytest.raises(DeviceFault, match=r'exited with code 2 before it was ready:'
                                           r'(.|\n)*--rtde-port'):
         start_process(tmp_path, extra_args=['--rtde-port', 'not-a-port'], ready_timeout=60.0)
+
+
+def test_a_process_that_closes_its_stdout_before_it_exits_is_not_a_readiness_timeout():
+    # stdout reaches end-of-file before the exit status exists (session 37: the test above
+    # read "did not become ready" once); here the gap is half a second, not a race
+    quitter = subprocess.Popen(
+        [sys.executable, '-c', 'import os, sys, time; os.close(1); time.sleep(0.5); sys.exit(2)'],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert _ready_or_exit_code(quitter, 30.0) == (False, 2)
+    finally:
+        quitter.kill()
+        quitter.communicate()
+    waiter = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)'],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert _ready_or_exit_code(waiter, 0.5) == (False, None)     # still running: a timeout
+    finally:
+        waiter.kill()
+        waiter.communicate()

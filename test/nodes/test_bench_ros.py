@@ -25,7 +25,27 @@ def test_round_trip_is_event_driven_and_below_a_poll_period(ros_graph):
     assert client.wait_for_service(timeout_sec=30.0)
     times = sorted(round_trip(client, Trigger.Request(), 10.0, 'trigger')[0]
                    for _ in range(60))
-    assert times[len(times) // 2] < 0.005      # a 10 ms poll could never read this
+    polled = sorted(_polled_round_trip(client, Trigger.Request()) for _ in range(20))
+    # a client that sleeps 10 ms before each look at the future (the old bench) can never read
+    # below its poll period, however fast the service; the event-driven median stays under it
+    # with room for a busy machine (it read 5.6 ms beside another test worker, 1-3 ms alone)
+    assert polled[0] >= POLL_PERIOD
+    assert times[len(times) // 2] < POLL_PERIOD
+
+
+POLL_PERIOD = 0.010
+
+
+def _polled_round_trip(client, request) -> float:
+    """Time one call the way the old bench did: sleep a poll period, then look."""
+    start = time.perf_counter()
+    future = client.call_async(request)
+    while True:
+        time.sleep(POLL_PERIOD)
+        if future.done():
+            return time.perf_counter() - start
+        if time.perf_counter() - start > 10.0:
+            raise RuntimeError('no reply to a polled trigger call in 10 s')
 
 
 def test_round_trip_names_the_service_on_time_out(ros_graph):

@@ -78,23 +78,42 @@ class EmulatorProcess:
         self.stop()
 
 
-def _wait_ready(process: subprocess.Popen, deadline: float) -> bool:
+def _wait_ready(process: subprocess.Popen, deadline: float) -> str:
+    """Read the emulator's stdout until its readiness line; 'ready', 'ended' or 'timeout'."""
     sel = selectors.DefaultSelector()
     sel.register(process.stdout, selectors.EVENT_READ)
     try:
         while time.monotonic() < deadline:
             if not sel.select(timeout=max(0.0, min(0.2, deadline - time.monotonic()))):
                 if process.poll() is not None:
-                    return False
+                    return 'ended'
                 continue
             line = process.stdout.readline()
             if not line:
-                return False
+                return 'ended'      # end-of-file: it is exiting
             if line.startswith('rtde_emulator ready'):
-                return True
-        return False
+                return 'ready'
+        return 'timeout'
     finally:
         sel.close()
+
+
+def _ready_or_exit_code(process: subprocess.Popen, timeout: float):
+    """Wait for ``process``: (True, None) once ready, else (False, its exit code or None).
+
+    Its stdout ends as it exits, a moment before its exit status is there: a process that
+    ended by itself is waited for (up to 5 s) so it is not read as a readiness time-out
+    (session 37: a bad argument once was).
+    """
+    state = _wait_ready(process, time.monotonic() + timeout)
+    if state == 'ready':
+        return True, None
+    if state == 'ended':
+        try:
+            return False, process.wait(5.0)
+        except subprocess.TimeoutExpired:
+            pass
+    return False, process.poll()
 
 
 def start_emulator(log_dir, *, hosts: Optional[Iterator[str]] = None,
@@ -146,9 +165,9 @@ def start_emulator(log_dir, *, hosts: Optional[Iterator[str]] = None,
             process = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                        stderr=log, text=True, cwd=str(REPO_ROOT), env=env)
         handle = EmulatorProcess(host, process, log_path)
-        if _wait_ready(process, time.monotonic() + ready_timeout):
+        ready, exited = _ready_or_exit_code(process, ready_timeout)
+        if ready:
             return handle
-        exited = process.poll()
         handle.stop()
         if process.returncode != ADDRESS_IN_USE:
             break

@@ -144,7 +144,7 @@ def mesh_from_flat(vertices, triangles) -> Mesh:
     if hit is not None:
         return hit
     mesh = _mesh_from_arrays(v, t)
-    if len(v) <= _CACHED_FLAT_VALUES:
+    if len(v) <= _CACHED_FLAT_VALUES and len(t) <= 2 * _CACHED_FLAT_VALUES:
         if len(_FLAT_MESHES) >= 16:
             _FLAT_MESHES.clear()
         _FLAT_MESHES[key] = mesh
@@ -153,7 +153,10 @@ def mesh_from_flat(vertices, triangles) -> Mesh:
 
 _FLAT_MESHES: dict = {}
 _CACHED_FLAT_VALUES = 30000
-"""Largest flat mesh (values of ``mesh_vertices``) kept by :func:`mesh_from_flat`'s cache."""
+"""Largest flat mesh (values of ``mesh_vertices``; twice as many of ``mesh_triangles``, as a
+closed mesh has) kept by :func:`mesh_from_flat`'s cache: 16 entries of at most 1.2 MB. The
+triangles are bounded too: one triangle listed 1e6 times passed a vertex bound alone and 16
+such requests held 600 MB (session 38)."""
 
 
 def _mesh_from_arrays(v: np.ndarray, t: np.ndarray) -> Mesh:

@@ -63,6 +63,11 @@ def _layout(mesh: Mesh, spacing: float):
     return corner, cross, double_area, good, edges, edge_of, steps, face_steps, total
 
 
+def mesh_bytes(mesh: Mesh) -> int:
+    """Return the bytes of ``mesh``'s vertex and triangle arrays (what a cache of it holds)."""
+    return int(mesh.vertices.nbytes + mesh.triangles.nbytes)
+
+
 def mesh_sample_count(mesh: Mesh, spacing: float = 0.003) -> int:
     """Return how many points :func:`sample_mesh_surface` would place, without placing them.
 

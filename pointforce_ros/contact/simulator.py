@@ -50,6 +50,7 @@ stacks grouped by size, each round building only the columns of ``G`` its free s
 
 import copy
 import math
+import weakref
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
@@ -88,6 +89,11 @@ every candidate), half the LCP time, answers equal within 2e-15 N. On the contac
 10000 sphere poses (issue 16) 0.65 needs 2.25 rounds per problem against 2.67 at 0.5, and the
 first round's free sets are smaller (0.3-0.9: fewest rounds and least time at 0.65-0.7; a
 dome with ``c`` = 8 mm agrees)."""
+
+SAMPLE_CACHE_BYTES = 64 * 2 ** 20
+"""Most bytes of mesh samples a simulator keeps for callers that resend a mesh object; a mesh
+with samples above an eighth of it is sampled on each call instead. The meshes themselves are
+held weakly (a request's mesh can hold 1e6 triangles of a few samples, session 38)."""
 
 DECAY_LAWS = ('fixed', 'penetration', 'layer')
 """How the shape function's tail decay length is set (:class:`ContactSimulator` ``decay_law``):
@@ -432,7 +438,7 @@ class ContactSimulator:
         self._unique = np.sort(first)
         self.duplicates_removed = len(surface) - len(self._unique)
         self._projections: Dict[Tuple[float, ...], _Projection] = {}
-        self._meshes: Dict[Tuple[int, float], Tuple[Mesh, np.ndarray]] = {}
+        self._meshes: Dict[Tuple[int, float], Tuple[weakref.ref, np.ndarray]] = {}
         self._proxy: Dict[str, np.ndarray] = {}   # layer_proxy of the response, on first use
 
     def with_shape_constant(self, c: float, decay: Optional[float] = None,
@@ -657,15 +663,22 @@ class ContactSimulator:
 
     # ------------------------------------------------------------------------------ internals
     def _samples(self, mesh: Mesh) -> np.ndarray:
+        # by identity, holding the mesh weakly: a request's mesh (1e6 triangles of a few
+        # samples, say) is not kept alive by the cache; whoever resends it keeps it
         key = (id(mesh), self.spacing)
         hit = self._meshes.get(key)
-        if hit is not None and hit[0] is mesh:
+        if hit is not None and hit[0]() is mesh:
             return hit[1]
         pts, _ = sample_mesh_surface(mesh, self.spacing)
         pts = np.ascontiguousarray(pts, dtype=np.float64)   # for the compiled kernels
-        if len(self._meshes) > 16:
-            self._meshes.clear()
-        self._meshes[key] = (mesh, pts)
+        if pts.nbytes > SAMPLE_CACHE_BYTES // 8:
+            return pts          # one mesh of this size would crowd out the others
+        live = {k: v for k, v in self._meshes.items() if v[0]() is not None}
+        held = sum(v[1].nbytes for v in live.values())
+        self._meshes.clear()    # in place: shared with the with_shape_constant copies
+        if len(live) <= 16 and held + pts.nbytes <= SAMPLE_CACHE_BYTES:
+            self._meshes.update(live)
+        self._meshes[key] = (weakref.ref(mesh), pts)
         return pts
 
     def projection(self, a: np.ndarray) -> _Projection:

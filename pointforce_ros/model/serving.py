@@ -29,7 +29,7 @@ from typing import Callable, NamedTuple, Optional, Tuple
 import numpy as np
 
 from pointforce_ros.contact import ContactSimulator
-from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_sample_count
+from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_bytes, mesh_sample_count
 from pointforce_ros.contact.simulator import (BatchContactResult, normalise_approach,
                                               poses_as_arrays)
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, wrench_uncertainty
@@ -56,6 +56,10 @@ UNCERTAINTY_CHUNK = 256
 
 _MIB = float(2 ** 20)
 _CACHED_SAMPLES = 200_000
+_CACHE_BYTES = 64 * 2 ** 20
+"""Most bytes of mesh arrays the request checks' cache keeps, one mesh at most an eighth of it
+(a request's mesh may hold 1e6 triangles of a few samples: caches bounded by their entries
+alone grew the service to 2 GB, session 38)."""
 DEPTH_MARGIN = 0.001
 """How far past the deepest poke a contact may press before :meth:`WrenchServer.depth_note`
 says the answer is extrapolated, metres."""
@@ -442,7 +446,8 @@ class WrenchServer:
         return batch, int(model.version)
 
     def uncertainty(self, mesh: Mesh, rows, approach, torque_centre,
-                    version: Optional[int] = None) -> np.ndarray:
+                    version: Optional[int] = None,
+                    deadline: Optional[float] = None) -> np.ndarray:
         """Return the standard deviation (B, 6) of the wrench at each row of an answered request.
 
         From the answering model's sources (:func:`~pointforce_ros.contact.uncertainty.
@@ -457,6 +462,9 @@ class WrenchServer:
                 (a request that passed :meth:`answer` or :meth:`answer_rows`).
             version: the model version the answer came from; a model swapped in meanwhile
                 refuses (the spread would be another model's).
+            deadline: ``time.monotonic()`` by which the whole request must be done (the
+                answer's own budget: its start plus ``max_seconds``); default now plus
+                ``max_seconds``.
 
         Raises:
             ModelNotReady: no model loaded.
@@ -464,7 +472,8 @@ class WrenchServer:
                 the time budget ran out.
 
         """
-        deadline = time.monotonic() + self.limits.max_seconds
+        if deadline is None:
+            deadline = time.monotonic() + self.limits.max_seconds
         model, _, terms, _ = self._snapshot()
         if version is not None and int(model.version) != int(version):
             raise InvalidInput(f'the model changed (v{version} -> v{model.version}) after the '
@@ -478,7 +487,7 @@ class WrenchServer:
         centre = as_array(torque_centre, 'torque_centre', (3,))
         parts = []
         for start in range(0, len(rows), UNCERTAINTY_CHUNK):
-            self._in_time(deadline, start, len(rows))
+            self._in_time(deadline, start, len(rows), 'poses with a spread')
             parts.append(wrench_uncertainty(model, mesh, rows[start:start + UNCERTAINTY_CHUNK],
                                             approach, centre, spacing=self._spacing).std)
         std = np.concatenate(parts) * abs(terms.force_scale)
@@ -547,7 +556,8 @@ class WrenchServer:
         Answering with the first mesh object of a content lets the simulator reuse its
         samples (its cache is by identity, and every request brings a new object): one
         sampling per mesh instead of one per request. Only meshes of at most
-        ``_CACHED_SAMPLES`` samples are kept, so the cache stays small.
+        ``_CACHED_SAMPLES`` samples are kept, and at most ``_CACHE_BYTES`` of their arrays
+        in all, so the cache stays small.
         """
         last = self._last_mesh   # the adapters hand a resent mesh over as the same object
         if last is not None and last[0] is mesh and last[1] == self._spacing:
@@ -570,8 +580,11 @@ class WrenchServer:
             self._last_mesh = (mesh, key[2], key, hit)
             return hit
         samples = mesh_sample_count(mesh, self._spacing)
-        known = (radius, samples, mesh if samples <= _CACHED_SAMPLES else None)
-        if len(self._sizes) >= 64:
+        size = mesh_bytes(mesh)
+        keep = samples <= _CACHED_SAMPLES and size <= _CACHE_BYTES // 8
+        known = (radius, samples, mesh if keep else None)
+        held = sum(mesh_bytes(k[2]) for k in self._sizes.values() if k[2] is not None)
+        if len(self._sizes) >= 64 or held + (size if keep else 0) > _CACHE_BYTES:
             self._sizes.clear()
         self._sizes[key] = known
         return known
@@ -579,7 +592,10 @@ class WrenchServer:
     def _check_geometry(self, mesh: Mesh, approach, simulator: ContactSimulator,
                         rotations: np.ndarray, positions: np.ndarray, samples: int,
                         radius: float) -> None:
-        """Refuse a mesh too deep in the object, or with too many possible contacts.
+        """Refuse a mesh too deep in the object, with too many possible contacts, or no facing.
+
+        Facing: fewer than three surface points whose normal points against the approach
+        (none the mesh could touch: the answer would be zero whatever the pose).
 
         Depth: a mesh vertex over the surface deeper than ``max_depth`` past all of it, along
         the approach, past the deepest surface point that faces the approach; "over the
@@ -596,7 +612,12 @@ class WrenchServer:
         a = normalise_approach(approach)
         proj = simulator.projection(a)
         if proj.tree is None:
-            return  # no surface faces this approach: nothing can be touched
+            # a zero wrench would claim a contact-free answer the model cannot give: the
+            # scan saw no side of the object this approach presses on (often a sign error)
+            raise InvalidInput(f'approach {np.round(a, 3).tolist()}: no point of the scanned '
+                               'surface faces it (the approach is the direction the mesh '
+                               'moves into the object, against the surface normals: '
+                               '(0, 0, -1) presses down on a surface scanned from above)')
         limit = self.limits.max_memory
         count = len(positions)
         flagged = np.zeros(count, dtype=bool)
@@ -727,12 +748,13 @@ class WrenchServer:
                                                     thread_name_prefix='contact-batch')
             return self._executor
 
-    def _in_time(self, deadline: float, done: int, count: int) -> None:
+    def _in_time(self, deadline: float, done: int, count: int,
+                 what: str = 'poses solved') -> None:
         """Raise InvalidInput when the request's time budget has run out."""
         if time.monotonic() > deadline:
             raise InvalidInput(f'request took longer than the service budget of '
-                               f'{self.limits.max_seconds:g} s ({done} of {count} poses '
-                               'solved); send fewer poses per request')
+                               f'{self.limits.max_seconds:g} s ({done} of {count} {what}); '
+                               'send fewer poses per request')
 
     def _retreat(self, simulator: ContactSimulator, terms: ForwardTerms, query: ContactQuery,
                  poses, chunk: int = 1024, deadline: float = np.inf) -> np.ndarray:

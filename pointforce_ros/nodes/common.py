@@ -57,11 +57,25 @@ def live(node: Node, appliers: Dict[str, Applier]) -> None:
 
     rclpy has already checked the declared type and bounds. Every applier of a set runs first;
     if one refuses, the whole set is refused with its reason and nothing changes; else every
-    action runs and each change is logged (``name: old -> new``). Call it after the last
+    action runs and each change is logged (``name: old -> new``). Any other exception (an
+    applier's ``TypeError``, an action's ``MemoryError``) refuses the set with its reason;
+    actions that ran before it stay in effect. Call it after the last
     ``declare``; declare every other parameter ``read_only`` so that no set is accepted and
     ignored.
     """
     def on_set(params):
+        # a fault boundary like every callback: rclpy runs this inside the set_parameters
+        # service, where an exception would leave through the executor and stop the node
+        try:
+            return _apply(params)
+        except Exception as exc:  # noqa: BLE001 - MemoryError too; the node keeps serving
+            names = ', '.join(p.name for p in params)
+            reason = ('not enough memory' if isinstance(exc, MemoryError)
+                      else f'{type(exc).__name__}: {exc}')
+            node.get_logger().error(f'parameters {names}: could not apply ({reason})')
+            return SetParametersResult(successful=False, reason=f'{names}: {reason}')
+
+    def _apply(params):
         actions = []
         for param in params:
             applier = appliers.get(param.name)

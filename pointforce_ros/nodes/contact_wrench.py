@@ -299,6 +299,7 @@ class ContactWrenchNode(Node):
 
     def _on_single(self, request, response):
         start = time.perf_counter()
+        deadline = time.monotonic() + self.server.limits.max_seconds   # answer and spread
         try:
             query = contact_query_from_request(request)
             result, version = self.server.answer(query)
@@ -308,7 +309,7 @@ class ContactWrenchNode(Node):
                 pose = query.poses[0]
                 self._add_uncertainty(response, query.mesh,
                                       np.concatenate([pose.position, pose.orientation])[None],
-                                      query.approach, query.torque_centre, version)
+                                      query.approach, query.torque_centre, version, deadline)
             self.requests_served += 1
             self._last = (result, version)      # one reference store; the timer draws it
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
@@ -317,6 +318,7 @@ class ContactWrenchNode(Node):
         return response
 
     def _on_batch(self, request, response):
+        deadline = time.monotonic() + self.server.limits.max_seconds   # answer and spread
         try:
             if len(request.poses) > self.max_batch:
                 self.requests_failed += 1
@@ -327,17 +329,23 @@ class ContactWrenchNode(Node):
             fill_batch_response(response, batch, version)
             response.message = self.server.depth_note(batch)
             if self.uncertainty and not request.skip_uncertainty:
-                self._add_uncertainty(response, *query, version)
+                self._add_uncertainty(response, *query, version, deadline)
             self.requests_served += 1
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             self._refuse(response, 'contact_wrench_batch', exc)
         return response
 
-    def _add_uncertainty(self, response, mesh, rows, approach, torque_centre, version):
-        """Fill the answer's standard deviations; a failure keeps the answer, says why."""
+    def _add_uncertainty(self, response, mesh, rows, approach, torque_centre, version,
+                         deadline):
+        """Fill the answer's standard deviations; a failure keeps the answer, says why.
+
+        ``deadline`` (``time.monotonic()``) is the request's: the answer and its spread share
+        one ``max_request_seconds``.
+        """
         try:
             fill_wrench_std(response, self.server.uncertainty(mesh, rows, approach,
-                                                              torque_centre, version))
+                                                              torque_centre, version,
+                                                              deadline))
         except Exception as exc:  # noqa: BLE001 - the wrench stands without its spread
             reason = str(exc) if isinstance(exc, PointforceError) else (
                 'not enough memory' if isinstance(exc, MemoryError)

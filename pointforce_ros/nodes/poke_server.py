@@ -85,8 +85,8 @@ def stream_messages(sample, convert=rotvec_matrix_and_quaternion):
     return pose, wrench
 
 
-LIMITS = ('max_force', 'max_depth', 'max_speed', 'surface_tolerance', 'max_normal_angle',
-          'max_tilt')
+LIMITS = ('max_force', 'max_depth', 'max_speed', 'max_push_time', 'surface_tolerance',
+          'max_normal_angle', 'max_tilt')
 """The goal limits (:class:`PokeLimits` fields), each a parameter of the same name."""
 
 
@@ -116,6 +116,9 @@ class PokeServerNode(Node):
                               bounds=(0.001, 0.1)),
             max_speed=declare(self, 'max_speed', 0.01, 'Largest accepted push speed, m/s',
                               bounds=(0.0001, 0.05)),
+            max_push_time=declare(self, 'max_push_time', 300.0,
+                                  'Longest accepted push (stand-off plus depth limit over the '
+                                  'goal speed), s', bounds=(1.0, 3600.0)),
             surface_tolerance=declare(self, 'surface_tolerance', 0.003,
                                       'Largest goal distance from the equilibrium surface, m',
                                       bounds=(0.0, 0.05)),

@@ -24,6 +24,9 @@ class PokeLimits:
         max_force: largest force limit, N.
         max_depth: largest depth limit past the surface point, m.
         max_speed: largest push speed, m/s.
+        max_push_time: longest push, s: the stand-off plus the depth limit at the goal's
+            speed (a speed of 1e-300 m/s passed every other check and held the server busy
+            until cancelled, session 38).
         standoff_range: (min, max) stand-off, m.
         surface_tolerance: largest distance of a goal point from the equilibrium surface, m
             (checked when a surface is known).
@@ -39,6 +42,7 @@ class PokeLimits:
     max_force: float = 15.0
     max_depth: float = 0.03
     max_speed: float = 0.01
+    max_push_time: float = 300.0
     standoff_range: Tuple[float, float] = (0.002, 0.05)
     surface_tolerance: float = 0.003
     workspace_min: Tuple[float, float, float] = (0.2, -0.4, 0.0)
@@ -77,7 +81,8 @@ def check_goal(goal: PokeGoal, limits: PokeLimits,
     Raises:
         InvalidInput: a surface index other than -1 (none) or 0..N-1 of a known surface, a
             non-unit normal.
-        UnsafeCommand: force, depth, speed or stand-off outside ``limits``; a normal tilted
+        UnsafeCommand: force, depth, speed or stand-off outside ``limits``; a push longer than
+            ``max_push_time`` (stand-off plus depth limit over the speed); a normal tilted
             more than ``max_tilt`` from up; with a surface: a point farther than
             ``surface_tolerance`` from it, a normal more than ``max_normal_angle`` from its
             normal, a stand-off less than half the stand-off outside it; motion leaving the
@@ -113,6 +118,12 @@ def check_goal(goal: PokeGoal, limits: PokeLimits,
     s_lo, s_hi = limits.standoff_range
     if not s_lo <= goal.standoff <= s_hi:
         raise UnsafeCommand(f'standoff {goal.standoff:g} m outside [{s_lo:g}, {s_hi:g}] m')
+    travel = goal.standoff + goal.depth_limit
+    if not travel <= goal.speed * limits.max_push_time:
+        raise UnsafeCommand(f'speed {goal.speed:g} m/s: the push of {1e3 * travel:.1f} mm '
+                            f'(stand-off plus depth limit) would take {travel / goal.speed:.3g} '
+                            f's, longer than max_push_time {limits.max_push_time:g} s; at '
+                            f'least {travel / limits.max_push_time:.2g} m/s')
     tilt = _angle(normal, np.array([0.0, 0.0, 1.0]))
     if tilt > limits.max_tilt:
         raise UnsafeCommand(f'normal {np.round(normal, 3).tolist()} is {tilt:.0f} deg from up '

@@ -1,5 +1,9 @@
 """Round trips for geometry, mesh and interface adapters; bad requests give InvalidInput."""
 
+import array
+import gc
+import tracemalloc
+
 import numpy as np
 import pytest
 from geometry_msgs.msg import Vector3
@@ -124,3 +128,25 @@ def test_contact_response_fields():
     failed = itf.fail(ContactWrench.Response(), 'mesh: empty')
     assert not failed.success and failed.message == 'mesh: empty'
     assert Poke.Result().outcome == ''
+
+
+def test_the_flat_mesh_cache_keeps_no_mesh_with_a_huge_triangle_list():
+    """Four distinct flat meshes of 600 000 triangles leave less than 16 MiB held (session 38).
+
+    The cache bounded the vertices alone: one triangle listed 1e6 times (9 vertex values)
+    was kept whole, key bytes and all, 16 times over; a resent small mesh is still one object.
+    """
+    triangles = array.array('I', np.tile([0, 2, 1], 600_000).astype(np.uint32).tobytes())
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for k in range(4):
+            vertices = array.array('d', [0, 0, 0, 0.002, 0, 0, 0, 0.002, 1e-7 * k])
+            assert len(g.mesh_from_flat(vertices, triangles).triangles) == 600_000
+        gc.collect()
+        held = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert held < 16 * 2 ** 20, f'{held / 2 ** 20:.0f} MiB held by the cache'
+    small = g.mesh_to_flat(Mesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], triangles=[[0, 1, 2]]))
+    assert g.mesh_from_flat(*small) is g.mesh_from_flat(*small)

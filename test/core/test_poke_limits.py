@@ -84,3 +84,14 @@ def test_every_surface_index_and_none_is_accepted():
             np.testing.assert_array_equal(point, DOME.points[index])
     with pytest.raises(InvalidInput, match='no equilibrium surface'):
         check_goal(_goal(surface_index=0), LIMITS, None)
+
+
+@pytest.mark.parametrize('speed', [1e-300, 1e-5])
+def test_a_push_slower_than_the_longest_push_time_is_refused(speed):
+    """A speed of 1e-300 m/s passed the (0, max_speed] check and held the arm for good."""
+    with pytest.raises(UnsafeCommand, match=r'longer than max_push_time 300 s'):
+        check_goal(_goal(speed=speed), LIMITS)
+    # 16 mm at 0.1 mm/s is 160 s: accepted, refused when the limit is 100 s
+    check_goal(_goal(speed=1e-4), LIMITS)
+    with pytest.raises(UnsafeCommand, match=r'would take 160 s'):
+        check_goal(_goal(speed=1e-4), PokeLimits(max_push_time=100.0))

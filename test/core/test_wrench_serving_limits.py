@@ -5,8 +5,10 @@ executor; a mesh 1e9 m below the surface got Fz = 9.8e12 N, 1 m inside 9718 N, a
 centre 5.9e300 N m, all with ``success=true``.
 """
 
-import time
 import dataclasses
+import gc
+import time
+import tracemalloc
 from dataclasses import dataclass
 
 import numpy as np
@@ -236,3 +238,66 @@ def test_an_answer_pressed_past_the_pokes_depth_is_noted_as_extrapolated():
                                [np.max(shallow.nominal_displacements), deepest, 0.0], rtol=1e-9)
     assert served.depth_note(batch).startswith(
         f'extrapolated in 1 of 3 poses (1): a contact {1e3 * deepest:.1f} mm past')
+
+
+def test_an_approach_that_no_surface_point_faces_is_refused_not_answered_zero(server):
+    """A planner with the opposite sign convention gets a reason, not a silent 0 N (session 38).
+
+    The patch faces up: pressing with the approach reversed (+z) or sideways (+x) touches no
+    facing point whatever the pose, where the old answer was ``success`` with a zero wrench.
+    """
+    pressed = [0.5, 0.0, 0.057]
+    answered, _ = server.answer(_query(SPHERE, pressed))
+    assert answered.wrench.force[2] > 0.5
+    for approach in ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]):
+        query = dataclasses.replace(_query(SPHERE, pressed), approach=approach)
+        with pytest.raises(InvalidInput, match=r'no point of the scanned surface faces it'):
+            server.answer(query)
+        batch = dataclasses.replace(_query(SPHERE, [pressed] * 2), approach=approach)
+        with pytest.raises(InvalidInput, match=r'faces it'):
+            server.answer_batch(batch)
+    again, _ = server.answer(_query(SPHERE, pressed))
+    np.testing.assert_array_equal(again.wrench.force, answered.wrench.force)
+
+
+def _many_triangles(count, shift):
+    """One 2 mm triangle listed ``count`` times: few samples, ``24 count`` bytes of indices."""
+    vertices = np.array([[0.0, 0.0, 0.0], [0.002, 0.0, 0.0], [0.0, 0.002, 0.0]]) + shift
+    return Mesh(vertices=vertices, triangles=np.tile([[0, 2, 1]], (count, 1)))
+
+
+def test_mesh_caches_hold_a_bounded_number_of_bytes(server):
+    """Distinct meshes of 600 000 triangles each leave the caches' bytes bounded (session 38).
+
+    Caches bounded by their entries alone kept such meshes whole: 70 requests of one triangle
+    listed 1e6 times grew the service to 2 GB. Here each mesh is 14 MB of indices.
+    """
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for k in range(4):     # each request brings its own mesh, dropped after the answer
+            result, _ = server.answer(_query(_many_triangles(600_000, 1e-7 * k),
+                                             [0.5, 0.0, 0.0395]))
+            assert result.contact_count > 0
+        del result
+        gc.collect()
+        held = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert held < 16 * 2 ** 20, f'{held / 2 ** 20:.0f} MiB held after the requests'
+
+
+def test_the_spread_shares_the_answers_time_budget(server):
+    """The node gives the spread the request's deadline: a batch cannot take twice its budget.
+
+    The spread used to start a budget of its own, so a 4 s request took 5 s and said "4096 of
+    6000 poses solved" of a batch whose every wrench it returned (session 38).
+    """
+    model = dataclasses.replace(MODEL, meta={**MODEL.meta, 'relative_std': 0.1})
+    server.swap(model)
+    rows = np.array([[0.5, 0.0, 0.056, 0.0, 0.0, 0.0, 1.0]] * 3)
+    args = (SPHERE, rows, [0.0, 0.0, -1.0], [0.5, 0.0, 0.056])
+    std = server.uncertainty(*args, deadline=time.monotonic() + 60.0)
+    assert std.shape == (3, 6) and np.all(std[:, 2] > 0)
+    with pytest.raises(InvalidInput, match=r'\(0 of 3 poses with a spread\)'):
+        server.uncertainty(*args, deadline=time.monotonic() - 1.0)

@@ -21,6 +21,7 @@ from msg_adapters.interfaces import poke_goal_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud
 from pointforce_ros.errors import DeviceFault
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode
+from pointforce_ros.nodes.common import declare, live
 from pointforce_ros.nodes.deformation_force import DeformationForceNode, STREAM
 from pointforce_ros.nodes.poke_server import PokeServerNode
 from pointforce_ros.nodes.stiffness_learner import LATCHED
@@ -214,3 +215,32 @@ def test_deformation_force_contact_threshold_applies_to_the_next_sample(ros_grap
     for name, value in [('model_dir', str(tmp_path / 'other')), ('cloud_topic', '/x'),
                         ('element_size', 0.01), ('layers', 3), ('frame_id', 'world')]:
         assert not set_param(name, value).successful, name           # read-only
+
+
+def test_an_applier_or_action_that_raises_refuses_the_set_and_the_node_keeps_its_parameters(
+        ros_graph):
+    """No exception leaves the on-set callback (session 38): it ran outside any fault boundary.
+
+    An applier may raise more than ``PointforceError``/``ValueError`` (a ``TypeError`` from
+    a value it did not expect) and an action may run out of memory (the learner's refit);
+    either escaped into rclpy's ``set_parameters`` service. Now the set is refused with the
+    reason and the next good set applies.
+    """
+    node = ros_graph.add(Node('live_faults', context=ros_graph.context))
+    applied = []
+    declare(node, 'gain', 1.0, 'a test gain', bounds=(0.0, 10.0))
+
+    def applier(value):
+        if value == 2.0:
+            raise TypeError('an applier bug')
+        if value == 3.0:
+            return lambda: (_ for _ in ()).throw(MemoryError())
+        return lambda: applied.append(value)
+
+    live(node, {'gain': applier})
+    for value, reason in ((2.0, 'TypeError: an applier bug'), (3.0, 'not enough memory')):
+        result = node.set_parameters([Parameter('gain', value=value)])[0]
+        assert not result.successful and reason in result.reason
+        assert node.get_parameter('gain').value == 1.0
+    assert node.set_parameters([Parameter('gain', value=4.0)])[0].successful
+    assert applied == [4.0] and node.get_parameter('gain').value == 4.0

@@ -7,6 +7,8 @@ threads (the learner and the contact service) without copies.
 """
 
 import math
+import numbers
+import re
 from dataclasses import dataclass, field
 from typing import Mapping, Optional, Tuple
 
@@ -17,6 +19,12 @@ from pointforce_ros.rotations import matrix_to_quaternion, quaternion_to_matrix
 
 ORIENTED_TOLERANCE = 1e-3
 """Largest accepted deviation of a normal's length from one."""
+
+POKE_ID_MAX_LENGTH = 128
+"""Longest accepted poke id, in characters: a poke id names files (a bag folder, a recovery
+file), whose names the file system bounds at 255 bytes."""
+
+_POKE_ID = re.compile(r'[A-Za-z0-9_-]([A-Za-z0-9._ +=@-]*[A-Za-z0-9._+=@-])?')
 
 
 def as_array(value, name: str, shape: Tuple[Optional[int], ...], *, finite: bool = True,
@@ -47,6 +55,30 @@ def as_array(value, name: str, shape: Tuple[Optional[int], ...], *, finite: bool
         raise InvalidInput(f'{name}: {bad} non-finite value(s) (NaN or inf)')
     arr.setflags(write=False)
     return arr
+
+
+def check_poke_id(poke_id, name: str = 'poke_id') -> str:
+    """Return ``poke_id`` if it is a plain file name, else raise.
+
+    A poke id names the poke's bag folder in a store and its recovery file, so it must not
+    reach outside them: 1 to :data:`POKE_ID_MAX_LENGTH` ASCII letters, digits, ``.``, ``_``,
+    ``-``, ``+``, ``=``, ``@`` or inner spaces (a table's ``site A 2``), not starting with
+    ``.`` (no ``.``, ``..``, hidden or ``.tmp-*`` names, no path separator, no absolute
+    path).
+
+    Raises:
+        InvalidInput: ``'<name>: <id>: ...'`` naming the refused id.
+
+    """
+    if not isinstance(poke_id, str) or not poke_id:
+        raise InvalidInput(f'{name}: must be a non-empty string, got {poke_id!r}')
+    if len(poke_id) > POKE_ID_MAX_LENGTH or not _POKE_ID.fullmatch(poke_id):
+        shown = poke_id if len(poke_id) <= 80 else poke_id[:77] + '...'
+        raise InvalidInput(f'{name}: {shown!r} ({len(poke_id)} characters) is not a plain '
+                           f'name: a poke id is 1 to {POKE_ID_MAX_LENGTH} letters, digits, '
+                           "'.', '_', '-', '+', '=', '@' or inner spaces, not starting with "
+                           "'.' (it names a file)")
+    return poke_id
 
 
 def _shape_text(shape) -> str:
@@ -214,7 +246,8 @@ class PokeRecord:
     """One point-probe poke: the request and the raw time series as the arm streamed it.
 
     Attributes:
-        poke_id: unique id (``poke-000017`` style), also the stem of its file in the store.
+        poke_id: unique id (``poke-000017`` style), also the stem of its file in the store,
+            so a plain file name (:func:`check_poke_id`).
         point: (3,) commanded surface point, metres, ``base``.
         normal: (3,) unit outward surface normal at ``point``; the probe pushes along ``-normal``.
         t: (T,) ROS (wall) time of each sample, seconds.
@@ -229,7 +262,10 @@ class PokeRecord:
         meta: free-form extra fields (scenario, object, surface index, ...), JSON-serialisable.
 
     Raises:
-        InvalidInput: mismatched lengths, NaN, non-unit normal, non-increasing controller time.
+        InvalidInput: a poke id that is no plain file name (see :func:`check_poke_id`),
+            mismatched lengths, NaN, non-unit normal, non-increasing controller time, or a
+            field of the wrong type (``speed`` not a number; ``probe``, ``outcome`` not
+            strings; ``meta`` not a mapping).
 
     """
 
@@ -246,8 +282,18 @@ class PokeRecord:
     meta: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
-        if not self.poke_id or not isinstance(self.poke_id, str):
-            raise InvalidInput('PokeRecord.poke_id: must be a non-empty string')
+        check_poke_id(self.poke_id, 'PokeRecord.poke_id')
+        if isinstance(self.speed, bool) or not isinstance(self.speed, numbers.Real):
+            raise InvalidInput(f'PokeRecord.speed: must be a number (m/s), got '
+                               f'{type(self.speed).__name__} {self.speed!r:.80}')
+        for name in ('probe', 'outcome'):
+            value = getattr(self, name)
+            if not isinstance(value, str):
+                raise InvalidInput(f'PokeRecord.{name}: must be a string, got '
+                                   f'{type(value).__name__} {value!r:.80}')
+        if not isinstance(self.meta, Mapping):
+            raise InvalidInput(f'PokeRecord.meta: must be a mapping of fields, got '
+                               f'{type(self.meta).__name__} {self.meta!r:.80}')
         point = as_array(self.point, 'PokeRecord.point', (3,))
         normal = unit_rows(as_array(self.normal, 'PokeRecord.normal', (3,)), 'PokeRecord.normal')
         t = as_array(self.t, 'PokeRecord.t', (None,))

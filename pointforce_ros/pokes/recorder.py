@@ -14,8 +14,11 @@ from collections import OrderedDict
 import numpy as np
 
 from pointforce_ros.errors import DataError, InvalidInput
-from pointforce_ros.pokes.store import RECORD_FORMAT, record_from_samples
+from pointforce_ros.pokes.store import check_header, RECORD_FORMAT, record_from_samples
 from pointforce_ros.types import PokeRecord
+
+MAX_STAMP = 1e12
+"""Largest stamp magnitude (s) read from a header: ROS time is seconds since 1970."""
 
 
 class StreamRecorder:
@@ -54,13 +57,26 @@ class StreamRecorder:
         (the header can overtake a backlog of samples).
 
         Raises:
-            DataError: unknown header format, or samples missing from the streams (dropped
-                messages): the poke is then not silently shortened.
+            DataError: unknown header format, a header with a missing or mistyped field
+                (:func:`~pointforce_ros.pokes.store.check_header`; ``t_start`` and ``t_end``
+                finite numbers), or samples missing from the streams (dropped messages): the
+                poke is then not silently shortened.
 
         """
+        if not isinstance(header, dict):
+            raise DataError(f'poke_record is not a JSON object but a {type(header).__name__}')
         if header.get('format') != RECORD_FORMAT:
             raise DataError(f'poke_record of unknown format {header.get("format")!r}')
-        lo, hi = self._key(header['t_start']), self._key(header['t_end'])
+        try:
+            check_header(header)
+            span = [header.get(name) for name in ('t_start', 't_end')]
+            if not all(isinstance(t, (int, float)) and not isinstance(t, bool)
+                       and abs(t) < MAX_STAMP for t in span):
+                raise InvalidInput(f'{header["poke_id"]}: t_start and t_end must be finite '
+                                   f'stamps in seconds, got {span[0]!r:.40} and {span[1]!r:.40}')
+        except InvalidInput as exc:
+            raise DataError(f'poke_record refused: {exc}') from exc
+        lo, hi = self._key(span[0]), self._key(span[1])
         with self._lock:
             self._lock.wait_for(lambda: hi in self._poses and hi in self._wrenches, timeout)
             keys = [k for k in self._poses if lo <= k <= hi and k in self._wrenches]

@@ -21,15 +21,19 @@ wholly on disk or absent; a crash mid-write leaves only a ``.tmp-*`` directory t
 open removes. Pure Python (``rosbags``), no rclpy.
 
 Ids are never reused: :meth:`PokeStore.next_id` hands out one more than the highest of the
-persisted counter, the index, every ``poke-*`` folder, the quarantine and the recovery folder,
-and persists it before returning. A bag that cannot be read when the store is opened is moved
-to ``quarantine/`` with a logged reason that names it. A poke whose bag cannot be written
-(after the arm moved) is kept whole by :meth:`PokeStore.save_recovery` and read back by
-:func:`load_recovery`.
+persisted counter (ignored, with a warning, when damaged or implausible), the index, every
+``poke-*`` folder, the quarantine and the recovery folder, and persists it before returning.
+A poke id is a plain file name (:func:`~pointforce_ros.types.check_poke_id`): the store never
+writes or reads outside its folder. A bag that cannot be read when the store is opened (or
+whose record names another poke than its folder) is moved to ``quarantine/`` with a logged
+reason that names it. A poke whose bag cannot be written (after the arm moved) is kept whole
+by :meth:`PokeStore.save_recovery` and read back by :func:`load_recovery`.
 """
 
 import json
 import logging
+import math
+import numbers
 import os
 import re
 import shutil
@@ -47,7 +51,7 @@ from rosbags.typesys import Stores, get_typestore
 from pointforce_ros.errors import DataError, InvalidInput, read_json
 from pointforce_ros.rotations import (matrix_to_quaternion, quaternion_to_rotvec,
                                       rotvec_to_matrix)
-from pointforce_ros.types import PokeRecord
+from pointforce_ros.types import check_poke_id, PokeRecord
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 POSE_TOPIC = '/poke_server/tcp_pose'
@@ -57,6 +61,17 @@ RECORD_FORMAT = 'pointforce-poke/1'
 RECOVERY_FORMAT = 'pointforce-poke-recovery/1'
 LOG = logging.getLogger(__name__)
 _ID = re.compile(r'^poke-(\d+)')
+_COUNTER_TEXT = re.compile(r'[0-9]{1,10}')
+MAX_ID_NUMBER = 10 ** 9
+"""Largest id counter :meth:`PokeStore.next_id` believes: a store of a billion pokes is not a
+robot cell's; a larger persisted counter is damage, and the names on disk bound the ids."""
+HEADER_FIELDS = (('poke_id', str, 'a string'), ('point', list, 'a list of 3 numbers'),
+                 ('normal', list, 'a list of 3 numbers'), ('speed', numbers.Real, 'a number'),
+                 ('probe', str, 'a string'), ('outcome', str, 'a string'),
+                 ('samples', int, 'an integer'), ('t_controller', list, 'a list of numbers'))
+"""Required fields of a ``poke_record`` header: (name, JSON type, what it must be)."""
+QUATERNION_MIN_NORM = 1e-6
+"""Shortest pose quaternion read as a rotation; a shorter (zero) one is a damaged sample."""
 
 _T = TYPESTORE.types
 _Time = _T['builtin_interfaces/msg/Time']
@@ -88,6 +103,39 @@ def record_header(record: PokeRecord) -> dict:
     }
 
 
+def check_header(header) -> dict:
+    """Return ``header`` if it has every field of :data:`HEADER_FIELDS` with its JSON type.
+
+    ``meta``, when present, must be an object; ``poke_id`` a plain file name
+    (:func:`~pointforce_ros.types.check_poke_id`). Values are checked further by
+    :class:`~pointforce_ros.types.PokeRecord`.
+
+    Raises:
+        InvalidInput: not a JSON object, a missing field, a field of another type (the
+            message names the field, what it holds and what it must be), or a poke id that
+            is no plain file name.
+
+    """
+    if not isinstance(header, dict):
+        raise InvalidInput(f'{RECORD_TOPIC}: expected a JSON object, got '
+                           f'{type(header).__name__}')
+    who = header.get('poke_id', 'poke_record')
+    who = who if isinstance(who, str) else repr(who)
+    missing = [name for name, _, _ in HEADER_FIELDS if name not in header]
+    if missing:
+        raise InvalidInput(f'{who}: header field(s) {", ".join(missing)} missing')
+    fields = HEADER_FIELDS + (('meta', dict, 'an object'),) * ('meta' in header)
+    for name, kind, what in fields:
+        value = header[name]
+        if isinstance(value, bool) or not isinstance(value, kind):
+            raise InvalidInput(f'{who}: header field {name} must be {what}, got '
+                               f'{type(value).__name__} {value!r:.80}')
+    if header['samples'] < 0:
+        raise InvalidInput(f'{who}: header field samples must be >= 0, got {header["samples"]}')
+    check_poke_id(header['poke_id'], 'header field poke_id')
+    return header
+
+
 def record_from_samples(header: dict, pose_rows: np.ndarray, wrench_tool: np.ndarray
                         ) -> PokeRecord:
     """Rebuild a record from its header and the samples as they travel on the topics.
@@ -98,9 +146,11 @@ def record_from_samples(header: dict, pose_rows: np.ndarray, wrench_tool: np.nda
         wrench_tool: (T, 6) wrench in ``tool0_controller``; rotated back to base orientation.
 
     Raises:
-        InvalidInput: counts that disagree with the header, or an invalid record.
+        InvalidInput: a header :func:`check_header` refuses, counts that disagree with the
+            header, a pose quaternion of zero length, or an invalid record.
 
     """
+    check_header(header)
     pose_rows = np.asarray(pose_rows, dtype=np.float64).reshape(-1, 8)
     wrench_tool = np.asarray(wrench_tool, dtype=np.float64).reshape(-1, 6)
     if not (len(pose_rows) == len(wrench_tool) == header['samples']
@@ -108,6 +158,12 @@ def record_from_samples(header: dict, pose_rows: np.ndarray, wrench_tool: np.nda
         raise InvalidInput(f'{header.get("poke_id")}: sample counts disagree (pose '
                            f'{len(pose_rows)}, wrench {len(wrench_tool)}, record '
                            f'{header["samples"]})')
+    norms = np.linalg.norm(pose_rows[:, 4:8], axis=1)
+    bad = np.flatnonzero(~(np.isfinite(norms) & (norms >= QUATERNION_MIN_NORM)))
+    if len(bad):
+        raise InvalidInput(f'{header["poke_id"]}: {len(bad)} pose sample(s) with a quaternion '
+                           f'of length {norms[bad[0]]:g} (first: sample {bad[0]}): not a '
+                           'rotation')
     rotvec = quaternion_to_rotvec(pose_rows[:, 4:8])
     rot = rotvec_to_matrix(rotvec)
     wrench = np.hstack([np.einsum('nij,nj->ni', rot, wrench_tool[:, :3]),
@@ -184,7 +240,9 @@ def read_poke_bag(path) -> PokeRecord:
     """Read a poke bag written by :func:`write_poke_bag` (or recorded live) into a record.
 
     Raises:
-        DataError: not a bag, corrupt MCAP, missing topics, or sample counts that disagree.
+        DataError: not a bag, corrupt MCAP, missing topics, a ``poke_record`` header with a
+            missing or mistyped field, sample counts that disagree, a zero pose quaternion,
+            or any other invalid record (the message names the bag).
 
     """
     path = Path(path)
@@ -210,12 +268,14 @@ def read_poke_bag(path) -> PokeRecord:
         raise
     except Exception as exc:  # rosbags raises many types for a corrupt file
         raise DataError(f'{path}: cannot read bag: {type(exc).__name__}: {exc}') from exc
-    if header is None or header.get('format') != RECORD_FORMAT:
+    if not isinstance(header, dict) or header.get('format') != RECORD_FORMAT:
         raise DataError(f'{path}: no {RECORD_TOPIC} record of format {RECORD_FORMAT}')
     try:
         return record_from_samples(header, np.array(poses), np.array(wrenches))
     except InvalidInput as exc:
         raise DataError(f'{path}: invalid poke record: {exc}') from exc
+    except Exception as exc:  # noqa: BLE001 - a record no check above foresaw: still the bag's
+        raise DataError(f'{path}: invalid poke record: {type(exc).__name__}: {exc}') from exc
 
 
 def load_recovery(path) -> PokeRecord:
@@ -255,6 +315,8 @@ class PokeStore:
     IDS = 'ids.json'
     QUARANTINE = 'quarantine'
     RECOVERY = 'recovery'
+    RESERVED = (INDEX, IDS, QUARANTINE, RECOVERY)
+    """Names of the store's own entries, never poke ids."""
     LEFTOVER_AGE = 300.0
     """Seconds after which a ``.tmp-*`` entry is an interrupted write, not one in progress."""
 
@@ -328,11 +390,26 @@ class PokeStore:
             index = {k: v for k, v in index.items() if k in bags}
             for name in sorted(bags - set(index)):
                 try:
-                    index[name] = self._entry(read_poke_bag(self.root / name))
+                    index[name] = self._entry(self._read(name))
                 except DataError as exc:  # never fatal to the store; moved aside, logged
                     self._quarantine(self.root / name, str(exc))
             self._write_index(index)
         return index
+
+    def _read(self, name: str) -> PokeRecord:
+        """Read the bag folder ``name``; the record in it must carry that same id.
+
+        Raises:
+            DataError: an unreadable bag, or one whose record names another poke (a copied or
+                renamed bag: its id would be a duplicate).
+
+        """
+        path = self.root / name
+        record = read_poke_bag(path)
+        if record.poke_id != name:
+            raise DataError(f'{path}: the bag folder {name} holds the record of poke '
+                            f'{record.poke_id} (a copied or renamed bag; ids must be unique)')
+        return record
 
     @staticmethod
     def _entry(record: PokeRecord) -> dict:
@@ -350,20 +427,50 @@ class PokeStore:
         for folder in (self.root, self.root / self.QUARANTINE, self.root / self.RECOVERY):
             if folder.is_dir():
                 names.extend(p.name for p in folder.iterdir())
-        numbers = [int(m.group(1)) for m in map(_ID.match, names) if m]
+        used = [int(m.group(1)) for m in map(_ID.match, names) if m]
+        counter = self._counter()
+        if counter is not None:
+            used.append(counter)
+        return max(used, default=0)
+
+    def _counter(self) -> Optional[int]:
+        """Return the persisted counter, or ``None`` when it is lost, damaged or implausible.
+
+        A damaged counter is logged and ignored: the names on disk still bound the ids. An
+        implausible one (not an integer, negative, non-finite, or past
+        :data:`MAX_ID_NUMBER`) would hand out ids no file system can name.
+        """
+        path = self.root / self.IDS
+        if not path.exists():
+            return None
         try:
-            numbers.append(int(read_json(self.root / self.IDS, 'poke id counter')['last']))
-        except (DataError, ValueError, KeyError, TypeError):
-            pass  # a lost or damaged counter: the names on disk still bound it
-        return max(numbers, default=0)
+            value = read_json(path, 'poke id counter')['last']
+        except (DataError, KeyError) as exc:
+            LOG.warning('poke store %s: ignoring the damaged id counter %s (%s); ids continue '
+                        'from the names on disk', self.root, path, exc)
+            return None
+        number = None
+        if isinstance(value, str) and _COUNTER_TEXT.fullmatch(value.strip()):
+            number = int(value.strip())
+        elif isinstance(value, float) and math.isfinite(value) and value.is_integer():
+            number = int(value)
+        elif isinstance(value, int) and not isinstance(value, bool):
+            number = value
+        if number is None or not 0 <= number <= MAX_ID_NUMBER:
+            LOG.warning('poke store %s: ignoring the implausible id counter %s: last = %.40r '
+                        '(not an integer in 0..%d); ids continue from the names on disk',
+                        self.root, path, value, MAX_ID_NUMBER)
+            return None
+        return number
 
     def next_id(self) -> str:
         """Return a fresh poke id (``poke-000001``, ...); an id is never handed out twice.
 
         The new id is one more than the highest ever used in this store (the persisted
-        counter, the index, every ``poke-*`` folder, the quarantine and the recovery folder)
-        and is persisted atomically before it is returned, so a corrupt or removed bag, a
-        failed write or a restart cannot bring an id back.
+        counter unless it is damaged or implausible, see :data:`MAX_ID_NUMBER`; the index,
+        every ``poke-*`` folder, the quarantine and the recovery folder) and is persisted
+        atomically before it is returned, so a corrupt or removed bag, a failed write or a
+        restart cannot bring an id back.
 
         Raises:
             OSError: the counter cannot be written.
@@ -415,6 +522,10 @@ class PokeStore:
 
         """
         header = dict(header, error=f'{type(error).__name__}: {error}')
+        try:
+            check_poke_id(poke_id)
+        except InvalidInput:  # the samples must survive; the header keeps the id as it was
+            poke_id = 'unnamed-poke'
         arrays = {name: np.asarray(value) for name, value in arrays.items()}
         arrays['header'] = np.frombuffer(json.dumps(header, default=str).encode(),
                                          dtype=np.uint8)
@@ -449,7 +560,17 @@ class PokeStore:
         raise OSError('unreachable')  # pragma: no cover
 
     def add(self, record: PokeRecord) -> Path:
-        """Persist ``record`` (atomically) and index it; returns the bag path."""
+        """Persist ``record`` (atomically) and index it; returns the bag path.
+
+        Raises:
+            InvalidInput: a poke id that is no plain file name, or a name the store uses.
+            DataError: the id is stored already.
+
+        """
+        check_poke_id(record.poke_id, 'PokeStore.add: poke_id')
+        if record.poke_id in self.RESERVED:
+            raise InvalidInput(f'PokeStore.add: poke_id {record.poke_id!r} is a name the store '
+                               'uses for its own files')
         with self._lock:
             path = write_poke_bag(record, self.root / record.poke_id)
             self._index[record.poke_id] = self._entry(record)
@@ -476,13 +597,15 @@ class PokeStore:
         is never reused.
 
         Raises:
+            InvalidInput: a poke id that is no plain file name.
             DataError: an unknown id, or a corrupt bag (the message says where it went).
 
         """
+        check_poke_id(poke_id, 'PokeStore.get: poke_id')
         if poke_id not in self._index:
             raise DataError(f'no poke {poke_id!r} in {self.root}')
         try:
-            return read_poke_bag(self.root / poke_id)
+            return self._read(poke_id)
         except DataError as exc:
             with self._lock:
                 target = self._quarantine(self.root / poke_id, str(exc))

@@ -109,9 +109,10 @@ def read_poke_table(path) -> List[PokeRecord]:
 
     Raises:
         DataError: unreadable file (not UTF-8 text; a byte-order mark is fine), missing
-            columns, non-numeric values, a poke whose time is not strictly increasing, a poke
-            whose point/normal changes between rows, a normal of zero length, or a
-            position, depth or force past :data:`UNIT_LIMITS` (a column in other units).
+            or repeated columns, non-numeric values, a poke id that is no plain file name, a
+            poke whose time is not strictly increasing, a poke whose point/normal changes
+            between rows, a normal of zero length, or a position, depth or force past
+            :data:`UNIT_LIMITS` (a column in other units).
 
     """
     path = Path(path)
@@ -120,6 +121,10 @@ def read_poke_table(path) -> List[PokeRecord]:
     if not rows:
         raise DataError(f'{path}: empty table')
     header = [h.strip() for h in rows[0]]
+    repeated = sorted({h for h in header if header.count(h) > 1})
+    if repeated:
+        raise DataError(f'{path}: column {repeated[0]!r} appears {header.count(repeated[0])} '
+                        'times in the header; which copy holds the data is ambiguous: keep one')
     missing = [c for c in TABLE_COLUMNS if c not in header]
     if missing:
         raise DataError(f'{path}: missing column(s) {missing}; need {", ".join(TABLE_COLUMNS)}'

@@ -147,6 +147,30 @@ def test_a_table_normal_of_zero_length_is_named(tmp_path):
         read_poke_table(path)
 
 
+@pytest.mark.parametrize('column', ['force', 'depth', 'poke_id'])
+def test_a_table_with_a_repeated_column_is_refused_naming_it(tmp_path, column):
+    """Audit D7: a repeated header column was read silently from its last copy."""
+    lines = _table_text().splitlines()
+    i = lines[0].split(',').index(column)
+    rng = np.random.default_rng(7)
+    extra = [f'{rng.uniform(0.0, 0.01):.6f}' for _ in lines[1:]]
+    path = tmp_path / 'repeated.csv'
+    path.write_text('\n'.join([f'{lines[0]},{column}'] + [
+        f'{line},{line.split(",")[i] if column == "poke_id" else value}'
+        for line, value in zip(lines[1:], extra)]) + '\n')
+    with pytest.raises(DataError, match=f"repeated.csv: column '{column}' appears 2 times"):
+        read_poke_table(path)
+
+
+@pytest.mark.parametrize('poke_id', ['../../etc/x', '/tmp/x', '..'])
+def test_a_table_poke_id_that_is_a_path_is_refused(tmp_path, poke_id):
+    """Audit, path traversal: a table id such as '../../etc/x' became a record."""
+    path = tmp_path / 'ids.csv'
+    path.write_text(_table_text().replace('\na,', f'\n{poke_id},'))
+    with pytest.raises(DataError, match='not a plain name'):
+        read_poke_table(path)
+
+
 @pytest.mark.parametrize('label', ['nested past the recursion limit', 'latin-1 text',
                                    'json list'])
 def test_a_poke_store_rebuilds_over_a_damaged_index_or_counter(tmp_path, label):

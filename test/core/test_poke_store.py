@@ -2,17 +2,23 @@
 
 import json
 import os
+import re
 import shutil
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from pointforce_ros.errors import DataError
+from pointforce_ros.errors import DataError, InvalidInput
+from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros import rotations as tf
 from pointforce_ros.pokes import store as st
-from pointforce_ros.types import PokeRecord
+from pointforce_ros.pokes.recorder import StreamRecorder
+from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
+from pointforce_ros.sim.session import halfspace_object, simulate_campaign
+from pointforce_ros.types import PokeRecord, Surface
 
 
 def make_record(poke_id='poke-000001', n=300, seed=0, tilt=0.3):
@@ -184,3 +190,203 @@ def test_a_failed_store_keeps_every_sample_in_a_recovery_file(tmp_path):
     assert store.next_id() == 'poke-000002'
     with pytest.raises(DataError, match='recovery'):
         st.load_recovery(next((tmp_path / 'poke-000001').glob('*.mcap')))
+
+
+# ------------------------------------------------------------------ hostile or damaged input
+
+BAD_IDS = ['../../escaped', '../escaped', '/tmp/pointforce-abs-escaped', '.', '..',
+           'sub/poke-1', '.tmp-poke-000009', ' poke 1', 'x' * 129, 'poke-1\n', 'a\\b']
+
+
+@pytest.mark.parametrize('bad_id', BAD_IDS)
+def test_a_poke_id_that_is_no_plain_name_is_refused_naming_it(tmp_path, bad_id):
+    """Audit, path traversal: a poke_id from a topic was joined to the store root."""
+    with pytest.raises(InvalidInput, match=r'PokeRecord\.poke_id: .*not a plain name'):
+        make_record(bad_id, n=10)
+    # a record built around the check: the store refuses it too, and writes nothing
+    record = make_record('poke-000001', n=10)
+    object.__setattr__(record, 'poke_id', bad_id)
+    root = tmp_path / 'a' / 'b' / 'store'
+    store = st.PokeStore(root)
+    shown = bad_id if len(bad_id) <= 80 else bad_id[:77]
+    with pytest.raises(InvalidInput, match=re.escape(repr(shown)[:-1])):
+        store.add(record)
+    with pytest.raises(InvalidInput, match='not a plain name'):
+        store.get(bad_id)
+    outside = {p for p in tmp_path.rglob('*') if root not in p.parents}
+    assert store.ids() == [] and outside == {tmp_path / 'a', tmp_path / 'a' / 'b', root}
+    assert not Path('/tmp/pointforce-abs-escaped').exists()
+    # samples the server could not even make a record of stay inside the store
+    kept = store.save_raw_recovery(bad_id, {'t': np.arange(3.0)}, {'poke_id': bad_id},
+                                   InvalidInput('test'))
+    assert kept.parent == root / 'recovery'
+    assert json.loads(bytes(np.load(kept)['header']).decode())['poke_id'] == bad_id
+
+
+def test_the_topic_recorder_refuses_a_path_as_poke_id_and_records_the_next_poke(tmp_path):
+    """Audit, path traversal: the learner wrote bags outside its store."""
+    record = make_record('poke-000001', n=20, seed=4)
+    quats = tf.matrix_to_quaternion(tf.rotvec_to_matrix(np.array(record.tcp_pose[:, 3:])))
+    recorder = StreamRecorder()
+    store = st.PokeStore(tmp_path / 'store')
+    for poke_id in ('../../escaped', str(tmp_path / 'abs'), 'poke-000001'):
+        for i in range(len(record)):
+            t = record.t[i]
+            recorder.add_pose(t, record.tcp_pose[i, :3], quats[i])
+            recorder.add_wrench(t, np.zeros(3), np.zeros(3))
+        header = dict(st.record_header(record), poke_id=poke_id)
+        if poke_id != 'poke-000001':
+            with pytest.raises(DataError, match=re.escape(repr(poke_id)[:-1])):
+                recorder.finish(header, timeout=1.0)
+            continue
+        store.add(recorder.finish(header, timeout=1.0))
+    assert store.ids() == ['poke-000001']
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['store']
+
+
+def _bag_with_header(monkeypatch, path, record, edit):
+    """Write ``record`` as a bag at ``path`` whose poke_record header ``edit`` changed."""
+    original = st.record_header
+
+    def edited(rec):
+        header = original(rec)
+        edit(header)
+        return header
+    with monkeypatch.context() as m:
+        m.setattr(st, 'record_header', edited)
+        st.write_poke_bag(record, path)
+
+
+HEADER_FAULTS = {
+    'samples missing': (lambda h: h.pop('samples'), 'samples missing'),
+    'speed a string': (lambda h: h.update(speed='0.002'), 'speed must be a number'),
+    'meta a string': (lambda h: h.update(meta='lamb'), 'meta must be an object'),
+    't_controller null': (lambda h: h.update(t_controller=None),
+                          't_controller must be a list'),
+    'outcome a list': (lambda h: h.update(outcome=['x']), 'outcome must be a string'),
+    'probe a number': (lambda h: h.update(probe=3), 'probe must be a string'),
+    'samples a float': (lambda h: h.update(samples=30.0), 'samples must be an integer'),
+    'only format and a list id': (
+        lambda h: (h.clear(), h.update(format=st.RECORD_FORMAT, poke_id=[1])), 'missing'),
+}
+
+
+@pytest.mark.parametrize('fault', sorted(HEADER_FAULTS))
+def test_a_bag_with_a_mistyped_header_field_is_quarantined_and_the_others_kept(
+        tmp_path, monkeypatch, fault):
+    """Audit D3: one such bag made the whole store unopenable with a bare KeyError/TypeError."""
+    edit, message = HEADER_FAULTS[fault]
+    _store_of(tmp_path, 2)
+    bad = tmp_path / 'poke-000003'
+    _bag_with_header(monkeypatch, bad, make_record('poke-000003', n=30, seed=3), edit)
+    with pytest.raises(DataError, match=f'poke-000003: invalid poke record: .*{message}'):
+        st.read_poke_bag(bad)
+    (tmp_path / 'index.json').unlink()
+    reopened = st.PokeStore(tmp_path)
+    assert reopened.ids() == ['poke-000001', 'poke-000002']
+    assert reopened.quarantined == [tmp_path / 'quarantine' / 'poke-000003']
+    assert message in (tmp_path / 'quarantine' / 'poke-000003.reason.txt').read_text()
+    assert reopened.next_id() == 'poke-000004'
+
+
+@pytest.mark.parametrize('field, value', [('speed', '0.002'), ('speed', True),
+                                          ('meta', 'lamb'), ('outcome', ['x']),
+                                          ('probe', None)])
+def test_a_record_field_of_the_wrong_type_is_invalid_input_naming_it(field, value):
+    """Audit D3: PokeRecord took outcome=['x'] and raised a bare TypeError for speed='0.002'."""
+    good = make_record(n=10)
+    fields = {name: getattr(good, name) for name in good.__dataclass_fields__}
+    with pytest.raises(InvalidInput, match=f'PokeRecord.{field}: must be'):
+        PokeRecord(**dict(fields, **{field: value}))
+
+
+def test_a_bag_with_a_zero_quaternion_is_quarantined_and_the_others_kept(tmp_path, monkeypatch):
+    """Audit D4: scipy's ValueError for a zero-norm quaternion escaped read_poke_bag."""
+    _store_of(tmp_path, 2)
+    original = st.matrix_to_quaternion
+    rng = np.random.default_rng(12)
+    broken = int(rng.integers(0, 30))
+
+    def one_zero(rot):
+        quats = np.array(original(rot))
+        quats[broken] = 0.0
+        return quats
+    with monkeypatch.context() as m:
+        m.setattr(st, 'matrix_to_quaternion', one_zero)
+        st.write_poke_bag(make_record('poke-000003', n=30, seed=3), tmp_path / 'poke-000003')
+    with pytest.raises(DataError, match=f'poke-000003: .*quaternion of length 0 '
+                                        rf'\(first: sample {broken}\)'):
+        st.read_poke_bag(tmp_path / 'poke-000003')
+    (tmp_path / 'index.json').unlink()
+    reopened = st.PokeStore(tmp_path)
+    assert reopened.ids() == ['poke-000001', 'poke-000002']
+    assert reopened.quarantined == [tmp_path / 'quarantine' / 'poke-000003']
+
+
+def test_a_bag_whose_record_names_another_poke_is_quarantined(tmp_path):
+    """Audit D8: folder poke-000003 holding poke-000001's record gave duplicate ids."""
+    _store_of(tmp_path, 2)
+    st.write_poke_bag(make_record('poke-000001', n=30, seed=7), tmp_path / 'poke-000003')
+    (tmp_path / 'index.json').unlink()
+    reopened = st.PokeStore(tmp_path)
+    assert reopened.ids() == ['poke-000001', 'poke-000002']
+    assert [e['poke_id'] for e in reopened.entries()] == ['poke-000001', 'poke-000002']
+    reason = (tmp_path / 'quarantine' / 'poke-000003.reason.txt').read_text()
+    assert 'bag folder poke-000003 holds the record of poke poke-000001' in reason
+    # a bag swapped after it was indexed: refused when read, and moved aside
+    shutil.rmtree(tmp_path / 'poke-000002')
+    st.write_poke_bag(make_record('poke-000001', n=30, seed=8), tmp_path / 'poke-000002')
+    with pytest.raises(DataError, match='poke-000002 holds the record of poke poke-000001'):
+        reopened.get('poke-000002')
+    assert reopened.ids() == ['poke-000001'] and reopened.next_id() == 'poke-000004'
+
+
+@pytest.mark.parametrize('counter', ['Infinity', '1e400', '1e300', '-5', '2.5', 'true',
+                                     '1000000001', '"1e300"'])
+def test_an_implausible_id_counter_is_ignored_with_a_warning(tmp_path, caplog, counter):
+    """Audit D5: Infinity raised OverflowError; 1e300 gave a 306-character id (poke lost)."""
+    _store_of(tmp_path, 2)
+    (tmp_path / 'ids.json').write_text(f'{{"last": {counter}}}')
+    with caplog.at_level('WARNING', logger='pointforce_ros.pokes.store'):
+        store = st.PokeStore(tmp_path)
+        poke_id = store.next_id()
+    assert poke_id == 'poke-000003'               # the names on disk bound the ids
+    assert any('ids.json' in r.getMessage() and 'implausible' in r.getMessage()
+               for r in caplog.records)
+    store.add(make_record(poke_id, n=20))         # the poke is stored
+    assert st.PokeStore(tmp_path).next_id() == 'poke-000004'
+
+
+def test_a_plausible_counter_still_bounds_the_ids(tmp_path, caplog):
+    _store_of(tmp_path, 2)
+    (tmp_path / 'ids.json').write_text('{"last": 41}')
+    with caplog.at_level('WARNING', logger='pointforce_ros.pokes.store'):
+        assert st.PokeStore(tmp_path).next_id() == 'poke-000042'
+    assert not caplog.records
+
+
+CONTACT = HalfSpaceContact(z0=0.04, k0=1.4e4, exponent=1.5, ripple=0.4, wavelength=0.06)
+
+
+def test_the_learner_learns_the_good_pokes_around_a_malformed_bag(tmp_path, monkeypatch):
+    """Audit D3: one bag with a bad header made every later refit raise (learning stopped)."""
+    obj = halfspace_object(CONTACT, region=((0.47, 0.53), (-0.03, 0.03)))
+    records = simulate_campaign(obj, load_scenario('clean'), count=5, seed=3,
+                                force_limit=4.0, depth_limit=0.01, speed=0.004, gap=0.5)
+    store = st.PokeStore(tmp_path / 'pokes')
+    for record in records[:3]:
+        store.add(record)
+    xs, ys = np.meshgrid(np.linspace(0.465, 0.535, 24), np.linspace(-0.035, 0.035, 24))
+    points = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.04)])
+    surface = Surface(points=points, normals=np.tile([0.0, 0.0, 1.0], (len(points), 1)))
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', surface,
+                            shape_constant=0.004)
+    assert learner.update().num_pokes == 3
+    # a malformed bag arrives (another writer, a copied-in folder), then a good poke
+    _bag_with_header(monkeypatch, tmp_path / 'pokes' / records[3].poke_id, records[3],
+                     lambda h: h.update(outcome=['x']))
+    store.add(records[4])
+    status = learner.update()
+    assert status is not None and status.num_pokes == 4
+    assert [c.poke_id for c in learner.curves][-1] == records[4].poke_id
+    assert (tmp_path / 'pokes' / 'quarantine' / records[3].poke_id).is_dir()

@@ -7,15 +7,24 @@ and versions only grow (:func:`save_model` picks the next). Units SI, frame ``ba
 identified for the fused force also holds its :class:`.fusion.FusionData` (``fusion_*``
 arrays, same layout version); files written before it load with ``fusion`` None.
 
+:func:`load_model` checks the content, not only the layout (finite nodes, integer tetrahedra
+that index them with positive volume, a finite positive modulus, a Poisson ratio in
+(-1, 0.5), a positive load radius, a version equal to the one in the file name, ...): a bad file
+is a :class:`DataError` naming it, never a bare error from the FEM later. As for the contact
+models (:mod:`pointforce_ros.model.files`), :func:`load_latest` moves a file it cannot load to
+``quarantine/`` beside it with a ``.reason.txt`` and falls back to the newest valid version; a
+quarantined version is never reused by a later save.
+
 :func:`ft_consistency` compares a camera-only force estimate with the F/T reading at the same
 instant: a broken, drifting or saturated F/T sensor shows up as a difference beyond their
 combined uncertainty.
 """
 
 from dataclasses import dataclass
+import logging
 import os
 import re
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -24,12 +33,17 @@ from pointforce_ros.deformation.force import ForceEstimate
 from pointforce_ros.deformation.fusion import FusionData
 from pointforce_ros.deformation.mesh import TetMesh
 from pointforce_ros.errors import DataError, InvalidInput, reading
+from pointforce_ros.model.files import QUARANTINE, quarantine_file
 from pointforce_ros.types import as_array
 
 FORMAT = 1
 """Version of the file layout (not the model version)."""
 
 _NAME = re.compile(r'^deformation-v(\d+)\.npz$')
+_QUARANTINED = re.compile(r'^deformation-v(\d+)\.npz')
+MAX_YOUNG = 1e12
+"""Largest Young's modulus believed in a file, Pa (diamond is about 1.1e12)."""
+LOG = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -70,8 +84,20 @@ def model_versions(folder: str) -> list:
     return sorted(int(m.group(1)) for m in map(_NAME.match, os.listdir(folder)) if m)
 
 
+def _highest_version(folder: str) -> int:
+    """Highest version in ``folder`` and in its quarantine (0 when none)."""
+    highest = max(model_versions(folder), default=0)
+    quarantine = os.path.join(folder, QUARANTINE)
+    if os.path.isdir(quarantine):
+        found = [int(m.group(1)) for m in map(_QUARANTINED.match, os.listdir(quarantine)) if m]
+        highest = max(highest, max(found, default=0))
+    return highest
+
+
 def save_model(folder: str, model: DeformationModel) -> str:
     """Write ``model`` atomically as the next version in ``folder``; return the path.
+
+    The next version is above every one in ``folder`` and in its quarantine.
 
     Raises:
         DataError: the folder cannot be created or written.
@@ -79,7 +105,7 @@ def save_model(folder: str, model: DeformationModel) -> str:
     """
     try:
         os.makedirs(folder, exist_ok=True)
-        version = (model_versions(folder) or [0])[-1] + 1
+        version = _highest_version(folder) + 1
         path = os.path.join(folder, f'deformation-v{version}.npz')
         tmp = os.path.join(folder, f'.deformation-v{version}.tmp.npz')
         m = model.mesh
@@ -102,46 +128,185 @@ def save_model(folder: str, model: DeformationModel) -> str:
 
 
 def load_model(path: str) -> DeformationModel:
-    """Read a model file.
+    """Read a model file and check its content (:func:`_model_from_arrays`).
 
     Raises:
-        DataError: missing, unreadable, or of another file format.
+        DataError: missing, unreadable, of another file format, or content no FEM can use
+            (the message names the file and the array).
 
     """
     with reading(path, 'deformation model'):
         with np.load(path, allow_pickle=False) as data:
             d = dict(data)
-        if int(d.get('format', -1)) != FORMAT:
-            raise DataError(f'{path}: deformation model format {d.get("format")} is not '
-                            f'{FORMAT}')
-        return _model_from_arrays(d)
+        fmt = d.get('format')
+        if fmt is None or np.ndim(fmt) != 0 or fmt.dtype.kind not in 'iu' or int(fmt) != FORMAT:
+            found = None if fmt is None else fmt.tolist()
+            raise DataError(f'{path}: deformation model format {found!r} is not {FORMAT}')
+        try:
+            model = _model_from_arrays(d)
+        except InvalidInput as exc:
+            raise DataError(f'{path}: invalid deformation model: {exc}') from exc
+        named = _NAME.match(os.path.basename(str(path)))
+        if named is not None and int(named.group(1)) != model.version:
+            raise DataError(f'{path}: version {model.version} in the file is not the one in '
+                            f'its name ({int(named.group(1))})')
+        return model
+
+
+def _integer_array(d: dict, name: str, columns: Optional[int], n_nodes: int) -> np.ndarray:
+    """``d[name]`` as node indices: an integer array, (K, columns) or (K,), all in range.
+
+    Raises:
+        InvalidInput: another dtype or shape, or an index outside ``0..n_nodes - 1``.
+
+    """
+    a = np.asarray(d[name])
+    shape = '(K,)' if columns is None else f'(K, {columns})'
+    if a.dtype.kind not in 'iu' or a.ndim != (1 if columns is None else 2) or (
+            columns is not None and a.shape[1] != columns):
+        raise InvalidInput(f'{name}: expected integer node indices of shape {shape}, got '
+                           f'{a.dtype} {a.shape}')
+    if a.size and (a.min() < 0 or a.max() >= n_nodes):
+        raise InvalidInput(f'{name}: node index {int(a.min() if a.min() < 0 else a.max())} '
+                           f'outside 0..{n_nodes - 1}')
+    return a
+
+
+def _scalar(d: dict, name: str, ok: Callable[[float], bool], wanted: str) -> float:
+    """``d[name]`` as a finite real number for which ``ok`` holds.
+
+    Raises:
+        InvalidInput: not a real scalar, or ``ok`` refuses it (``wanted`` says what is).
+
+    """
+    a = np.asarray(d[name])
+    if a.ndim != 0 or a.dtype.kind not in 'iuf' or not ok(float(a)):
+        raise InvalidInput(f'{name}: must be {wanted}, got {a.tolist()!r}')
+    return float(a)
+
+
+def _mesh_from_arrays(d: dict) -> TetMesh:
+    """Build the checked volume mesh of a file's arrays.
+
+    Raises:
+        InvalidInput: nodes not a finite (N, 3) array, tetrahedra not integer (M, 4) node
+            indices in range with positive volume, bad fixed nodes or surface triangles, or
+            an element size that is not a positive length.
+
+    """
+    nodes = np.asarray(d['nodes'])
+    if nodes.dtype.kind not in 'iuf' or nodes.ndim != 2 or nodes.shape[1] != 3 or not len(nodes):
+        raise InvalidInput(f'nodes: expected a (N, 3) array of positions, got {nodes.dtype} '
+                           f'{nodes.shape}')
+    nodes = nodes.astype(np.float64)
+    bad = int(np.count_nonzero(~np.isfinite(nodes).all(axis=1)))
+    if bad:
+        raise InvalidInput(f'nodes: {bad} node(s) with a non-finite position')
+    n = len(nodes)
+    tets = _integer_array(d, 'tets', 4, n)
+    if not len(tets):
+        raise InvalidInput('tets: no tetrahedra')
+    mesh = TetMesh(nodes=nodes, tets=tets,
+                   fixed_nodes=_integer_array(d, 'fixed_nodes', None, n),
+                   surface_triangles=_integer_array(d, 'surface_triangles', 3, n),
+                   element_size=_scalar(d, 'element_size', lambda v: np.isfinite(v) and v > 0,
+                                        'a positive length in metres'))
+    flat = int(np.count_nonzero(~(mesh.volumes() > 0)))
+    if flat:
+        raise InvalidInput(f'tets: {flat} of {len(tets)} tetrahedra with a volume that is not '
+                           f'positive (inverted or degenerate)')
+    return mesh
+
+
+def _fusion_from_arrays(d: dict) -> Optional[FusionData]:
+    """Return the fused force's data of a file (None in files from before it).
+
+    Raises:
+        InvalidInput: a non-finite or negative spread, or arrays of inconsistent sizes.
+
+    """
+    if 'fusion_spread' not in d:   # older files have none: the fused force then uses defaults
+        return None
+    spread = _scalar(d, 'fusion_spread', lambda v: np.isfinite(v) and v >= 0,
+                     'a finite relative spread >= 0')
+    tips = np.asarray(d['fusion_tips'], dtype=np.float64)
+    forces = np.asarray(d['fusion_forces'], dtype=np.float64)
+    sites = np.asarray(d['fusion_sites'])
+    if tips.ndim != 2 or tips.shape[1] != 3 or forces.shape != (len(tips),) or (
+            sites.shape != (len(tips),)):
+        raise InvalidInput(f'fusion: tips {tips.shape}, forces {forces.shape} and sites '
+                           f'{sites.shape} are not (n, 3), (n,), (n,)')
+    return FusionData(fem_spread=spread, spread_source=str(d['fusion_source']), tips=tips,
+                      forces=forces, sites=sites,
+                      errors=np.asarray(d['fusion_errors'], dtype=np.float64),
+                      seconds=_scalar(d, 'fusion_seconds', np.isfinite, 'finite seconds'))
 
 
 def _model_from_arrays(d: dict) -> DeformationModel:
-    """Build the model from the arrays of its file (a missing one raises KeyError)."""
-    mesh = TetMesh(nodes=d['nodes'], tets=d['tets'], fixed_nodes=d['fixed_nodes'],
-                   surface_triangles=d['surface_triangles'],
-                   element_size=float(d['element_size']))
-    young = d['young']
-    fusion = None
-    if 'fusion_spread' in d:   # older files have none: the fused force then uses defaults
-        fusion = FusionData(fem_spread=float(d['fusion_spread']),
-                            spread_source=str(d['fusion_source']), tips=d['fusion_tips'],
-                            forces=d['fusion_forces'], sites=d['fusion_sites'],
-                            errors=d['fusion_errors'], seconds=float(d['fusion_seconds']))
-    return DeformationModel(mesh=mesh, young=float(young) if young.ndim == 0 else young,
-                            poisson=float(d['poisson']), rest_offset=d['rest_offset'],
-                            load_radius=float(d['load_radius']),
-                            residual_rms=float(d['residual_rms']), version=int(d['version']),
-                            fusion=fusion)
+    """Build the checked model from the arrays of its file (a missing one raises KeyError).
+
+    Raises:
+        InvalidInput: content the FEM or the force estimate cannot use (see :func:`load_model`).
+
+    """
+    mesh = _mesh_from_arrays(d)
+    young = np.asarray(d['young'])
+    if young.dtype.kind not in 'iuf' or young.shape not in ((), (len(mesh.tets),)):
+        raise InvalidInput(f'young: expected a modulus or ({len(mesh.tets)},) per element, '
+                           f'got {young.dtype} {young.shape}')
+    young = young.astype(np.float64)
+    if not (np.all(np.isfinite(young)) and np.all(young > 0) and np.all(young <= MAX_YOUNG)):
+        raise InvalidInput(f'young: every modulus must be in (0, {MAX_YOUNG:g}] Pa, got '
+                           f'{young.min():g} .. {young.max():g}')
+    rest_offset = np.asarray(d['rest_offset'])
+    if rest_offset.dtype.kind not in 'iuf' or rest_offset.shape != (mesh.n_nodes,) or not (
+            np.all(np.isfinite(rest_offset))):
+        raise InvalidInput(f'rest_offset: expected ({mesh.n_nodes},) finite offsets in metres, '
+                           f'got {rest_offset.dtype} {rest_offset.shape}')
+    version = np.asarray(d['version'])
+    if version.ndim != 0 or version.dtype.kind not in 'iu' or int(version) < 1:
+        raise InvalidInput(f'version: must be a whole number >= 1, got {version.tolist()!r}')
+    return DeformationModel(
+        mesh=mesh, young=float(young) if young.ndim == 0 else young,
+        poisson=_scalar(d, 'poisson', lambda v: -1.0 < v < 0.5, 'a Poisson ratio in (-1, 0.5)'),
+        rest_offset=rest_offset.astype(np.float64),
+        load_radius=_scalar(d, 'load_radius', lambda v: np.isfinite(v) and v > 0,
+                            'a positive length in metres'),
+        residual_rms=_scalar(d, 'residual_rms', lambda v: np.isnan(v) or 0 <= v < np.inf,
+                             'an rms >= 0 in metres (NaN: not known)'),
+        version=int(version), fusion=_fusion_from_arrays(d))
 
 
-def load_latest(folder: str) -> Optional[DeformationModel]:
-    """Return the newest model in ``folder``, or None when there is none."""
-    versions = model_versions(folder)
-    if not versions:
-        return None
-    return load_model(os.path.join(folder, f'deformation-v{versions[-1]}.npz'))
+def load_latest(folder: str, log: Optional[Callable[[str], None]] = None
+                ) -> Optional[DeformationModel]:
+    """Return the newest valid model in ``folder``, or None when there is none.
+
+    A file that cannot be loaded (:func:`load_model`) is moved to ``quarantine/`` beside it
+    with a ``.reason.txt`` (:func:`~pointforce_ros.model.files.quarantine_file`) and the next
+    older version is tried: a corrupt newest file never hides an older valid one. A bad file
+    that cannot be moved (a read-only folder) is skipped and reported.
+
+    Args:
+        folder: the model folder.
+        log: called with one message per quarantined or skipped file (a node's logger).
+
+    """
+    for version in reversed(model_versions(folder)):
+        path = os.path.join(folder, f'deformation-v{version}.npz')
+        try:
+            return load_model(path)
+        except DataError as exc:
+            try:
+                moved = quarantine_file(path, str(exc))
+                note = (None if moved is None else
+                        f'quarantined {os.path.basename(path)} as {moved}: {exc}')
+            except OSError as move_error:
+                note = (f'skipping {os.path.basename(path)} ({exc}); cannot quarantine it: '
+                        f'{move_error}')
+                LOG.error(note)
+            if log is not None and note is not None:
+                log(note)
+    return None
 
 
 @dataclass(frozen=True)

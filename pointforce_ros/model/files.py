@@ -10,8 +10,15 @@ a SHA-256 of its content (everything but the version), a save whose version is t
 content, or is not above the highest version the directory has ever held, gets the next free
 version instead, and that highest version is persisted (``versions.json``, written atomically)
 beside the files and the quarantine. A file the loader cannot read (truncated, empty, not a zip,
-altered, unknown format) is moved to ``quarantine/`` beside it with a ``.reason.txt``, logged,
-and :func:`load_latest_model` falls back to the newest valid version.
+altered, unknown format, a header of the wrong type, a header version that is not the one in
+the file's name) is moved to ``quarantine/`` beside it with a ``.reason.txt``, logged, and
+:func:`load_latest_model` falls back to the newest valid version.
+
+A file that is intact but names an effect this build does not know (:class:`UnsupportedModel`,
+written by a newer learner) is *skipped*, not quarantined: it is left where it is for a build
+that can serve it (an old service must not move a newer learner's output away), logged once,
+and not read again while it is unchanged; the newest older valid version is served meanwhile.
+Its version still counts as taken, so a save never reuses it.
 
 A shape-function update made at run time (``c``, decay length ``L``) is kept beside the models in
 ``shape.json`` (:func:`save_shape`, atomic), so that a restarted learner uses it again.
@@ -27,13 +34,15 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, List, Mapping, Optional, Tuple
+from typing import Callable, Dict, List, Mapping, Optional, Tuple
 
 import numpy as np
 
 from pointforce_ros.contact.lcp import check_decay, check_near
 from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, uncertainty_sources
+from pointforce_ros.effects.forward import ForwardTerms
+from pointforce_ros.effects.library import LIBRARY, PROBE_EFFECTS
 from pointforce_ros.errors import DataError, InvalidInput, read_json
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
@@ -46,7 +55,17 @@ VERSIONS = 'versions.json'
 """File, beside the model files, holding the highest version ever saved there."""
 SHAPE = 'shape.json'
 """File, beside the model files, holding the shape function set at run time (c, L)."""
+MAX_COUNTER = 10 ** 9
+"""Largest ``versions.json`` counter believed; above it (or not a whole number) it is ignored."""
 LOG = logging.getLogger(__name__)
+
+
+class UnsupportedModel(DataError):
+    """An intact model file this build cannot serve (an effect it does not know).
+
+    :func:`load_latest_model` skips such a file (it stays for a build that knows the effect)
+    instead of quarantining it.
+    """
 
 
 @dataclass(frozen=True)
@@ -73,8 +92,8 @@ class ContactModel:
 
     Raises:
         InvalidInput: surface and table of different sizes, ``c <= 0``, ``shape_decay``
-            neither a positive length nor ``inf``, or an unknown ``shape_decay_law`` or
-            ``shape_near``.
+            neither a positive length nor ``inf``, an unknown ``shape_decay_law`` or
+            ``shape_near``, or ``effects`` / ``meta`` not a mapping.
 
     """
 
@@ -89,6 +108,10 @@ class ContactModel:
     shape_near: str = 'paper'
 
     def __post_init__(self):
+        for name in ('effects', 'meta'):
+            if not isinstance(getattr(self, name), Mapping):
+                raise InvalidInput(f'ContactModel.{name}: must be a mapping (JSON object), got '
+                                   f'{type(getattr(self, name)).__name__}')
         if len(self.surface) != len(self.response):
             raise InvalidInput(f'ContactModel: surface has {len(self.surface)} points, baked '
                                f'table has {len(self.response)}')
@@ -188,20 +211,39 @@ def _versions_on_disk(directory: Path) -> List[int]:
     return found
 
 
+def _stored_counter(path: Path) -> Optional[int]:
+    """Return ``highest`` of ``versions.json``; ``None`` (and a warning) if implausible.
+
+    Implausible: not a whole number (a string, ``NaN``, ``Infinity``, ``1e400``, ``2.5``),
+    negative, or above :data:`MAX_COUNTER` (a hand edit; believing it would name the next
+    file ``model-v1000...0.npz`` or fail to convert).
+    """
+    if not path.is_file():
+        return None
+    try:
+        stored = read_json(path, 'version counter')['highest']
+    except (DataError, KeyError) as exc:
+        LOG.warning('%s: ignored (%s); the model files bound the version', path, exc)
+        return None
+    whole = (isinstance(stored, int) and not isinstance(stored, bool)) or (
+        isinstance(stored, float) and np.isfinite(stored) and stored.is_integer())
+    if not whole or not 0 <= stored <= MAX_COUNTER:
+        LOG.warning('%s: ignored implausible counter %r (not a whole number in 0..%d); the '
+                    'model files bound the version', path, stored, MAX_COUNTER)
+        return None
+    return int(stored)
+
+
 def highest_version(directory) -> int:
     """Highest model version ``directory`` has ever held (files, quarantine, persisted), or -1.
 
-    Reads ``versions.json`` when present and readable (an unreadable one is ignored: the
-    files still bound the answer from below).
+    Reads ``versions.json`` when present, readable and plausible (:func:`_stored_counter`;
+    otherwise it is ignored with a warning: the files still bound the answer from below).
     """
     directory = Path(directory)
     highest = max(_versions_on_disk(directory), default=-1)
-    try:
-        stored = read_json(directory / VERSIONS, 'version counter')['highest']
-        highest = max(highest, int(stored))
-    except (DataError, ValueError, KeyError, TypeError):
-        pass
-    return highest
+    stored = _stored_counter(directory / VERSIONS)
+    return highest if stored is None else max(highest, stored)
 
 
 def _stored_digest(path: Path) -> Optional[str]:
@@ -252,13 +294,63 @@ def save_model(model: ContactModel, directory) -> Path:
     return path
 
 
+def _header_version(header: dict, path: Path) -> int:
+    """Return the header's version: a whole number >= 0, the one in the file's name if any.
+
+    Raises:
+        ValueError: anything else (a version "from the future" would pin every reader that
+            only looks for newer files).
+
+    """
+    version = header['version']
+    if isinstance(version, bool) or not isinstance(version, int) or version < 0:
+        raise ValueError(f'header version {version!r} is not a whole number >= 0')
+    named = version_of_path(path)
+    if named is not None and version != named:
+        raise ValueError(f'header version {version} is not the version in the file name '
+                         f'({named})')
+    return version
+
+
+def _check_effects(effects: Mapping, path: Path) -> None:
+    """Refuse effects the service could not apply, as :func:`WrenchServer.swap` would.
+
+    Raises:
+        UnsupportedModel: an effect name this build does not know (a newer learner's).
+        InvalidInput: malformed parameters of a known effect.
+
+    """
+    known = set(LIBRARY) | set(PROBE_EFFECTS)
+    unknown = sorted(str(name) for name in effects if name not in known)
+    if unknown:
+        raise UnsupportedModel(f'{path}: effect(s) {unknown} unknown to this build (a newer '
+                               f'learner\'s model?); known: {", ".join(sorted(known))}')
+    ForwardTerms.of(effects)
+
+
+def _check_meta(meta: Mapping) -> None:
+    """Refuse a ``surface_corrected`` entry the service could not read (a list of names).
+
+    Raises:
+        ValueError: ``meta['surface_corrected']`` present but not a list of effect names.
+
+    """
+    done = meta.get('surface_corrected', [])
+    if not isinstance(done, list) or not all(isinstance(name, str) for name in done):
+        raise ValueError(f'meta.surface_corrected: expected a list of effect names, got '
+                         f'{done!r}')
+
+
 def load_model(path) -> ContactModel:
     """Load a model file.
 
     Every read error (a truncated or empty file, not a zip archive, a missing array, a bad
-    header, content that does not match the header's SHA-256) becomes a :class:`DataError`.
+    header or one of the wrong types, a header version that is not a whole number >= 0 or
+    differs from the one in the file's name, content that does not match the header's
+    SHA-256, malformed effects) becomes a :class:`DataError` naming the file.
 
     Raises:
+        UnsupportedModel: an intact file naming an effect this build does not know.
         DataError: missing file, not a model file, unknown format, or corrupt content.
 
     """
@@ -279,19 +371,21 @@ def load_model(path) -> ContactModel:
                                      meta=header.get('response_meta', {}))
         model = ContactModel(surface=surface, response=response,
                              shape_constant=float(header['shape_constant']),
-                             version=int(header['version']),
+                             version=_header_version(header, path),
                              shape_decay=float(header.get('shape_decay') or float('inf')),
                              effects=header.get('effects', {}), meta=header.get('meta', {}),
                              shape_decay_law=header.get('shape_decay_law', 'fixed'),
                              shape_near=header.get('shape_near', 'paper'))
+        stored = header.get('content_sha256')
+        if stored is not None and stored != content_digest(model):
+            raise DataError(f'{path}: content does not match its SHA-256 (altered or corrupt)')
+        _check_meta(model.meta)
+        _check_effects(model.effects, path)
     except DataError:
         raise
     except Exception as exc:  # noqa: BLE001 - zipfile, zlib, numpy, json: many error types
         raise DataError(f'{path}: corrupt or unreadable model file: '
                         f'{type(exc).__name__}: {exc}') from exc
-    stored = header.get('content_sha256')
-    if stored is not None and stored != content_digest(model):
-        raise DataError(f'{path}: content does not match its SHA-256 (altered or corrupt)')
     return model
 
 
@@ -324,6 +418,19 @@ def quarantine_file(path, reason: str) -> Optional[Path]:
     return target
 
 
+_UNSUPPORTED: Dict[Path, Tuple[int, int, int]] = {}
+"""Files skipped as :class:`UnsupportedModel` -> their (inode, mtime ns, size) when read."""
+
+
+def _identity(path: Path) -> Optional[Tuple[int, int, int]]:
+    """(inode, mtime ns, size) of ``path``: a rewritten or replaced file gets another."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
 def load_latest_model(directory, newer_than: int = -1,
                       log: Optional[Callable[[str], None]] = None
                       ) -> Optional[Tuple[ContactModel, Path]]:
@@ -331,12 +438,13 @@ def load_latest_model(directory, newer_than: int = -1,
 
     Files that cannot be read are quarantined (:func:`quarantine_file`) and the next older
     version is tried, down to ``newer_than``: a corrupt newest file never hides an older
-    valid one.
+    valid one. An intact file this build cannot serve (:class:`UnsupportedModel`) is skipped
+    and left in place; it is reported once and not read again until it changes.
 
     Args:
         directory: the model directory.
         newer_than: the version already held (-1: none); older files are not read.
-        log: called with one message per quarantined file (a node's logger).
+        log: called with one message per quarantined or newly skipped file (a node's logger).
 
     Returns:
         ``(model, path)``, or ``None`` when no valid file is newer than ``newer_than``.
@@ -353,8 +461,15 @@ def load_latest_model(directory, newer_than: int = -1,
         if m and int(m.group(1)) > newer_than:
             candidates.append((int(m.group(1)), p))
     for _, path in sorted(candidates, reverse=True):
+        identity = _identity(path)
+        if identity is not None and _UNSUPPORTED.get(path) == identity:
+            continue
         try:
             return load_model(path), path
+        except UnsupportedModel as exc:
+            _UNSUPPORTED[path] = identity
+            note = f'skipping {path.name}, left in place: {exc}'
+            LOG.warning(note)
         except DataError as exc:
             try:
                 moved = quarantine_file(path, str(exc))
@@ -362,8 +477,8 @@ def load_latest_model(directory, newer_than: int = -1,
             except OSError as move_error:
                 note = f'skipping {path.name} ({exc}); cannot quarantine it: {move_error}'
                 LOG.error(note)
-            if log is not None and note is not None:
-                log(note)
+        if log is not None and note is not None:
+            log(note)
     return None
 
 

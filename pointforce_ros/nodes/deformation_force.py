@@ -278,7 +278,7 @@ class DeformationForceNode(Node):
         if not self.model_dir:
             return
         try:
-            model = load_latest(self.model_dir)
+            model = load_latest(self.model_dir, log=self.get_logger().error)
             if model is not None:
                 self._model, self._fem = model, model.build()
                 self.get_logger().info(f'loaded deformation model v{model.version}: E '

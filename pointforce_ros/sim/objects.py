@@ -314,12 +314,36 @@ def list_objects() -> List[str]:
     return sorted(f[:-5] for f in os.listdir(OBJECTS_DIR) if f.endswith('.yaml'))
 
 
+def _section(doc: Mapping, key: str, path: str, required: bool = False,
+             label: Optional[str] = None) -> Mapping:
+    """Return the mapping ``doc[key]`` (``{}`` when absent and not ``required``).
+
+    ``label`` names the section in messages (default ``key``).
+
+    Raises:
+        InvalidInput: the section is missing (``required``) or not a mapping; the message
+            names the file and the section.
+
+    """
+    label = key if label is None else label
+    if key not in doc or (doc[key] is None and not required):
+        if required:
+            raise InvalidInput(f'object file {path}: section {label!r} is missing')
+        return {}
+    section = doc[key]
+    if not isinstance(section, Mapping):
+        raise InvalidInput(f'object file {path}: section {label!r} must be a mapping (indented '
+                           f'"name: value" lines), got {type(section).__name__} {section!r}')
+    return section
+
+
 def load_object(name_or_path: str) -> ObjectSpec:
     """Load an object by name (``plush``) or by path to a YAML file.
 
     Raises:
         DataError: no such object, or the file cannot be read as YAML.
-        InvalidInput: a field is missing or out of range (the message names it).
+        InvalidInput: a section that is not a mapping, a field missing or out of range (the
+            message names the file and the section or field).
 
     """
     path = name_or_path
@@ -331,10 +355,14 @@ def load_object(name_or_path: str) -> ObjectSpec:
     with reading(path, 'object file (YAML)'):
         with open(path, encoding=TEXT_ENCODING) as fh:
             doc = yaml.safe_load(fh)
+    if not isinstance(doc, Mapping):
+        raise InvalidInput(f'object file {path}: expected a mapping of sections (geometry, '
+                           f'material, ...), got {type(doc).__name__}')
+    geo, mat = _section(doc, 'geometry', path, True), _section(doc, 'material', path, True)
+    col, mesh = _section(doc, 'colour', path), _section(doc, 'mesh', path)
+    poke, live = _section(doc, 'poke', path), _section(doc, 'live', path)
+    und = _section(geo, 'undulation', path, label='geometry.undulation')
     try:
-        geo, mat, col = doc['geometry'], doc['material'], doc.get('colour', {})
-        mesh, poke, live = doc.get('mesh', {}), doc.get('poke', {}), doc.get('live', {})
-        und = geo.get('undulation') or {}
         spec = ObjectSpec(
             name=str(doc.get('name', os.path.basename(path)[:-5])),
             kind=str(geo.get('kind', 'box')),
@@ -356,22 +384,33 @@ def load_object(name_or_path: str) -> ObjectSpec:
             live_grid=tuple(int(v) for v in live.get('grid', (5, 4))),
             support=str(geo.get('support', 'fixed')),
             description=str(doc.get('description', '')), source=path)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InvalidInput(f'object file {path}: missing or malformed field: {exc}')
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise InvalidInput(f'object file {path}: missing or malformed field: '
+                           f'{type(exc).__name__}: {exc}') from exc
+    except InvalidInput as exc:     # a region's check: say which file
+        raise InvalidInput(f'object file {path}: {exc}') from exc
     _validate(spec)
     return spec
 
 
 def _validate(spec: ObjectSpec):
+    """Check the ranges of ``spec``; the messages name its file (when it has one).
+
+    Raises:
+        InvalidInput: a value out of range.
+
+    """
+    who = spec.name if spec.source is None else f'object file {spec.source} ({spec.name})'
     if spec.kind not in ('box', 'dome'):
-        raise InvalidInput(f'{spec.name}: geometry.kind must be box or dome, got {spec.kind}')
+        raise InvalidInput(f'{who}: geometry.kind must be box or dome, got {spec.kind}')
     if len(spec.size) != 3 or min(spec.size) <= 0:
-        raise InvalidInput(f'{spec.name}: geometry.size needs 3 positive lengths (m)')
+        raise InvalidInput(f'{who}: geometry.size needs 3 positive lengths (m), got {spec.size}')
     if spec.kind == 'dome' and not 0 < spec.rim_height < spec.size[2]:
-        raise InvalidInput(f'{spec.name}: dome needs 0 < rim_height < size[2]')
+        raise InvalidInput(f'{who}: dome needs 0 < rim_height < size[2]')
     if not spec.young > 0 or not -1 < spec.poisson < 0.5:
-        raise InvalidInput(f'{spec.name}: need young > 0 and -1 < poisson < 0.5')
+        raise InvalidInput(f'{who}: need young > 0 and -1 < poisson < 0.5, got young '
+                           f'{spec.young:g} Pa, poisson {spec.poisson:g}')
     if not 0.5 <= spec.force_cap <= 30:
-        raise InvalidInput(f'{spec.name}: poke.force_cap {spec.force_cap} N out of 0.5..30')
+        raise InvalidInput(f'{who}: poke.force_cap {spec.force_cap} N out of 0.5..30')
     if not 0 < spec.mesh_live <= 0.01 or not 0 < spec.mesh_validation <= 0.01:
-        raise InvalidInput(f'{spec.name}: mesh sizes must be in (0, 0.01] m')
+        raise InvalidInput(f'{who}: mesh sizes must be in (0, 0.01] m')

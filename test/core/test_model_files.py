@@ -16,7 +16,7 @@ from pointforce_ros.errors import DataError
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import (content_digest, ContactModel, highest_version,
                                         load_latest_model, load_model, model_path, QUARANTINE,
-                                        save_model)
+                                        save_model, UnsupportedModel)
 from pointforce_ros.model.serving import WrenchServer
 
 MODEL = patch_contact_model(spacing=0.006)
@@ -157,3 +157,91 @@ def test_files_without_a_hash_still_load_and_compare_by_content(tmp_path):
     np.testing.assert_array_equal(load_model(path).response.forces, MODEL.response.forces)
     assert save_model(MODEL, tmp_path) == path and path.read_bytes() == before
     assert zipfile.is_zipfile(path)
+
+
+def _edit_header(path, edit, drop_hash=False):
+    """Rewrite the header of the file at ``path`` with ``edit(header)``; the hash as written."""
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(bytes(arrays['header']).decode())
+    edit(header)
+    if drop_hash:
+        del header['content_sha256']
+    arrays['header'] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    with open(path, 'wb') as fh:
+        np.savez(fh, **arrays)
+
+
+@pytest.mark.parametrize('key, value, drop_hash', [
+    ('meta', 'xy', False), ('effects', 5, False), ('meta', [1, 2], False),
+    ('effects', 5, True), ('meta', {'surface_corrected': 5}, True)])
+def test_a_header_entry_of_the_wrong_type_is_quarantined_and_the_older_model_served(
+        tmp_path, key, value, drop_hash):
+    """Audit D1: ``"meta": "xy"`` in the newest file raised a bare ValueError naming no file.
+
+    Without a hash (a file from before it) nothing else catches the type.
+    """
+    good = save_model(MODEL, tmp_path)
+    bad = save_model(_other(2), tmp_path)
+    _edit_header(bad, lambda h: h.__setitem__(key, value), drop_hash=drop_hash)
+    with pytest.raises(DataError, match=bad.name):
+        load_model(bad)
+    server = WrenchServer()
+    notes = []
+    assert server.load_latest(tmp_path, log=notes.append)
+    assert server.version == 1 and server.loaded_path == good
+    assert (tmp_path / QUARANTINE / bad.name).is_file() and not bad.exists()
+    assert len(notes) == 1 and bad.name in notes[0]
+
+
+@pytest.mark.parametrize('version', [10 ** 12, -7, 2.5, 1.0, '1', True])
+def test_a_header_version_other_than_the_file_name_is_refused_and_pins_nothing(
+        tmp_path, version):
+    """Audit D2: a v1 file whose header said 10**12 pinned the server: v2, v3 never served."""
+    first = save_model(MODEL, tmp_path)
+    _edit_header(first, lambda h: h.__setitem__('version', version))
+    with pytest.raises(DataError, match=first.name):
+        load_model(first)
+    server = WrenchServer()
+    assert not server.load_latest(tmp_path) and server.version == -1
+    assert (tmp_path / QUARANTINE / first.name).is_file()
+    newer = save_model(_other(2, c=0.006), tmp_path)
+    assert server.load_latest(tmp_path) and server.version == 2
+    assert server.loaded_path == newer and load_model(newer).shape_constant == 0.006
+
+
+def test_a_model_with_an_effect_unknown_to_this_build_is_skipped_not_quarantined(tmp_path):
+    """Audit D1b: the file loaded, then the server refused it on every poll and served nothing.
+
+    A newer learner may write an effect this build does not know: the file stays where it is
+    (for a build that knows it), is reported once, and the older valid model is served.
+    """
+    good = save_model(MODEL, tmp_path)
+    newer = save_model(_other(2), tmp_path)
+    _edit_header(newer, lambda h: h.__setitem__('effects', {'bogus_effect': {'k': 1.0}}),
+                 drop_hash=True)
+    with pytest.raises(UnsupportedModel, match=f'{newer.name}.*bogus_effect'):
+        load_model(newer)
+    server = WrenchServer()
+    notes = []
+    assert server.load_latest(tmp_path, log=notes.append)
+    assert server.version == 1 and server.loaded_path == good
+    assert newer.is_file() and not (tmp_path / QUARANTINE).exists()
+    assert len(notes) == 1 and newer.name in notes[0] and 'bogus_effect' in notes[0]
+    assert not server.load_latest(tmp_path, log=notes.append) and len(notes) == 1
+    # its version stays taken: the next save does not overwrite it
+    assert save_model(_other(2, c=0.006), tmp_path) == model_path(tmp_path, 3)
+
+
+@pytest.mark.parametrize('counter', ['Infinity', '-Infinity', 'NaN', '1e400', '1e300',
+                                     '2.5', '"12"', '-3', 'true'])
+def test_an_implausible_version_counter_is_ignored_and_the_names_on_disk_bound_it(
+        tmp_path, counter, caplog):
+    """Audit D5: ``{"highest": Infinity}`` raised a bare OverflowError in save_model."""
+    save_model(MODEL, tmp_path)
+    (tmp_path / 'versions.json').write_text(f'{{"highest": {counter}}}')
+    with caplog.at_level(logging.WARNING, logger='pointforce_ros.model.files'):
+        assert highest_version(tmp_path) == 1
+    assert any('versions.json' in r.getMessage() for r in caplog.records)
+    assert save_model(_other(2), tmp_path) == model_path(tmp_path, 2)
+    assert highest_version(tmp_path) == 2

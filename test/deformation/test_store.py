@@ -12,6 +12,7 @@ from pointforce_ros.deformation.observe import rest_offsets
 from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, load_latest,
                                               load_model, model_versions, save_model)
 from pointforce_ros.errors import DataError
+from pointforce_ros.model.files import QUARANTINE
 
 DATA = os.path.join(os.path.dirname(__file__), '..', 'data', 'deformation')
 
@@ -56,8 +57,94 @@ def test_fusion_data_round_trips_and_a_file_without_it_still_loads(tmp_path):
     # a file written before the fused force (no fusion_* arrays) loads with fusion None
     old = dict(np.load(save_model(str(tmp_path), model)))
     old = {k: v for k, v in old.items() if not k.startswith('fusion_')}
+    old['version'] = np.array(3)   # the version in a file is the one in its name
     np.savez_compressed(tmp_path / 'deformation-v3.npz', **old)
     assert load_latest(str(tmp_path)).fusion is None
+
+
+def _small_model(seed=6):
+    """A small block model with a seeded per-element modulus field and rest offsets."""
+    rng = np.random.default_rng(seed)
+    mesh = block_mesh((0.02, 0.02, 0.01), 0.005, 2)
+    return DeformationModel(mesh=mesh, young=rng.uniform(3e4, 6e4, len(mesh.tets)),
+                            poisson=0.3, rest_offset=rng.normal(0, 1e-4, mesh.n_nodes),
+                            load_radius=0.004, residual_rms=1e-4)
+
+
+def _set(name, value):
+    return lambda d: d.__setitem__(name, value)
+
+
+def _set_item(name, index, value):
+    def edit(d):
+        d[name] = np.array(d[name])
+        d[name][index] = value
+    return edit
+
+
+CONTENT_FAULTS = {
+    'nodes_nan': (_set_item('nodes', (0, 0), np.nan), 'nodes'),
+    'nodes_2d': (lambda d: d.__setitem__('nodes', d['nodes'][:, :2]), 'nodes'),
+    'tets_out_of_range': (_set_item('tets', (0, 0), 10 ** 6), 'tets'),
+    'tets_negative': (_set_item('tets', (1, 2), -1), 'tets'),
+    'tets_float': (lambda d: d.__setitem__('tets', d['tets'] + 0.5), 'tets'),
+    'tets_inverted': (lambda d: d.__setitem__('tets', d['tets'][:, [1, 0, 2, 3]]), 'tets'),
+    'fixed_out_of_range': (_set_item('fixed_nodes', 0, 10 ** 6), 'fixed_nodes'),
+    'triangles_float': (lambda d: d.__setitem__('surface_triangles',
+                                                d['surface_triangles'] * 1.0),
+                        'surface_triangles'),
+    'young_inf': (_set_item('young', 0, np.inf), 'young'),
+    'young_negative': (_set_item('young', 3, -5.0), 'young'),
+    'young_huge': (_set('young', np.array(1e300)), 'young'),
+    'young_2d': (_set('young', np.ones((2, 2))), 'young'),
+    'poisson_half': (_set('poisson', np.array(0.5)), 'poisson'),
+    'rest_offset_nan': (_set_item('rest_offset', 4, np.nan), 'rest_offset'),
+    'rest_offset_short': (lambda d: d.__setitem__('rest_offset', d['rest_offset'][:5]),
+                          'rest_offset'),
+    'load_radius_nan': (_set('load_radius', np.array(np.nan)), 'load_radius'),
+    'load_radius_negative': (_set('load_radius', np.array(-1.0)), 'load_radius'),
+    'element_size_zero': (_set('element_size', np.array(0.0)), 'element_size'),
+    'version_future': (_set('version', np.array(10 ** 12)), 'version'),
+    'version_float': (_set('version', np.array(1.0)), 'version'),
+    'format_string': (_set('format', np.array('1')), 'format'),
+}
+
+
+@pytest.mark.parametrize('fault', sorted(CONTENT_FAULTS))
+def test_a_file_with_content_no_fem_can_use_is_a_data_error_naming_file_and_array(
+        tmp_path, fault):
+    """Audit D6: such files loaded, then failed in the FEM with a bare error naming no file."""
+    good = save_model(str(tmp_path / 'src'), _small_model())
+    d = dict(np.load(good))
+    edit, array = CONTENT_FAULTS[fault]
+    edit(d)
+    path = tmp_path / 'deformation-v1.npz'
+    np.savez_compressed(path, **d)
+    with pytest.raises(DataError, match=f'deformation-v1.npz.*{array}'):
+        load_model(str(path))
+
+
+def test_a_corrupt_newest_file_is_quarantined_and_the_last_valid_one_loaded(tmp_path):
+    """Audit D6: a corrupt newest file stopped load_latest; the node started with no model."""
+    model = _small_model()
+    save_model(str(tmp_path), model)
+    bad_content = save_model(str(tmp_path), model)
+    d = dict(np.load(bad_content))
+    d['young'] = np.full(len(model.mesh.tets), np.inf)
+    np.savez_compressed(bad_content, **d)
+    garbage = os.path.join(tmp_path, 'deformation-v3.npz')
+    with open(garbage, 'wb') as fh:
+        fh.write(np.random.default_rng(6).bytes(2048))
+    notes = []
+    back = load_latest(str(tmp_path), log=notes.append)
+    assert back is not None and back.version == 1
+    np.testing.assert_array_equal(back.young, model.young)
+    assert model_versions(str(tmp_path)) == [1] and len(notes) == 2
+    for name in ('deformation-v2.npz', 'deformation-v3.npz'):
+        assert (tmp_path / QUARANTINE / name).is_file()
+        assert name in (tmp_path / QUARANTINE / f'{name}.reason.txt').read_text()
+    # a later save does not reuse a quarantined version
+    assert save_model(str(tmp_path), model).endswith('deformation-v4.npz')
 
 
 def test_a_saturated_ft_stream_is_flagged():

@@ -1,0 +1,56 @@
+"""Object YAML files with a section of the wrong type: a clear error naming file and section.
+
+Audit D9: ``geometry``, ``colour`` or ``geometry.undulation`` given as a list raised a bare
+``AttributeError`` (``'list' object has no attribute 'get'``), and ``pointforce cell generate
+--object bad.yaml`` printed a traceback.
+"""
+
+import os
+
+import pytest
+
+from pointforce_ros.bringup.cli import main
+from pointforce_ros.dds import PROFILE_VARIABLES
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.sim.objects import load_object, OBJECTS_DIR
+
+with open(os.path.join(OBJECTS_DIR, 'dome.yaml'), encoding='utf-8') as _fh:
+    DOME = _fh.read()
+
+WRONG_SECTIONS = {
+    'geometry': DOME.replace('geometry:\n', 'geometry: [1, 2]\nunused_geometry:\n', 1),
+    'material': DOME.replace('material:\n', 'material: soft\nunused_material:\n', 1),
+    'colour': DOME.replace('colour:\n', 'colour: [1]\nunused_colour:\n', 1),
+    'geometry.undulation': DOME.replace('geometry:\n', 'geometry:\n  undulation: [1, 2]\n', 1),
+    'mesh': DOME + '\nmesh: 3\n',
+}
+
+
+@pytest.mark.parametrize('section', sorted(WRONG_SECTIONS))
+def test_a_section_that_is_not_a_mapping_names_file_and_section(tmp_path, section):
+    text = WRONG_SECTIONS[section]
+    assert text != DOME
+    path = tmp_path / 'bad.yaml'
+    path.write_text(text)
+    with pytest.raises(InvalidInput, match=rf"{path}: section '{section}' must be a mapping"):
+        load_object(str(path))
+
+
+def test_a_range_error_names_the_file(tmp_path):
+    path = tmp_path / 'soft.yaml'
+    path.write_text(DOME.replace('poisson: 0.48', 'poisson: 0.7'))
+    assert path.read_text() != DOME
+    with pytest.raises(InvalidInput, match=rf'{path} \(dome\): .*poisson 0.7'):
+        load_object(str(path))
+
+
+def test_cell_generate_with_a_bad_object_file_is_an_error_not_a_traceback(
+        tmp_path, capsys, monkeypatch):
+    for name in PROFILE_VARIABLES:      # main() names a DDS profile: restored after the test
+        monkeypatch.delenv(name, raising=False)
+    path = tmp_path / 'bad.yaml'
+    path.write_text(WRONG_SECTIONS['colour'])
+    code = main(['cell', 'generate', '--object', str(path), '--scenario', 'clean',
+                 '--pokes', '1', '--out', str(tmp_path / 'out')])
+    err = capsys.readouterr().err
+    assert code == 2 and str(path) in err and "'colour'" in err and 'Traceback' not in err

@@ -390,3 +390,28 @@ def test_the_learner_learns_the_good_pokes_around_a_malformed_bag(tmp_path, monk
     assert status is not None and status.num_pokes == 4
     assert [c.poke_id for c in learner.curves][-1] == records[4].poke_id
     assert (tmp_path / 'pokes' / 'quarantine' / records[3].poke_id).is_dir()
+
+
+def test_a_sample_changed_on_disk_is_caught_by_the_bags_checksum(tmp_path):
+    """A byte changed inside a sample used to read back as a valid poke (session 38 audit).
+
+    rosbags writes MCAP chunks without a CRC, so only the SHA-256 the writer stores in the
+    record can tell: one pose coordinate moved by 1 mm is refused, and the store quarantines
+    the bag and keeps the others.
+    """
+    store = st.PokeStore(tmp_path / 'store')
+    for k in (1, 2):
+        store.add(make_record(f'poke-00000{k}', n=40))
+    bag = next((tmp_path / 'store' / 'poke-000002').glob('*.mcap'))
+    record = st.read_poke_bag(bag.parent)
+    data = bag.read_bytes()
+    original = np.float64(record.tcp_pose[7, 0]).tobytes()
+    assert data.count(original) == 1
+    bag.write_bytes(data.replace(original, np.float64(record.tcp_pose[7, 0] + 1e-3).tobytes()))
+    with pytest.raises(DataError, match='does not match the SHA-256'):
+        st.read_poke_bag(bag.parent)
+    reopened = st.PokeStore(tmp_path / 'store')   # the index lists it until it is read
+    with pytest.raises(DataError, match='SHA-256'):
+        reopened.get('poke-000002')
+    assert reopened.ids() == ['poke-000001'] and reopened.get('poke-000001').poke_id
+    assert any((tmp_path / 'store' / 'quarantine').iterdir())

@@ -301,8 +301,8 @@ def read_poke_bag(path) -> PokeRecord:
         raise DataError(f'{path}: cannot read bag: {type(exc).__name__}: {exc}') from exc
     if not isinstance(header, dict) or header.get('format') != RECORD_FORMAT:
         raise DataError(f'{path}: no {RECORD_TOPIC} record of format {RECORD_FORMAT}')
-    if DIGEST_KEY in header and header[DIGEST_KEY] != _bag_digest(header, pose_raw,
-                                                                    wrench_raw):
+    stored = header.get(DIGEST_KEY)
+    if stored is not None and stored != _bag_digest(header, pose_raw, wrench_raw):
         raise DataError(f'{path}: content does not match the SHA-256 its writer stored '
                         '(a sample or the record was altered or damaged on disk)')
     try:

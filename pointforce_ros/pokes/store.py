@@ -379,6 +379,7 @@ class PokeStore:
             else:
                 leftover.unlink(missing_ok=True)
         self.quarantined: List[Path] = []
+        self.quarantine_reasons: Dict[str, str] = {}   # name -> why, for a learner's report
         self._index = self._load_index()
 
     def _quarantine(self, path: Path, reason: str) -> Optional[Path]:
@@ -403,9 +404,18 @@ class PokeStore:
         LOG.error('poke store %s: quarantined %s as %s: %s', self.root, path.name, target,
                   reason)
         self.quarantined.append(target)
+        self.quarantine_reasons[path.name] = reason
         return target
 
     def _load_index(self) -> Dict[str, dict]:
+        """Return the index of the bags on disk, reading each new or changed bag.
+
+        The index keeps each bag's file sizes and modification times (``files``): a bag
+        whose files changed since it was indexed (truncated, rewritten, replaced) is read
+        again on open and quarantined if it no longer reads, so a restarted server or
+        learner never lists it (an index from before that record trusts its bags once).
+        Sets ``self._stats``.
+        """
         bags = set()
         for p in self.root.iterdir():
             if not (p.name.startswith('poke-') and _ID.match(p.name)):
@@ -415,21 +425,43 @@ class PokeStore:
             else:  # a poke-* entry that is no bag would block its id and hide a problem
                 self._quarantine(p, 'not a rosbag2 bag (no metadata.yaml)')
         index: Dict[str, dict] = {}
+        stored: dict = {}
         path = self.root / self.INDEX
         if path.exists():
             try:
-                index = {e['poke_id']: e for e in read_json(path, 'poke index')['pokes']}
+                data = read_json(path, 'poke index')
+                index = {e['poke_id']: e for e in data['pokes']}
+                stored = data.get('files', {})
+                stored = stored if isinstance(stored, dict) else {}
             except (DataError, KeyError, TypeError):
                 index = {}  # rebuilt below from the bags, which are the truth
-        if set(index) != bags:
-            index = {k: v for k, v in index.items() if k in bags}
-            for name in sorted(bags - set(index)):
-                try:
-                    index[name] = self._entry(self._read(name))
-                except DataError as exc:  # never fatal to the store; moved aside, logged
-                    self._quarantine(self.root / name, str(exc))
+        changed = set(index) != bags
+        index = {k: v for k, v in index.items() if k in bags}
+        stats = {}
+        for name in sorted(bags):
+            stats[name] = self._bag_stat(name)
+            if name in index and stored.get(name, stats[name]) == stats[name]:
+                continue
+            changed = True
+            try:
+                index[name] = self._entry(self._read(name))
+            except DataError as exc:  # never fatal to the store; moved aside, logged
+                self._quarantine(self.root / name, str(exc))
+                index.pop(name, None)
+                stats.pop(name)
+        self._stats = stats
+        if changed or stored != stats:
             self._write_index(index)
         return index
+
+    def _bag_stat(self, name: str) -> dict:
+        """Return ``{file: [size, mtime ns]}`` of the bag folder ``name`` (empty if gone)."""
+        try:
+            return {p.name: [st.st_size, st.st_mtime_ns]
+                    for p in sorted((self.root / name).iterdir()) if p.is_file()
+                    for st in (p.stat(),)}
+        except OSError:
+            return {}
 
     def _read(self, name: str) -> PokeRecord:
         """Read the bag folder ``name``; the record in it must carry that same id.
@@ -454,7 +486,9 @@ class PokeStore:
                 'meta': dict(record.meta)}
 
     def _write_index(self, index: Dict[str, dict]) -> None:
-        self._write_json(self.INDEX, {'pokes': [index[k] for k in sorted(index)]})
+        self._write_json(self.INDEX, {'pokes': [index[k] for k in sorted(index)],
+                                      'files': {k: self._stats[k] for k in sorted(index)
+                                                if k in self._stats}})
 
     def _highest_number(self) -> int:
         """Highest poke number ever used here: counter, index, folders, quarantine, recovery."""
@@ -609,6 +643,7 @@ class PokeStore:
         with self._lock:
             path = write_poke_bag(record, self.root / record.poke_id)
             self._index[record.poke_id] = self._entry(record)
+            self._stats[record.poke_id] = self._bag_stat(record.poke_id)
             self._write_index(self._index)
             return path
 
@@ -644,6 +679,7 @@ class PokeStore:
         except DataError as exc:
             with self._lock:
                 target = self._quarantine(self.root / poke_id, str(exc))
+                self._stats.pop(poke_id, None)
                 if self._index.pop(poke_id, None) is not None:
                     self._write_index(self._index)
             where = f'; moved to {target}' if target is not None else ''

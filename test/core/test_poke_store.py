@@ -143,11 +143,25 @@ def test_a_corrupt_newest_bag_is_quarantined_by_name_and_its_id_never_reused(tmp
     assert reopened.ids()[-1] == 'poke-000004'
 
 
+def _rot(path, data):
+    """Write ``data`` over ``path`` keeping its size and times, as bits decaying on disk do."""
+    before = path.stat()
+    assert len(data) == before.st_size
+    path.write_bytes(data)
+    os.utime(path, ns=(before.st_atime_ns, before.st_mtime_ns))
+
+
 def test_a_bag_corrupted_after_indexing_is_quarantined_when_read(tmp_path):
-    """Issue 16: a corrupt bag still listed in the index was never read again on reload."""
+    """Issue 16: a corrupt bag still listed in the index was never read again on reload.
+
+    Bits that decay on disk keep the file's size and times, so the index still lists the
+    bag on open (a truncated or rewritten one is read again then, the test below); reading
+    it sets it aside.
+    """
     store = _store_of(tmp_path, 3)
     mcap = next((tmp_path / 'poke-000002').glob('*.mcap'))
-    mcap.write_bytes(mcap.read_bytes()[:200])
+    data = mcap.read_bytes()
+    _rot(mcap, data[:200] + bytes(len(data) - 200))
     reopened = st.PokeStore(tmp_path)   # the index lists it: not read on open
     assert reopened.ids() == ['poke-000001', 'poke-000002', 'poke-000003']
     with pytest.raises(DataError, match='poke-000002.*moved to .*quarantine'):
@@ -407,7 +421,7 @@ def test_a_sample_changed_on_disk_is_caught_by_the_bags_checksum(tmp_path):
     data = bag.read_bytes()
     original = np.float64(record.tcp_pose[7, 0]).tobytes()
     assert data.count(original) == 1
-    bag.write_bytes(data.replace(original, np.float64(record.tcp_pose[7, 0] + 1e-3).tobytes()))
+    _rot(bag, data.replace(original, np.float64(record.tcp_pose[7, 0] + 1e-3).tobytes()))
     with pytest.raises(DataError, match='does not match the SHA-256'):
         st.read_poke_bag(bag.parent)
     reopened = st.PokeStore(tmp_path / 'store')   # the index lists it until it is read
@@ -415,3 +429,25 @@ def test_a_sample_changed_on_disk_is_caught_by_the_bags_checksum(tmp_path):
         reopened.get('poke-000002')
     assert reopened.ids() == ['poke-000001'] and reopened.get('poke-000001').poke_id
     assert any((tmp_path / 'store' / 'quarantine').iterdir())
+
+
+def test_a_bag_changed_after_it_was_indexed_is_quarantined_when_the_store_reopens(tmp_path):
+    """The index trusted its bags: a truncated one stayed listed after a restart (session 38).
+
+    ``pointforce bench faults`` cuts the newest bag to a third and reopened the store with it
+    still listed (``quarantined_on_reload: false``); the index now keeps each bag's file sizes
+    and times, and a bag whose files changed is read again and set aside if it no longer reads.
+    """
+    store = st.PokeStore(tmp_path / 'store')
+    for k in (1, 2, 3):
+        store.add(make_record(f'poke-00000{k}', n=40, seed=k))
+    bag = next((tmp_path / 'store' / 'poke-000002').glob('*.mcap'))
+    bag.write_bytes(bag.read_bytes()[: bag.stat().st_size // 3])
+    reopened = st.PokeStore(tmp_path / 'store')
+    assert reopened.ids() == ['poke-000001', 'poke-000003']
+    moved = (tmp_path / 'store' / 'quarantine').iterdir()
+    assert any(p.name.startswith('poke-000002') for p in moved)
+    assert 'cannot read bag' in reopened.quarantine_reasons['poke-000002']
+    assert reopened.next_id() == 'poke-000004'
+    # an unchanged store reopens on its index alone, listing the same bags
+    assert st.PokeStore(tmp_path / 'store').ids() == ['poke-000001', 'poke-000003']

@@ -91,14 +91,22 @@ def cloud_from_msg(msg: PointCloud2, *, drop_nan: bool = False) -> CloudArrays:
         drop_nan: remove points with a non-finite coordinate (and flatten an organised cloud).
 
     Raises:
-        InvalidInput: missing x/y/z fields, a data length that does not match
-            ``row_step * height`` / ``point_step * width``, or an unknown field type.
+        InvalidInput: missing x/y/z fields (or one of a count other than 1), a data length
+            that does not match ``row_step * height`` / ``point_step * width``, or an unknown
+            field type.
 
     """
     names = [f.name for f in msg.fields]
     for axis in ('x', 'y', 'z'):
         if axis not in names:
             raise InvalidInput(f'PointCloud2: no {axis!r} field (fields: {names})')
+    counts = {f.name: f.count for f in msg.fields}
+    for axis in ('x', 'y', 'z'):
+        if counts[axis] != 1:
+            raise InvalidInput(f'PointCloud2: field {axis!r} has count {counts[axis]}; a '
+                               'coordinate needs count 1')
+    # colour and normal fields of another count are not read (as any multi-count field)
+    names = [name for name in names if counts[name] == 1]
     if msg.point_step <= 0 and msg.width * msg.height > 0:
         raise InvalidInput('PointCloud2: point_step must be positive')
     n_expected = msg.width * msg.height

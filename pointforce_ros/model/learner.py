@@ -42,6 +42,14 @@ from pointforce_ros.response.suggest import (greedy_picks, reference_depth, sugg
 from pointforce_ros.types import Surface
 
 DEFAULT_DEPTHS = np.linspace(-0.004, 0.025, 59)
+MAX_POKE_FORCE = 1000.0
+"""N: a poke whose F/T force exceeds this anywhere is not learned from (a broken or
+mis-scaled sensor, a corrupt sample). No point-probe poke presses that hard (the poke server
+caps its force limit far below; a UR e-series F/T sensor reads up to 50-160 N), and one such
+poke would make the relative contact threshold refuse every later, real poke."""
+MAX_REGION_ROWS = 10_000
+"""Most ``(x, y, z, radius)`` rows a planner's region may have: a suggestion compares every
+candidate with every row (a larger region is refused, not left to exhaust memory)."""
 
 
 @dataclass(frozen=True)
@@ -173,14 +181,19 @@ class OnlineLearner:
             return []
         self.store.refresh()
         seen = {c.poke_id for c in self.curves} | set(self.skipped)
+        for name, reason in self.store.quarantine_reasons.items():   # set aside on open
+            if name not in seen and name.startswith('poke-'):
+                self.skipped[name] = f'quarantined: {reason}'
         fresh = []
         for poke_id in self.store.ids():
             if poke_id in seen:
                 continue
             try:
                 curve = self._curve(self.store.get(poke_id))
-            except PointforceError as exc:
-                self.skipped[poke_id] = str(exc)
+            except Exception as exc:  # noqa: BLE001 - one bad poke must not block the rest
+                self.skipped[poke_id] = (str(exc) if isinstance(exc, PointforceError) else
+                                         f'cannot be learned from ({type(exc).__name__}: '
+                                         f'{exc})')
                 continue
             if curve is not None:
                 fresh.append(curve)
@@ -196,6 +209,12 @@ class OnlineLearner:
         poke_id = record.poke_id
         if record.outcome.startswith('aborted'):
             self.skipped[poke_id] = f'not learned from: {record.outcome}'
+            return None
+        largest = float(np.max(np.abs(record.wrench[:, :3]))) if len(record) else 0.0
+        if largest > MAX_POKE_FORCE:
+            self.skipped[poke_id] = (f'implausible force: {largest:.4g} N in a sample, over '
+                                     f'{MAX_POKE_FORCE:g} N (a broken or mis-scaled F/T '
+                                     'sensor); not learned from')
             return None
         peak = float(np.max(record.normal_force())) if len(record) else 0.0
         if self.min_peak_force is not None and peak < self.min_peak_force:
@@ -252,8 +271,10 @@ class OnlineLearner:
                     continue
                 try:
                     curve = self._curve(record)
-                except PointforceError as exc:
-                    self.skipped[record.poke_id] = str(exc)
+                except Exception as exc:  # noqa: BLE001 - one bad poke must not block the rest
+                    self.skipped[record.poke_id] = (
+                        str(exc) if isinstance(exc, PointforceError) else
+                        f'cannot be learned from ({type(exc).__name__}: {exc})')
                     continue
                 if curve is not None:
                     fresh.append(curve)
@@ -504,8 +525,8 @@ def check_region(region) -> np.ndarray:
     are dropped, so ``[0, 0, 0, 0]`` (the parameter's default) is no region.
 
     Raises:
-        InvalidInput: a length that is not a multiple of 4, non-finite values or a negative
-            radius.
+        InvalidInput: a length that is not a multiple of 4, non-finite values, a negative
+            radius or more than ``MAX_REGION_ROWS`` rows.
 
     """
     arr = np.asarray(region, dtype=np.float64)
@@ -513,6 +534,9 @@ def check_region(region) -> np.ndarray:
         raise InvalidInput(f'region: (x, y, z, radius) rows in metres, got {arr.size} numbers '
                            f'in shape {arr.shape}')
     arr = arr.reshape(-1, 4)
+    if len(arr) > MAX_REGION_ROWS:
+        raise InvalidInput(f'region: {len(arr)} (x, y, z, radius) rows, at most '
+                           f'{MAX_REGION_ROWS}; merge the discs into fewer, larger ones')
     if not np.all(np.isfinite(arr)) or np.any(arr[:, 3] < 0):
         raise InvalidInput('region: every value must be finite and every radius >= 0 m')
     return arr[arr[:, 3] > 0]
@@ -530,9 +554,13 @@ def region_candidates(points: np.ndarray, candidates: np.ndarray, region,
     if len(rows) == 0:
         return candidates
     up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
-    gap = points[candidates][:, None, :] - rows[None, :, :3]
-    gap -= (gap @ up)[..., None] * up
-    inside = np.any(np.linalg.norm(gap, axis=2) <= rows[None, :, 3], axis=1)
+    inside = np.zeros(len(candidates), dtype=bool)
+    block = max(1, 250_000 // len(rows))   # a gap array of at most ~6 MB per block
+    for start in range(0, len(candidates), block):
+        gap = points[candidates[start:start + block]][:, None, :] - rows[None, :, :3]
+        gap -= (gap @ up)[..., None] * up
+        inside[start:start + block] = np.any(np.linalg.norm(gap, axis=2) <= rows[None, :, 3],
+                                             axis=1)
     return candidates[inside]
 
 

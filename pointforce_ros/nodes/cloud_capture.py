@@ -6,7 +6,8 @@ is no tf2 here: the pose comes from the ``camera_pose`` parameter or, if publish
 ``~/camera_pose`` topic, ``base`` <- optical frame). ``~/capture`` builds the surface (crop,
 voxel, outliers, outward normals: :mod:`pointforce_ros.surface.equilibrium`), publishes it
 latched, stores it, and clears the merge set. A bad cloud is refused with a message; the node
-keeps serving.
+keeps serving (every callback is a fault boundary: any exception, ``MemoryError`` included,
+becomes a refusal or a log line). The merge set holds at most ``MAX_MERGE_POINTS`` raw points.
 """
 
 import dataclasses
@@ -26,7 +27,7 @@ from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import save_surface
-from pointforce_ros.nodes.common import declare, live, qos_watch, run
+from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
@@ -36,6 +37,20 @@ LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
 DEFAULT_TOPIC = 'camera/camera/depth/color/points'
 """realsense-ros's topic, relative: under ``__ns:=/cell1`` a camera launched in the cell's
 namespace is found (an absolute ``cloud_topic`` or a remap points elsewhere)."""
+MAX_MERGE_POINTS = 20_000_000
+"""Most raw points the merge set holds (about 0.5 GB as arrays, and the capture peaks near
+0.5 kB per raw point: 2.7 GB for one 5-million-point scan): an ``add_scan`` beyond it is
+refused, so repeated calls cannot exhaust memory."""
+
+
+def _reason(exc: Exception) -> str:
+    """One line on why a request failed, whatever ``exc`` was."""
+    if isinstance(exc, PointforceError):
+        return str(exc)
+    if isinstance(exc, MemoryError):
+        return ('out of memory: the clouds are too large for this machine (capture fewer '
+                'scans, a smaller roi or a larger voxel_size)')
+    return f'the node could not answer ({type(exc).__name__}: {exc}); it keeps serving'
 
 
 class CloudCaptureNode(Node):
@@ -72,11 +87,14 @@ class CloudCaptureNode(Node):
         self._camera_pose = None
         self._pose_history = deque(maxlen=50)
         self._scans = []
+        self.max_merge_points = MAX_MERGE_POINTS
         self.surface = None
         self.surface_pub = self.create_publisher(PointCloud2, '~/surface', LATCHED)
-        self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data,
+        self.create_subscription(PointCloud2, topic, contained(self, 'cloud', self._on_cloud),
+                                 qos_profile_sensor_data,
                                  event_callbacks=qos_watch(self, topic))
-        self.create_subscription(PoseStamped, '~/camera_pose', self._on_pose, 10,
+        self.create_subscription(PoseStamped, '~/camera_pose',
+                                 contained(self, 'camera_pose', self._on_pose), 10,
                                  event_callbacks=qos_watch(self, '~/camera_pose'))
         group = MutuallyExclusiveCallbackGroup()
         self.create_service(Trigger, '~/add_scan', self._on_add, callback_group=group)
@@ -141,11 +159,18 @@ class CloudCaptureNode(Node):
     def _on_add(self, request, response):
         try:
             scan = self._scan_from_latest()
+            held = sum(len(s.points) for s in self._scans)
+            if held + len(scan.points) > self.max_merge_points:
+                raise InvalidInput(f'add_scan: the merge set holds {held} points and this scan '
+                                   f'{len(scan.points)}, over the {self.max_merge_points} '
+                                   'allowed; call ~/capture or ~/clear first')
             self._scans.append(scan)
             response.success = True
             response.message = f'{len(self._scans)} scan(s) in the merge set'
-        except PointforceError as exc:
-            response.success, response.message = False, str(exc)
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            response.success, response.message = False, _reason(exc)
+            self.get_logger().warn(f'add_scan refused: {response.message}',
+                                   throttle_duration_sec=2.0)
         return response
 
     def _on_clear(self, request, response):
@@ -169,9 +194,9 @@ class CloudCaptureNode(Node):
                                 f'({report.n_input} raw, {report.n_outliers} outliers removed) '
                                 f'in {time.perf_counter() - start:.2f} s -> {self.store_path}')
             self.get_logger().info(response.message)
-        except PointforceError as exc:
-            response.success, response.message = False, str(exc)
-            self.get_logger().warn(f'capture refused: {exc}')
+        except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
+            response.success, response.message = False, _reason(exc)
+            self.get_logger().warn(f'capture refused: {response.message}')
         return response
 
 

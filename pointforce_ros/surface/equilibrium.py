@@ -40,6 +40,10 @@ from pointforce_ros.errors import InvalidInput
 from pointforce_ros.types import as_array, Surface
 
 ORIENTATIONS = ('camera', 'centroid', 'up')
+MAX_VOXELS_PER_AXIS = 2_000_000
+"""Most voxel edges the cropped points may span on one axis: Open3D's voxel grid counts cells
+in a C ``int`` (it raises past 2^31) and the camera rule's cell keys multiply three axes' spans
+in int64 (2e6 cubed fits). 2e6 edges of the default 2 mm voxel are 4 km."""
 
 
 @dataclass(frozen=True)
@@ -213,9 +217,9 @@ def build_equilibrium_surface(scans: Union[Scan, Sequence[Scan]],
         ``base``) and the point counts of each stage.
 
     Raises:
-        InvalidInput: no scans, a scan that is empty or all-NaN, or fewer than
+        InvalidInput: no scans, a scan that is empty or all-NaN, fewer than
             ``config.min_points`` points left after cropping or filtering (the message names
-            the stage).
+            the stage), or cropped points spanning more than ``MAX_VOXELS_PER_AXIS`` voxels.
 
     """
     import open3d as o3d
@@ -247,6 +251,12 @@ def build_equilibrium_surface(scans: Union[Scan, Sequence[Scan]],
         raise InvalidInput(f'equilibrium surface: only {len(points)} of {n_finite} valid points '
                            'lie inside the region of interest; check roi_min/roi_max and the '
                            'scan transforms')
+    span = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    if span / config.voxel_size > MAX_VOXELS_PER_AXIS:
+        raise InvalidInput(f'equilibrium surface: the points inside the region of interest '
+                           f'span {span:.4g} m, over {MAX_VOXELS_PER_AXIS} voxel edges of '
+                           f'{config.voxel_size:g} m (far stray points); narrow '
+                           'roi_min/roi_max or raise voxel_size')
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if have_colour:
         cloud.colors = o3d.utility.Vector3dVector(np.concatenate(colours))

@@ -119,3 +119,23 @@ def test_field_beyond_point_step_is_a_clear_error(rng):
 def test_surface_without_normals_is_rejected(rng):
     with pytest.raises(InvalidInput, match='normal_x'):
         surface_from_msg(msg_from_cloud(rng.uniform(size=(4, 3))))
+
+
+@pytest.mark.parametrize('count', [0, 3])
+def test_coordinate_field_with_another_count_is_a_clear_error(rng, count):
+    msg = msg_from_cloud(rng.uniform(size=(5, 3)))
+    msg.fields[0].count = count   # x: a multi-count field is not read, so no x at all
+    with pytest.raises(InvalidInput, match="'x' has count"):
+        cloud_from_msg(msg)
+
+
+def test_colour_and_normal_fields_with_another_count_are_not_read(rng):
+    points = rng.uniform(size=(6, 3))
+    normals = np.tile([0.0, 0.0, 1.0], (6, 1))
+    msg = msg_from_cloud(points, rng.uniform(size=(6, 3)), normals)
+    for field in msg.fields:
+        if field.name in ('rgb', 'normal_y'):
+            field.count = 2
+    cloud = cloud_from_msg(msg)
+    assert cloud.rgb is None and cloud.normals is None
+    np.testing.assert_allclose(cloud.points, points, atol=1e-6)

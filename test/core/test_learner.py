@@ -1,5 +1,7 @@
 """Online learner over a poke store: refits as pokes land, restart gives the same model."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -205,3 +207,18 @@ def test_contact_threshold_is_relative_to_the_data():
     assert fixed.learn_records(soft) is None and len(fixed.skipped) == 3
     with pytest.raises(InvalidInput, match='contact_snr'):
         OnlineLearner(None, None, _surface(), shape_constant=0.004, contact_snr=-1.0)
+
+
+@pytest.mark.parametrize('scale', [1e300, 1e150, 1e8])
+def test_implausible_force_poke_is_skipped_and_later_pokes_learn(tmp_path, scale):
+    """A mis-scaled F/T poke neither stops the learner nor makes it refuse the real pokes."""
+    store, _, learner = _stored_learner(tmp_path, 2, seed=1)
+    assert learner.update().num_pokes == 2
+    good = _campaign(2, seed=4, id_prefix='poke-9')
+    store.add(dataclasses.replace(good[0], poke_id='poke-000900',
+                                  wrench=good[0].wrench * scale))
+    store.add(dataclasses.replace(good[1], poke_id='poke-000950'))
+    status = learner.update()
+    assert 'poke-000900' in status.skipped and 'implausible force' in status.skipped['poke-000900']
+    assert status.num_pokes == 3 and 'poke-000950' not in status.skipped
+    assert np.isfinite(status.training_rmse) and status.training_rmse < 1.0

@@ -1,5 +1,7 @@
 """A planner's region of interest steers the learner's next-poke suggestions (issue 17)."""
 
+import tracemalloc
+
 import numpy as np
 import pytest
 
@@ -84,3 +86,28 @@ def test_region_scores_rank_a_uniformly_uncertain_disc_from_its_middle():
     assert np.hypot(*(best[:2] - REGION[0, :2])) < 0.3 * rim
     # a point's own variance counts: a lone point scores its variance
     np.testing.assert_allclose(region_scores(pts[:1], np.array([2.0]), 0.004), [4.0])
+
+
+def test_a_region_of_a_million_rows_is_refused_with_a_reason():
+    rows = np.tile([0.5, 0.0, 0.04, 0.01], 1_000_000)
+    with pytest.raises(InvalidInput, match='rows, at most'):
+        check_region(rows)
+
+
+def test_region_candidates_memory_stays_bounded_for_many_rows_and_points():
+    rng = np.random.default_rng(11)
+    pts = np.c_[rng.uniform(0.4, 0.6, (3000, 2)), np.full(3000, 0.04)]
+    rows = np.c_[rng.uniform(0.4, 0.6, (3000, 2)), np.full(3000, 0.04),
+                 rng.uniform(0.0005, 0.002, 3000)]
+    everything = np.arange(len(pts))
+    tracemalloc.start()
+    try:
+        inside = region_candidates(pts, everything, rows)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    # the whole candidates x rows x 3 gap array would be 216 MB
+    assert peak < 40e6
+    expected = [i for i in everything
+                if np.any(np.linalg.norm(pts[i, :2] - rows[:, :2], axis=1) <= rows[:, 3])]
+    np.testing.assert_array_equal(inside, expected)

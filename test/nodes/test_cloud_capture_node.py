@@ -105,3 +105,52 @@ def test_a_cloud_is_paired_with_the_camera_pose_of_its_own_stamp(ros_graph, tmp_
                                      stamp=10.0))
     ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
     np.testing.assert_allclose(node._scan_from_latest().transform, pose_a, atol=1e-9)
+
+
+def test_hostile_clouds_are_refused_with_a_reason_and_the_node_keeps_serving(ros_graph,
+                                                                             tmp_path):
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 's.npz')),
+        Parameter('roi', value=[-1e9, -1e9, -1e9, 1e9, 1e9, 1e9])]))
+    test_node = ros_graph.add(Node('hostile_driver', context=ros_graph.context))
+    pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    add = test_node.create_client(Trigger, '/cloud_capture/add_scan')
+    capture = test_node.create_client(Trigger, '/cloud_capture/capture')
+    rng = np.random.default_rng(5)
+    plate = np.c_[rng.uniform(-0.1, 0.1, (3000, 2)), np.full(3000, 0.5)]
+
+    def publish(msg):
+        node._latest = None
+        pub.publish(msg)
+        ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
+
+    counted = msg_from_cloud(plate)
+    counted.fields[0].count = 3           # x as a 3-vector: no readable x
+    publish(counted)
+    refused = _call(ros_graph, add, 'add_scan of a cloud whose x has count 3')
+    assert not refused.success and "'x' has count" in refused.message
+    publish(msg_from_cloud(np.r_[plate, [[1e7, 0.0, 0.5]]]))   # a stray point 10 000 km out
+    refused = _call(ros_graph, capture, 'capture with a stray point')
+    assert not refused.success and 'voxel edges' in refused.message
+    publish(msg_from_cloud(plate))
+    result = _call(ros_graph, capture, 'capture of a good cloud')
+    assert result.success, result.message
+
+
+def test_the_merge_set_is_bounded(ros_graph, tmp_path):
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 's.npz'))]))
+    node.max_merge_points = 250
+    test_node = ros_graph.add(Node('merge_driver', context=ros_graph.context))
+    pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    add = test_node.create_client(Trigger, '/cloud_capture/add_scan')
+    clear = test_node.create_client(Trigger, '/cloud_capture/clear')
+    pub.publish(msg_from_cloud(np.random.default_rng(2).uniform(0.2, 0.3, (100, 3))))
+    ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
+    assert _call(ros_graph, add, 'first add').success
+    assert _call(ros_graph, add, 'second add').success
+    third = _call(ros_graph, add, 'third add')
+    assert not third.success and 'call ~/capture or ~/clear' in third.message
+    assert len(node._scans) == 2
+    assert _call(ros_graph, clear, 'clear').success
+    assert _call(ros_graph, add, 'add after clear').success

@@ -216,9 +216,15 @@ def write_poke_bag(record: PokeRecord, path) -> Path:
             pose_in = _T['geometry_msgs/msg/Pose']
             wrench_t = _T['geometry_msgs/msg/WrenchStamped']
             wrench_in = _T['geometry_msgs/msg/Wrench']
+            # log times strictly increasing, whatever the stamps do (a wall clock stepped back
+            # mid-poke): a reader returns each topic in log-time order, so the samples come
+            # back in the order written and the digest below holds
+            log_ns = [int(round(t * 1e9)) for t in record.t]
+            for i in range(1, len(log_ns)):
+                log_ns[i] = max(log_ns[i], log_ns[i - 1] + 1)
             for i in range(len(record)):
                 stamp = _stamp(record.t[i])
-                t_ns = int(round(record.t[i] * 1e9))
+                t_ns = log_ns[i]
                 p = record.tcp_pose[i]
                 q = quats[i]
                 msg = pose_t(header=_Header(stamp=stamp, frame_id='base'), pose=pose_in(
@@ -233,7 +239,7 @@ def write_poke_bag(record: PokeRecord, path) -> Path:
                 wrench_raw.append(TYPESTORE.serialize_cdr(msg,
                                                           'geometry_msgs/msg/WrenchStamped'))
                 writer.write(wrench_conn, t_ns, wrench_raw[-1])
-            end_ns = int(round((record.t[-1] if len(record) else 0.0) * 1e9)) + 1
+            end_ns = (log_ns[-1] if log_ns else 0) + 1
             header = record_header(record)
             header[DIGEST_KEY] = _bag_digest(header, pose_raw, wrench_raw)
             text = _T['std_msgs/msg/String'](data=json.dumps(header))

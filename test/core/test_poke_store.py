@@ -1,5 +1,6 @@
 """Poke store: MCAP round trip, frame conventions, atomicity and corrupt bags."""
 
+import dataclasses
 import json
 import os
 import re
@@ -451,3 +452,21 @@ def test_a_bag_changed_after_it_was_indexed_is_quarantined_when_the_store_reopen
     assert reopened.next_id() == 'poke-000004'
     # an unchanged store reopens on its index alone, listing the same bags
     assert st.PokeStore(tmp_path / 'store').ids() == ['poke-000001', 'poke-000003']
+
+
+def test_a_poke_whose_wall_clock_steps_back_reads_back_in_the_order_written(tmp_path):
+    """Stamps may step back (NTP) while the controller's clock rises (session 38).
+
+    The bag used those stamps as log times, a reader returned the samples sorted by them, so
+    the poke came back reordered, and with the bag's checksum it was quarantined and lost.
+    """
+    record = make_record('poke-000001', n=40)
+    t = record.t.copy()
+    t[20:] -= 0.5                      # the wall clock steps back half a second
+    stepped = dataclasses.replace(record, t=t)
+    store = st.PokeStore(tmp_path)
+    store.add(stepped)
+    back = st.PokeStore(tmp_path).get('poke-000001')
+    np.testing.assert_allclose(back.t, stepped.t, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.tcp_pose[:, :3], stepped.tcp_pose[:, :3], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(back.wrench, stepped.wrench, rtol=0, atol=1e-9)

@@ -12,6 +12,13 @@ from typing import Optional
 SEED_MAX = 2 ** 32 - 1
 """Largest seed the command lines take (numpy's generators take any integer from 0)."""
 
+MAX_POKES = 1000
+"""Most pokes one command may be asked for (the simulated cell takes seconds a poke and holds
+a generated campaign in memory: 10^9 pokes took 15 GB in 40 s before any poke was made)."""
+
+MIN_REPLAY_RATE = 1e-3
+"""Slowest replay speed-up factor (a slower one turns seconds of bag into days)."""
+
 
 def _int(text: str, low: int, high: Optional[int] = None) -> int:
     try:
@@ -29,6 +36,11 @@ def count(text: str) -> int:
     return _int(text, 0)
 
 
+def poke_count(text: str) -> int:
+    """Parse a number of pokes: a whole number in 0..MAX_POKES (0: the command's default)."""
+    return _int(text, 0, MAX_POKES)
+
+
 def positive_int(text: str) -> int:
     """Parse a whole number >= 1."""
     return _int(text, 1)
@@ -39,12 +51,24 @@ def seed(text: str) -> int:
     return _int(text, 0, SEED_MAX)
 
 
-def positive_float(text: str) -> float:
-    """Parse a finite number > 0 (a length, a rate, a time budget)."""
+def _float(text: str) -> float:
     try:
-        value = float(text)
+        return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+
+
+def positive_float(text: str) -> float:
+    """Parse a finite number > 0 (a length, a rate, a time budget)."""
+    value = _float(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f'{value} is not a finite number > 0')
+    return value
+
+
+def replay_rate(text: str) -> float:
+    """Parse a replay speed-up factor: a finite number >= MIN_REPLAY_RATE."""
+    value = _float(text)
+    if not (math.isfinite(value) and value >= MIN_REPLAY_RATE):
+        raise argparse.ArgumentTypeError(f'{value} is not a finite number >= {MIN_REPLAY_RATE:g}')
     return value

@@ -96,7 +96,23 @@ def _decay_law(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
+def _check_simulation(object_name: Optional[str], scenario: Optional[str]) -> None:
+    """Load the simulated object and scenario a command names, before any work starts.
+
+    Raises:
+        PointforceError: an unknown name or an invalid file (the message names it and the
+            known ones), in a second rather than after the cell or the emulator has started.
+
+    """
+    if object_name is not None:
+        _load('pointforce_ros.sim.objects:load_object')(object_name)
+    if scenario is not None:
+        _load('pointforce_ros.sim.scenario:load_scenario')(scenario)
+
+
 def _cmd_demo(args) -> int:
+    analytic = args.object == _load('pointforce_ros.bringup.cell:SIM_OBJECT_HALFSPACE')
+    _check_simulation(None if analytic else args.object, args.scenario)
     return _load('pointforce_ros.bringup.demo:run_demo')(
         out=args.out, quick=args.quick, object_name=args.object, scenario=args.scenario,
         pokes=args.pokes, camera_check=args.camera_check, domain=args.domain,
@@ -136,6 +152,7 @@ def check_params_file(path) -> str:
 
 def _cmd_cell(args) -> int:
     if args.action == 'generate':
+        _check_simulation(args.object, args.scenario)      # before the --out folder is made
         return _load('pointforce_ros.sim.generate:run_generate')(
             object_name=args.object, scenario=args.scenario, pokes=args.pokes,
             probes=[p for p in args.probes.split(',') if p], seed=args.seed,
@@ -144,6 +161,8 @@ def _cmd_cell(args) -> int:
         raise PointforceError(f'--duration must be >= 0 s (or left out: run until Ctrl-C), '
                               f'got {args.duration}')
     params_file = check_params_file(args.params_file) if args.params_file else None
+    if args.robot_ip is None:       # the emulator's scenario, refused with one line
+        _check_simulation(None, args.scenario)
     return _load('pointforce_ros.bringup.cell:run_cell')(
         out=args.out or 'out/cell', object_name=args.object, scenario=args.scenario,
         robot_ip=args.robot_ip, camera_topic=args.camera_topic, duration=args.duration,
@@ -177,8 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument('--quick', action='store_true', help='fewer pokes (4 instead of 8)')
     demo.add_argument('--object', default='lamb', help='simulated object (config/objects)')
     demo.add_argument('--scenario', default='realistic', help='sensor effects (config/scenarios)')
-    demo.add_argument('--pokes', type=arguments.count, default=0,
-                      help='number of pokes (0: 8, or 4 quick)')
+    demo.add_argument('--pokes', type=arguments.poke_count, default=0,
+                      help=f'number of pokes (0: 8, or 4 quick; at most {arguments.MAX_POKES})')
     demo.add_argument('--camera-check', action='store_true',
                       help='also estimate one contact force from the camera alone against the '
                            'F/T (seed 001; two ground-truth FEM solves, about 5 min more)')
@@ -206,7 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
                       'simulated object\'s ROI) win over it')
     cell.add_argument('--out', default=None, help='output directory')
     cell.add_argument('--duration', type=float, default=None, help='seconds to run (run)')
-    cell.add_argument('--pokes', type=arguments.count, default=20, help='point pokes (generate)')
+    cell.add_argument('--pokes', type=arguments.poke_count, default=20,
+                      help=f'point pokes (generate; at most {arguments.MAX_POKES})')
     cell.add_argument('--probes', default='point,line,cylinder',
                       help='probe kinds to generate, comma-separated (generate)')
     cell.add_argument('--seed', type=arguments.seed, default=0, help='seed (generate)')
@@ -240,8 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     replay = sub.add_parser('replay', help='republish a rosbag2 MCAP bag (or a poke store)')
     replay.add_argument('bag', help='bag directory, .mcap file, or poke store directory')
-    replay.add_argument('--rate', type=arguments.positive_float, default=1.0,
-                        help='speed-up factor (1 = real time)')
+    replay.add_argument('--rate', type=arguments.replay_rate, default=1.0,
+                        help='speed-up factor (1 = real time; at least '
+                        f'{arguments.MIN_REPLAY_RATE:g})')
     replay.set_defaults(func=_cmd_replay)
 
     bench = sub.add_parser('bench', help='benchmarks; ratios against a baseline in the same run')
@@ -275,6 +296,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 130
     except OSError as exc:      # a path the user gave: a file for a folder, no permission, ...
         print(f'pointforce {args.command}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+        return 2
+    except MemoryError as exc:  # numpy refusing an allocation: a size the bounds let through
+        print(f'pointforce {args.command}: error: out of memory: {exc or "MemoryError"}; ask '
+              'for a smaller problem', file=sys.stderr)
         return 2
 
 

@@ -6,6 +6,7 @@ bag are deserialised with rclpy, so any message type whose Python package is ins
 """
 
 import importlib
+import math
 import time
 from pathlib import Path
 from typing import List
@@ -14,6 +15,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 
+from pointforce_ros.arguments import MIN_REPLAY_RATE
 from pointforce_ros.errors import DataError
 from pointforce_ros.pokes.store import TYPESTORE
 from pointforce_ros.bringup.launcher import InProcessLauncher
@@ -42,6 +44,11 @@ def bag_paths(path) -> List[Path]:
     return bags
 
 
+def _one_line(exc: Exception) -> str:
+    """``Type: message`` of ``exc`` on one line (a YAML parser's message spans several)."""
+    return f'{type(exc).__name__}: ' + ' '.join(str(exc).split())
+
+
 def _message_type(name: str):
     package, kind, msg = name.split('/')
     return getattr(importlib.import_module(f'{package}.{kind}'), msg)
@@ -52,7 +59,7 @@ def _connections(bag):
         with AnyReader([bag], default_typestore=TYPESTORE) as reader:
             return [(c.topic, c.msgtype) for c in reader.connections]
     except Exception as exc:  # rosbags raises many types for a corrupt file
-        raise DataError(f'{bag}: cannot open: {type(exc).__name__}: {exc}') from exc
+        raise DataError(f'{bag}: cannot open: {_one_line(exc)}') from exc
 
 
 def replay(node, path, rate: float = 1.0, wait_subscribers: float = 3.0, progress=print) -> int:
@@ -62,11 +69,13 @@ def replay(node, path, rate: float = 1.0, wait_subscribers: float = 3.0, progres
     subscribers to match them, so the first messages are not lost to discovery.
 
     Raises:
-        DataError: missing or corrupt bag, or a message type that is not installed.
+        DataError: ``rate`` not a finite number >= :data:`~pointforce_ros.arguments.
+            MIN_REPLAY_RATE`, a missing or corrupt bag, or a message type that is not
+            installed.
 
     """
-    if not rate > 0:
-        raise DataError(f'rate must be > 0, got {rate}')
+    if not (math.isfinite(rate) and rate >= MIN_REPLAY_RATE):
+        raise DataError(f'rate must be a finite number >= {MIN_REPLAY_RATE:g}, got {rate}')
     bags = bag_paths(path)
     publishers = {}
     for bag in bags:
@@ -103,7 +112,7 @@ def replay(node, path, rate: float = 1.0, wait_subscribers: float = 3.0, progres
         except DataError:
             raise
         except Exception as exc:  # rosbags raises many types for a corrupt file
-            raise DataError(f'{bag}: cannot replay: {type(exc).__name__}: {exc}') from exc
+            raise DataError(f'{bag}: cannot replay: {_one_line(exc)}') from exc
         progress(f'[replay] {bag.name}: done ({count} messages so far)')
     return count
 

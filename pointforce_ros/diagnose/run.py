@@ -83,6 +83,7 @@ Procedure (``diagnose``):
 """
 
 import json
+import os
 import sys
 import warnings
 from dataclasses import dataclass, field
@@ -1034,6 +1035,27 @@ def _probe_accepted(probe: ProbeScore) -> List[AcceptedEffect]:
     return out
 
 
+def check_report_dir(out_dir) -> Path:
+    """Return ``out_dir`` as a path a report can be written to (it need not exist yet).
+
+    Checked before the analysis, so a mistyped ``--out`` is refused at once, not after it.
+
+    Raises:
+        InvalidInput: ``out_dir``, or the nearest of its parents that exists, is not a folder
+            or is not writable (the message names both).
+
+    """
+    out = Path(out_dir)
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InvalidInput(f'--out {out}: {existing} is a file, not a folder')
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InvalidInput(f'--out {out}: folder {existing} is not writable')
+    return out
+
+
 def run_diagnose(data, out_dir, seed: int = 0, json_out: bool = False, **kwargs) -> int:
     """CLI entry: diagnose ``data``, write the report into ``out_dir``, print progress.
 
@@ -1049,6 +1071,7 @@ def run_diagnose(data, out_dir, seed: int = 0, json_out: bool = False, **kwargs)
         print(message, file=sys.stderr)
 
     try:
+        check_report_dir(out_dir)
         report = diagnose(data, seed=seed, log=to_stderr if json_out else print, **kwargs)
         path = write_report(report, out_dir)
     except PointforceError as exc:

@@ -22,6 +22,9 @@ Same seed, same table. Usage::
     python -m pointforce_ros.lab.step_data --out steps.csv [--object lamb] [--pokes 64]
         [--per-poke 10] [--seed 0] [--score 48]
 
+A bad argument or object, or an ``--out`` that cannot be written, is one error line and exit
+status 2.
+
 ``--score N`` then learns the first ``N`` pokes through the CSV import and the learner
 (:func:`score_step_table`) and prints the held-out error on the others against the noise-free
 force.
@@ -30,15 +33,20 @@ force.
 import argparse
 import io
 from pathlib import Path
+import sys
 from typing import Dict
 
 import numpy as np
 
-from pointforce_ros.errors import InvalidInput
+from pointforce_ros import arguments
+from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.pokes.table import load_pokes, surface_from_records, TABLE_COLUMNS
 from pointforce_ros.sim.fem.live import LiveContact
 from pointforce_ros.sim.objects import load_object
+
+MAX_STEPS = 1000
+"""Most depth steps per poke (step data has 5-20; 10^8 asked numpy for 48 GiB)."""
 
 
 def make_step_table(out, object_name: str = 'lamb', pokes: int = 64, per_poke: int = 10,
@@ -52,8 +60,8 @@ def make_step_table(out, object_name: str = 'lamb', pokes: int = 64, per_poke: i
         out: CSV path (parent folders are made).
         object_name: simulated object (``config/objects``); its live contact table must be
             built (``data/fem/live_<object>.npz`` or the cache).
-        pokes: locations, one poke each (>= 1).
-        per_poke: depth steps per poke (>= 2).
+        pokes: locations, one poke each (1..:data:`~pointforce_ros.arguments.MAX_POKES`).
+        per_poke: depth steps per poke (2..:data:`MAX_STEPS`).
         seed: seed of locations, camera and force noise.
         force_noise: N, standard deviation of each settled force sample.
         depth_bias: m, the rig's surface lies this far outside the true one (along ``n``).
@@ -73,9 +81,9 @@ def make_step_table(out, object_name: str = 'lamb', pokes: int = 64, per_poke: i
         InvalidInput: a count or noise out of range.
 
     """
-    if pokes < 1 or per_poke < 2:
-        raise InvalidInput(f'make_step_table: need pokes >= 1 and per_poke >= 2, got {pokes} '
-                           f'and {per_poke}')
+    if not (1 <= pokes <= arguments.MAX_POKES and 2 <= per_poke <= MAX_STEPS):
+        raise InvalidInput(f'make_step_table: need pokes in 1..{arguments.MAX_POKES} and '
+                           f'per_poke in 2..{MAX_STEPS}, got {pokes} and {per_poke}')
     if force_noise < 0 or depth_noise < 0 or force_limit <= 0:
         raise InvalidInput('make_step_table: noises must be >= 0 and force_limit > 0')
     spec = load_object(object_name)
@@ -149,25 +157,37 @@ def score_step_table(made: Dict, train: int) -> Dict:
 
 
 def main(argv=None) -> int:
-    """Command line: write the table and print its size."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    """Command line: write the table and print its size; 2 on a bad argument or file."""
+    parser = argparse.ArgumentParser(prog='python -m pointforce_ros.lab.step_data',
+                                     description=__doc__.splitlines()[0])
     parser.add_argument('--out', required=True, help='CSV path to write')
     parser.add_argument('--object', default='lamb')
-    parser.add_argument('--pokes', type=int, default=64)
-    parser.add_argument('--per-poke', type=int, default=10)
-    parser.add_argument('--seed', type=int, default=0)
-    parser.add_argument('--score', type=int, default=0,
+    parser.add_argument('--pokes', type=arguments.poke_count, default=64)
+    parser.add_argument('--per-poke', type=arguments.positive_int, default=10)
+    parser.add_argument('--seed', type=arguments.seed, default=0)
+    parser.add_argument('--score', type=arguments.count, default=0,
                         help='learn this many pokes, score the rest (0: do not)')
     args = parser.parse_args(argv)
-    made = make_step_table(args.out, args.object, args.pokes, args.per_poke, args.seed)
-    print(f'{made["path"]}: {len(made["ids"])} pokes x {made["depth"].shape[1]} steps '
-          f'({args.object}, seed {args.seed})')
-    if args.score:
-        s = score_step_table(made, args.score)
-        print(f'learned {s["learned"]}/{args.score} (skipped {len(s["skipped"])}), prequential '
-              f'RMSE {s["prequential"]:.3f} N; held-out {len(made["ids"]) - args.score} pokes: '
-              f'RMSE {s["heldout_rmse"]:.3f} N ({100 * s["heldout_rmse"] / s["peak"]:.1f} % '
-              f'of {s["peak"]:.2f} N), deepest-step mean error {s["deepest_bias"]:+.3f} N')
+    if args.score and not args.score < args.pokes:
+        parser.error(f'argument --score: {args.score} leaves no held-out poke of --pokes '
+                     f'{args.pokes}')
+    try:
+        made = make_step_table(args.out, args.object, args.pokes, args.per_poke, args.seed)
+        print(f'{made["path"]}: {len(made["ids"])} pokes x {made["depth"].shape[1]} steps '
+              f'({args.object}, seed {args.seed})')
+        if args.score:
+            s = score_step_table(made, args.score)
+            print(f'learned {s["learned"]}/{args.score} (skipped {len(s["skipped"])}), '
+                  f'prequential RMSE {s["prequential"]:.3f} N; held-out '
+                  f'{len(made["ids"]) - args.score} pokes: RMSE {s["heldout_rmse"]:.3f} N '
+                  f'({100 * s["heldout_rmse"] / s["peak"]:.1f} % of {s["peak"]:.2f} N), '
+                  f'deepest-step mean error {s["deepest_bias"]:+.3f} N')
+    except PointforceError as exc:
+        print(f'{parser.prog}: error: {exc}', file=sys.stderr)
+        return 2
+    except OSError as exc:      # --out a folder, or under a file
+        print(f'{parser.prog}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+        return 2
     return 0
 
 

@@ -288,6 +288,9 @@ def read_poke_bag(path) -> PokeRecord:
         with AnyReader([path], default_typestore=TYPESTORE) as reader:
             conns = [c for c in reader.connections
                      if c.topic in (POSE_TOPIC, WRENCH_TOPIC, RECORD_TOPIC)]
+            if not conns:   # messages(connections=[]) would read every topic
+                raise DataError(f'{path}: no poke topics ({POSE_TOPIC}, {WRENCH_TOPIC}, '
+                                f'{RECORD_TOPIC}): not a poke bag')
             for conn, _, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == POSE_TOPIC:
@@ -456,7 +459,7 @@ class PokeStore:
                 index.pop(name, None)
                 stats.pop(name)
         self._stats = stats
-        if changed or stored != stats:
+        if changed:   # not to record stats alone: an index from before them stays as it is
             self._write_index(index)
         return index
 

@@ -11,6 +11,15 @@ Wired into the ``pointforce`` command as::
 import argparse
 
 from pointforce_ros import arguments
+from pointforce_ros.errors import PointforceError
+
+MIN_H = 0.001
+"""Smallest replica mesh edge, metres: 1.2 million tetrahedra on a 80 x 60 x 40 mm block (a
+1 um edge asked numpy for 36 GiB and ended in a MemoryError traceback)."""
+
+MAX_PAPER_GRID = 10
+"""Most points per Lame parameter of the paper calibrator's grid (its square is the number of
+simulations, minutes each; 10^8 took 9 GB in a minute before the first)."""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -36,7 +45,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    """Run ``pointforce replica`` with parsed ``args``; returns the exit status."""
+    """Run ``pointforce replica`` with parsed ``args``; returns the exit status.
+
+    Raises:
+        PointforceError: ``--h`` below :data:`MIN_H` or ``--paper-grid`` outside
+            2..:data:`MAX_PAPER_GRID`, before the data is read.
+
+    """
+    if args.h < MIN_H:
+        raise PointforceError(f'--h {args.h:g} m is below {MIN_H:g} m (the mesh would not fit '
+                              'in memory)')
+    if not 2 <= args.paper_grid <= MAX_PAPER_GRID:
+        raise PointforceError(f'--paper-grid must be in 2..{MAX_PAPER_GRID} (its square is the '
+                              f'number of simulations), got {args.paper_grid}')
     from pointforce_ros.replica.build import build_replica  # loads pybullet: this command only
     build_replica(args.data, args.out, engine=args.engine, h=args.h, train=args.train,
                   held_out=args.held_out, damping=not args.no_damping, seed=args.seed,

@@ -393,18 +393,41 @@ def load_object(name_or_path: str) -> ObjectSpec:
     return spec
 
 
+MAX_SIZE = 0.5
+"""Largest body length along any axis, metres (the cell's table; the camera mesh has
+(size / 2 mm)^2 faces)."""
+
+MESH_SIZES = (0.001, 0.01)
+"""Range of ``mesh.validation`` and ``mesh.live``, metres: 1 mm grades a 20 000-element mesh
+around the probe, 1e-9 m would ask for more elements than any memory holds."""
+
+LIVE_GRID = (2, 15)
+"""Range of each of ``live.grid``'s two counts: the live cache solves nx x ny nonlinear FEM
+pokes (minutes each) and interpolates between them (at least 2 a side)."""
+
+
 def _validate(spec: ObjectSpec):
     """Check the ranges of ``spec``; the messages name its file (when it has one).
 
     Raises:
-        InvalidInput: a value out of range.
+        InvalidInput: a value out of range (the message names the key and its range).
 
     """
     who = spec.name if spec.source is None else f'object file {spec.source} ({spec.name})'
     if spec.kind not in ('box', 'dome'):
         raise InvalidInput(f'{who}: geometry.kind must be box or dome, got {spec.kind}')
-    if len(spec.size) != 3 or min(spec.size) <= 0:
-        raise InvalidInput(f'{who}: geometry.size needs 3 positive lengths (m), got {spec.size}')
+    if len(spec.size) != 3 or not all(0 < v <= MAX_SIZE for v in spec.size):
+        raise InvalidInput(f'{who}: geometry.size needs 3 lengths in (0, {MAX_SIZE:g}] m, got '
+                           f'{spec.size}')
+    if len(spec.centre) != 2 or not np.all(np.isfinite(spec.centre)):
+        raise InvalidInput(f'{who}: geometry.centre needs 2 finite coordinates (m), got '
+                           f'{spec.centre}')
+    amp, wave, phase = spec.undulation
+    if not (np.isfinite(amp) and len(wave) == 2 and all(v > 0 for v in wave)
+            and len(phase) == 2 and np.all(np.isfinite(phase))
+            and np.all(np.isfinite(wave))):
+        raise InvalidInput(f'{who}: geometry.undulation needs a finite amplitude, 2 positive '
+                           f'wavelengths and 2 phases, got {spec.undulation}')
     if spec.kind == 'dome' and not 0 < spec.rim_height < spec.size[2]:
         raise InvalidInput(f'{who}: dome needs 0 < rim_height < size[2]')
     if not spec.young > 0 or not -1 < spec.poisson < 0.5:
@@ -412,5 +435,14 @@ def _validate(spec: ObjectSpec):
                            f'{spec.young:g} Pa, poisson {spec.poisson:g}')
     if not 0.5 <= spec.force_cap <= 30:
         raise InvalidInput(f'{who}: poke.force_cap {spec.force_cap} N out of 0.5..30')
-    if not 0 < spec.mesh_live <= 0.01 or not 0 < spec.mesh_validation <= 0.01:
-        raise InvalidInput(f'{who}: mesh sizes must be in (0, 0.01] m')
+    if not 0 < spec.max_depth <= spec.size[2]:
+        raise InvalidInput(f'{who}: poke.max_depth {spec.max_depth} m out of (0, '
+                           f'{spec.size[2]:g}] (the body height)')
+    low, high = MESH_SIZES
+    for key, value in (('mesh.live', spec.mesh_live), ('mesh.validation', spec.mesh_validation)):
+        if not low <= value <= high:
+            raise InvalidInput(f'{who}: {key} {value:g} m out of {low:g}..{high:g} m')
+    low, high = LIVE_GRID
+    if len(spec.live_grid) != 2 or not all(low <= n <= high for n in spec.live_grid):
+        raise InvalidInput(f'{who}: live.grid needs 2 counts in {low}..{high}, got '
+                           f'{list(spec.live_grid)}')

@@ -10,6 +10,7 @@ import pytest
 
 from pointforce_ros.bringup import cli
 from pointforce_ros.dds import PROFILE_VARIABLES
+from pointforce_ros.lab import step_data
 
 
 @pytest.mark.parametrize('name', sorted(cli.BENCHMARKS))
@@ -99,12 +100,12 @@ def test_the_cell_names_a_parameter_file_value_a_node_refuses(tmp_path):
 
 
 @pytest.mark.parametrize('argv, message', [
-    (['demo', '--pokes', '-1'], 'argument --pokes: -1 is not >= 0'),
+    (['demo', '--pokes', '-1'], 'argument --pokes: -1 is not in 0..1000'),
     (['demo', '--decay-law', 'depth'], "argument --decay-law: law: must be one of ('fixed',"),
     (['cell', 'generate', '--seed', '-1'], 'argument --seed: -1 is not in 0..4294967295'),
     (['cell', 'generate', '--pokes', 'many'], "argument --pokes: 'many' is not a whole number"),
     (['diagnose', 'x.csv', '--seed', str(2 ** 32)], 'argument --seed: 4294967296 is not in'),
-    (['replay', 'x', '--rate', 'inf'], 'argument --rate: inf is not a finite number > 0'),
+    (['replay', 'x', '--rate', 'inf'], 'argument --rate: inf is not a finite number >= 0.001'),
     (['replica', '--data', 'x', '--out', 'y', '--h', '-0.01'],
      'argument --h: -0.01 is not a finite number > 0'),
     (['replica', '--data', 'x', '--out', 'y', '--train', '0'], 'argument --train: 0 is not >= 1'),
@@ -137,3 +138,107 @@ def test_a_params_file_that_is_not_text_is_one_error_line(tmp_path, capsys, monk
     err = capsys.readouterr().err
     assert 'unreadable parameter file (YAML): UnicodeDecodeError' in err
     assert str(params) in err
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['demo', '--pokes', '1000000000'], 'argument --pokes: 1000000000 is not in 0..1000'),
+    (['cell', 'generate', '--pokes', '1001'], 'argument --pokes: 1001 is not in 0..1000'),
+    (['replay', 'no_such_bag', '--rate', '1e-300'],
+     'argument --rate: 1e-300 is not a finite number >= 0.001'),
+])
+def test_a_poke_count_or_replay_rate_past_its_bound_is_refused_as_it_is_parsed(
+        argv, message, capsys, monkeypatch):
+    # before: cell generate --pokes 1e9 drew 10^9 locations (15 GB in 40 s), the demo started
+    # a campaign of 10^9 pokes, --rate 1e-300 failed in the replay on time_t overflow; an
+    # unknown object makes the old code stop in seconds instead of running
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv + (['--object', 'no_such_object'] if argv[0] != 'replay' else []))
+    assert info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('option, message', [
+    (['--h', '1e-6'], '--h 1e-06 m is below 0.001 m'),
+    (['--paper-grid', '100000000'], '--paper-grid must be in 2..10'),
+])
+def test_a_replica_mesh_or_grid_past_its_bound_is_refused_before_the_data_is_read(
+        tmp_path, option, message, capsys, monkeypatch):
+    # before: --h 1e-6 ended in numpy's MemoryError traceback (36 GiB asked), --paper-grid 1e8
+    # took 9 GB within a minute
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    code = cli.main(['replica', '--data', str(tmp_path / 'no_such_pokes'), '--out',
+                     str(tmp_path / 'replica')] + option)
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / 'replica').exists()
+
+
+@pytest.mark.parametrize('option', [['--scenario', 'no_such_scenario'],
+                                    ['--object', 'no_such_object']])
+def test_cell_generate_with_an_unknown_name_makes_no_output_folder(
+        tmp_path, option, capsys, monkeypatch):
+    # before: the --out folder was made, then the name refused: an empty folder left behind
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    out = tmp_path / 'data'
+    assert cli.main(['cell', 'generate', '--pokes', '1', '--out', str(out)] + option) == 2
+    assert f"'{option[1]}'" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_cell_with_an_unknown_scenario_is_one_error_line(tmp_path, capsys, monkeypatch):
+    # before: the emulator started, exited, and its stderr followed on further lines
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    assert cli.main(['cell', 'run', '--scenario', 'no_such_scenario', '--duration', '0',
+                     '--out', str(tmp_path / 'cell')]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pointforce cell: error: unknown scenario 'no_such_scenario'; known:")
+    assert err.count('\n') == 1
+    assert not (tmp_path / 'cell').exists()
+
+
+def test_diagnose_refuses_an_out_that_is_a_file_before_the_analysis(
+        tmp_path, capsys, monkeypatch):
+    # before: the whole diagnosis ran (minutes on a real store), then FileExistsError
+    for name in PROFILE_VARIABLES:
+        monkeypatch.setenv(name, '')
+    table = step_data.make_step_table(tmp_path / 'steps.csv', pokes=4, seed=3)['path']
+    report = tmp_path / 'report.md'
+    report.write_text('an earlier report')
+    for out in (report, report / 'sub'):
+        assert cli.main(['diagnose', str(table), '--out', str(out)]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == ''                                 # no analysis progress
+        assert f'--out {out}: {report} is a file, not a folder' in captured.err
+    assert report.read_text() == 'an earlier report'
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['--seed', '-1'], 'argument --seed: -1 is not in 0..4294967295'),
+    (['--pokes', '4', '--score', '4'], 'argument --score: 4 leaves no held-out poke'),
+    (['--per-poke', '0'], 'argument --per-poke: 0 is not >= 1'),
+])
+def test_step_data_refuses_a_bad_argument_as_argparse_does(tmp_path, argv, message, capsys):
+    # before: numpy's ValueError (seed), InvalidInput after the table was made (score)
+    with pytest.raises(SystemExit) as info:
+        step_data.main(['--out', str(tmp_path / 'steps.csv')] + argv)
+    assert info.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / 'steps.csv').exists()
+
+
+@pytest.mark.parametrize('case', ['object', 'out_is_a_folder', 'per_poke'])
+def test_step_data_names_a_bad_object_or_out_in_one_line(tmp_path, case, capsys):
+    # before: a DataError, IsADirectoryError or numpy MemoryError traceback
+    argv = {'object': ['--out', str(tmp_path / 's.csv'), '--object', 'no_such_object'],
+            'out_is_a_folder': ['--out', str(tmp_path), '--pokes', '2'],
+            'per_poke': ['--out', str(tmp_path / 's.csv'), '--per-poke', '100000000']}[case]
+    assert step_data.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'Traceback' not in err
+    assert {'object': "object 'no_such_object' not found", 'out_is_a_folder': 'IsADirectoryError',
+            'per_poke': 'per_poke in 2..1000'}[case] in err

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
 
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.model.learner import OnlineLearner
@@ -470,3 +471,31 @@ def test_a_poke_whose_wall_clock_steps_back_reads_back_in_the_order_written(tmp_
     np.testing.assert_allclose(back.t, stepped.t, rtol=0, atol=1e-9)
     np.testing.assert_allclose(back.tcp_pose[:, :3], stepped.tcp_pose[:, :3], rtol=0, atol=1e-12)
     np.testing.assert_allclose(back.wrench, stepped.wrench, rtol=0, atol=1e-9)
+
+
+def test_a_bag_without_poke_topics_is_named_as_such(tmp_path):
+    """A generated scans bag read as a poke bag said 'TypeError: the JSON object must be str'.
+
+    rosbags' ``messages(connections=[])`` reads every topic; the reader now says the bag has
+    no poke topics.
+    """
+    bag = tmp_path / 'scans'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/camera/points', 'std_msgs/msg/String',
+                                     typestore=st.TYPESTORE)
+        text = st.TYPESTORE.types['std_msgs/msg/String'](data='not a poke')
+        writer.write(conn, 1, st.TYPESTORE.serialize_cdr(text, 'std_msgs/msg/String'))
+    with pytest.raises(DataError, match='no poke topics'):
+        st.read_poke_bag(bag)
+
+
+def test_opening_a_store_writes_nothing_when_nothing_changed(tmp_path):
+    """An index from before the file records stays byte for byte (a committed fixture did not)."""
+    store = _store_of(tmp_path, 2)
+    index = tmp_path / 'index.json'
+    old = json.loads(index.read_text())
+    old.pop('files')
+    index.write_text(json.dumps(old))
+    before = index.read_bytes()
+    assert st.PokeStore(tmp_path).ids() == store.ids()
+    assert index.read_bytes() == before

@@ -54,3 +54,38 @@ def test_cell_generate_with_a_bad_object_file_is_an_error_not_a_traceback(
                  '--pokes', '1', '--out', str(tmp_path / 'out')])
     err = capsys.readouterr().err
     assert code == 2 and str(path) in err and "'colour'" in err and 'Traceback' not in err
+
+
+OUT_OF_BOUNDS = {           # key in the message -> the dome with that key made hostile
+    'live.grid': DOME.replace('grid: [4, 3]', 'grid: [100000, 100000]'),
+    'mesh.live': DOME.replace('live: 0.003', 'live: 1.0e-9'),
+    'mesh.validation': DOME.replace('validation: 0.0015', 'validation: .nan'),
+    'geometry.size': DOME.replace('size: [0.090, 0.080, 0.042]', 'size: [.nan, 0.080, 0.042]'),
+    'geometry.centre': DOME.replace('centre: [0.5, 0.0]\n', 'centre: [.inf, 0.0]\n', 1),
+    'poke.max_depth': DOME.replace('max_depth: 0.010', 'max_depth: -0.01'),
+}
+
+
+@pytest.mark.parametrize('key', sorted(OUT_OF_BOUNDS))
+def test_a_size_or_count_out_of_bounds_names_file_and_key(tmp_path, key):
+    # audit: live.grid [100000, 100000] and mesh.live 1e-9 loaded, and the live cache would
+    # have built 10^10 FEM pokes or a mesh of 10^20 elements; a NaN size loaded too
+    text = OUT_OF_BOUNDS[key]
+    assert text != DOME
+    path = tmp_path / 'hostile.yaml'
+    path.write_text(text)
+    with pytest.raises(InvalidInput, match=rf'object file {path} \(dome\): {key}'):
+        load_object(str(path))
+
+
+def test_cell_generate_refuses_a_huge_live_grid_in_one_line(tmp_path, capsys, monkeypatch):
+    for name in PROFILE_VARIABLES:      # main() names a DDS profile: restored after the test
+        monkeypatch.delenv(name, raising=False)
+    path = tmp_path / 'huge.yaml'
+    path.write_text(OUT_OF_BOUNDS['live.grid'])
+    code = main(['cell', 'generate', '--object', str(path), '--scenario', 'clean',
+                 '--pokes', '0', '--probes', 'point', '--out', str(tmp_path / 'out')])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1
+    assert f'{path} (dome): live.grid needs 2 counts in 2..15, got [100000, 100000]' in err
+    assert not (tmp_path / 'out').exists()

@@ -27,7 +27,8 @@ from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import save_surface
-from pointforce_ros.nodes.common import contained, declare, live, qos_watch, run
+from pointforce_ros.nodes.common import (contained, declare, failure_reason, live, qos_watch,
+                                         run)
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
@@ -44,13 +45,9 @@ refused, so repeated calls cannot exhaust memory."""
 
 
 def _reason(exc: Exception) -> str:
-    """One line on why a request failed, whatever ``exc`` was."""
-    if isinstance(exc, PointforceError):
-        return str(exc)
-    if isinstance(exc, MemoryError):
-        return ('out of memory: the clouds are too large for this machine (capture fewer '
-                'scans, a smaller roi or a larger voxel_size)')
-    return f'the node could not answer ({type(exc).__name__}: {exc}); it keeps serving'
+    """Return one line on why a request failed, whatever ``exc`` was."""
+    return failure_reason(exc, 'the clouds are too large for this machine (capture fewer '
+                               'scans, a smaller roi or a larger voxel_size)')
 
 
 class CloudCaptureNode(Node):

@@ -101,6 +101,18 @@ def _show(value):
     return list(value) if not isinstance(value, (str, bool, int, float)) else value
 
 
+def failure_reason(exc: Exception, memory_hint: str) -> str:
+    """Return one line on why a request failed, whatever ``exc`` was (a service's answer).
+
+    ``memory_hint`` says what to make smaller when it was a ``MemoryError``.
+    """
+    if isinstance(exc, PointforceError):
+        return str(exc)
+    if isinstance(exc, MemoryError):
+        return f'out of memory: {memory_hint}'
+    return f'the node could not answer ({type(exc).__name__}: {exc}); it keeps serving'
+
+
 def contained(node: Node, what: str, callback: Callable) -> Callable:
     """Wrap a topic or timer callback so that no exception (``MemoryError`` too) reaches rclpy.
 

@@ -100,7 +100,7 @@ from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, 
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
                                         version_of_path)
-from pointforce_ros.nodes.common import declare, live, report_folder, run
+from pointforce_ros.nodes.common import declare, failure_reason, live, report_folder, run
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
@@ -112,13 +112,9 @@ DEFAULT_TOPIC = '/camera/camera/depth/color/points'
 
 
 def _reason(exc: Exception) -> str:
-    """One line on why a request failed, whatever ``exc`` was."""
-    if isinstance(exc, PointforceError):
-        return str(exc)
-    if isinstance(exc, MemoryError):
-        return ('out of memory: the mesh or the cloud is too large for this machine (raise '
-                'element_size, lower layers)')
-    return f'the node could not answer ({type(exc).__name__}: {exc}); it keeps serving'
+    """Return one line on why a request failed, whatever ``exc`` was."""
+    return failure_reason(exc, 'the mesh or the cloud is too large for this machine (raise '
+                               'element_size, lower layers)')
 
 
 class DeformationForceNode(Node):

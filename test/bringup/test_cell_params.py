@@ -17,9 +17,12 @@ PARAMS = ROOT / 'config' / 'nodes.yaml'
 
 def test_the_cli_hands_the_checked_file_to_the_cell(monkeypatch):
     seen = {}
+    real = cli._load
 
     def fake_load(target):
-        assert target.endswith(':run_cell')
+        if not target.endswith(':run_cell'):
+            assert target.endswith(':load_scenario')   # the scenario checked before the cell
+            return real(target)
         return lambda **kwargs: seen.update(kwargs) or 0
     monkeypatch.setattr(cli, '_load', fake_load)
     assert cli.main(['cell', '--params-file', str(PARAMS), '--duration', '0']) == 0

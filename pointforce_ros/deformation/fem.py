@@ -347,7 +347,15 @@ def surface_point_load(mesh: TetMesh, point, radius: float,
     if not near.any():
         near = d == d.min()
     nodes = surf[near]
-    w = node_area[nodes] * np.exp(-(d[near] / radius) ** 2)
+    # relative to the nearest node: exp(-(d/r)^2) of every node underflows to 0 when the
+    # radius is far below the node spacing (0/0 weights, NaN loads, a failed SVD downstream)
+    ratio = (d[near] - d.min()) / radius
+    with np.errstate(over='ignore', invalid='ignore'):
+        excess = np.where(ratio > 0, ratio * (ratio + 2.0 * d.min() / radius), 0.0)
+    w = node_area[nodes] * np.exp(-excess)   # (d^2 - d_min^2) / r^2 >= 0, 0 at the nearest
+    if not w.sum() > 0:
+        raise InvalidInput(f'surface_point_load: no surface area at the contact point '
+                           f'{np.round(p, 4).tolist()} m (degenerate surface triangles)')
     return nodes, w / w.sum()
 
 

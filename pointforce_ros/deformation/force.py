@@ -27,6 +27,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from pointforce_ros.deformation.fem import CorotationalFem, load_columns, surface_point_load
+from pointforce_ros.deformation.mesh import vertex_normals
 from pointforce_ros.deformation.observe import (MatchConfig, normal_of, normal_rows,
                                                 SurfaceMatcher)
 from pointforce_ros.errors import InvalidInput, NotConverged
@@ -160,6 +161,40 @@ def estimate_force(fem: CorotationalFem, contact_point, cloud,
     return ForceEstimate(force=f, covariance=cov, residual_rms=float(np.sqrt(np.mean(r ** 2))),
                          points=len(r), iterations=it, seconds=time.perf_counter() - t0,
                          displacement=u)
+
+
+PULL_SIGMAS = 3.0
+"""An estimate pulls when its outward component exceeds this many of its standard deviations
+(and :data:`PULL_FLOOR`): a probe presses, it cannot pull the surface out."""
+PULL_FLOOR = 0.25
+"""Smallest outward component, newtons, refused as a pull (a light touch's estimate can lean
+outward by its noise)."""
+
+
+def pull_reason(fem: CorotationalFem, contact_point, estimate: ForceEstimate,
+                config: ForceConfig = ForceConfig()):
+    """Return why ``estimate`` is a pull no probe can exert at ``contact_point``, or None.
+
+    The outward normal is the load patch's weighted vertex normal of the rest surface. An
+    outward component over :data:`PULL_SIGMAS` standard deviations and over
+    :data:`PULL_FLOOR` N means the cloud bulged out where the probe touched (a cloud of
+    another object or state, a wrong contact point): the estimate explains the cloud, not a
+    push, and a caller must not take it as a contact force.
+    """
+    nodes, weights = surface_point_load(fem.mesh, contact_point, config.load_radius)
+    normal = weights @ vertex_normals(fem.mesh.nodes, fem.mesh.surface_triangles)[nodes]
+    size = np.linalg.norm(normal)
+    if not size > 0:
+        return None
+    normal = normal / size
+    outward = float(estimate.force @ normal)
+    std = float(np.sqrt(max(normal @ estimate.covariance @ normal, 0.0)))
+    if outward > PULL_FLOOR and outward > PULL_SIGMAS * std:
+        return (f'the cloud moved out of the surface at the contact point: the force that '
+                f'explains it pulls {outward:.2f} N outward ({outward / max(std, 1e-12):.0f} '
+                f'standard deviations), which a probe cannot exert (a cloud of another object '
+                f'or time, or a wrong contact point?)')
+    return None
 
 
 def estimate_force_nelder_mead(fem: CorotationalFem, contact_point, cloud,

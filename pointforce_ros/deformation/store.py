@@ -7,9 +7,13 @@ and versions only grow (:func:`save_model` picks the next). Units SI, frame ``ba
 identified for the fused force also holds its :class:`.fusion.FusionData` (``fusion_*``
 arrays, same layout version); files written before it load with ``fusion`` None.
 
-:func:`load_model` checks the content, not only the layout (finite nodes, integer tetrahedra
-that index them with positive volume, a finite positive modulus, a Poisson ratio in
-(-1, 0.5), a positive load radius, a version equal to the one in the file name, ...): a bad file
+:func:`load_model` checks the content, not only the layout (at most
+:data:`MAX_FILE_BYTES` uncompressed, checked before reading; finite nodes, at most
+:data:`.mesh.MAX_MESH_NODES`, integer tetrahedra that index them with positive volume, a
+support of 3 or more fixed nodes not on one line, surface triangles, a modulus in
+[:data:`MIN_YOUNG`, :data:`MAX_YOUNG`] with a contrast up to :data:`MAX_YOUNG_CONTRAST`, a
+Poisson ratio in :data:`POISSON_RANGE`, bounded rest offsets and load radius, a version equal
+to the one in the file name, ...): a bad file
 is a :class:`DataError` naming it, never a bare error from the FEM later. As for the contact
 models (:mod:`pointforce_ros.model.files`), :func:`load_latest` moves a file it cannot load to
 ``quarantine/`` beside it with a ``.reason.txt`` and falls back to the newest valid version; a
@@ -31,8 +35,8 @@ import numpy as np
 from pointforce_ros.deformation.fem import CorotationalFem
 from pointforce_ros.deformation.force import ForceEstimate
 from pointforce_ros.deformation.fusion import FusionData
-from pointforce_ros.deformation.mesh import TetMesh
-from pointforce_ros.errors import DataError, InvalidInput, reading
+from pointforce_ros.deformation.mesh import MAX_MESH_NODES, TetMesh
+from pointforce_ros.errors import check_npz_size, DataError, InvalidInput, reading
 from pointforce_ros.model.files import QUARANTINE, quarantine_file
 from pointforce_ros.types import as_array
 
@@ -43,6 +47,27 @@ _NAME = re.compile(r'^deformation-v(\d+)\.npz$')
 _QUARANTINED = re.compile(r'^deformation-v(\d+)\.npz')
 MAX_YOUNG = 1e12
 """Largest Young's modulus believed in a file, Pa (diamond is about 1.1e12)."""
+MIN_YOUNG = 1.0
+"""Smallest Young's modulus believed in a file, Pa (the softest gels are about 10 Pa; at
+1e-300 the stiffness underflows and every estimate failed in the SVD)."""
+MAX_YOUNG_CONTRAST = 1e6
+"""Largest ratio of element moduli in one file (bone in soft tissue is about 1e4)."""
+POISSON_RANGE = (-0.5, 0.49)
+"""Poisson ratios believed in a file (the identification searches 0-0.49): linear tetrahedra
+lock towards 0.5 (nu 0.4999999999 answered 1209 N where 0.3 answered 4.3 N) and the shear
+modulus diverges towards -1 (-0.9999999999: 5.4e9 N)."""
+MAX_OFFSET = 0.1
+"""Largest rest offset believed, metres (the pairing keeps offsets within a few mm)."""
+MAX_LOAD_RADIUS = 1.0
+"""Largest load patch radius believed, metres."""
+MAX_SPREAD = 1e3
+"""Largest relative FEM spread believed (the cell's objects measured 0.07-0.33)."""
+MAX_COORDINATE = 100.0
+"""Largest coordinate of a stored probe tip, metres (a cell is a few metres across)."""
+MAX_FILE_BYTES = 256 << 20
+"""Largest uncompressed content of a model file, bytes, checked before any array is read (a
+compressed file of a few MB can hold gigabytes of zeros). A mesh of
+:data:`.mesh.MAX_MESH_NODES` nodes takes about 10 MB."""
 LOG = logging.getLogger(__name__)
 
 
@@ -97,30 +122,39 @@ def _highest_version(folder: str) -> int:
 def save_model(folder: str, model: DeformationModel) -> str:
     """Write ``model`` atomically as the next version in ``folder``; return the path.
 
-    The next version is above every one in ``folder`` and in its quarantine.
+    The next version is above every one in ``folder`` and in its quarantine. The content is
+    checked as :func:`load_model` checks it first: a model that would not load back (and be
+    quarantined at the next start) is never written.
 
     Raises:
-        DataError: the folder cannot be created or written.
+        DataError: content :func:`load_model` would refuse (nothing is written), or the
+            folder cannot be created or written.
 
     """
+    m = model.mesh
+    fusion = {}
+    if model.fusion is not None:
+        f = model.fusion
+        fusion = dict(fusion_spread=f.fem_spread, fusion_source=np.str_(f.spread_source),
+                      fusion_tips=f.tips, fusion_forces=f.forces, fusion_sites=f.sites,
+                      fusion_errors=f.errors, fusion_seconds=f.seconds)
+    arrays = {k: np.asarray(v) for k, v in dict(
+        format=FORMAT, nodes=m.nodes, tets=m.tets, fixed_nodes=m.fixed_nodes,
+        surface_triangles=m.surface_triangles, element_size=m.element_size,
+        young=np.asarray(model.young, dtype=float), poisson=model.poisson,
+        rest_offset=model.rest_offset, load_radius=model.load_radius,
+        residual_rms=model.residual_rms, **fusion).items()}
+    try:
+        _model_from_arrays(dict(arrays, version=np.asarray(1)))
+    except (InvalidInput, KeyError, TypeError, ValueError) as exc:
+        raise DataError(f'not saving the deformation model in {folder}: it would not load '
+                        f'back ({exc})') from exc
     try:
         os.makedirs(folder, exist_ok=True)
         version = _highest_version(folder) + 1
         path = os.path.join(folder, f'deformation-v{version}.npz')
         tmp = os.path.join(folder, f'.deformation-v{version}.tmp.npz')
-        m = model.mesh
-        fusion = {}
-        if model.fusion is not None:
-            f = model.fusion
-            fusion = dict(fusion_spread=f.fem_spread, fusion_source=np.str_(f.spread_source),
-                          fusion_tips=f.tips, fusion_forces=f.forces, fusion_sites=f.sites,
-                          fusion_errors=f.errors, fusion_seconds=f.seconds)
-        np.savez_compressed(
-            tmp, format=FORMAT, version=version, nodes=m.nodes, tets=m.tets,
-            fixed_nodes=m.fixed_nodes, surface_triangles=m.surface_triangles,
-            element_size=m.element_size, young=np.asarray(model.young, dtype=float),
-            poisson=model.poisson, rest_offset=model.rest_offset,
-            load_radius=model.load_radius, residual_rms=model.residual_rms, **fusion)
+        np.savez_compressed(tmp, version=version, **arrays)
         os.replace(tmp, path)
     except OSError as exc:
         raise DataError(f'cannot save the deformation model in {folder}: {exc}')
@@ -137,6 +171,7 @@ def load_model(path: str) -> DeformationModel:
     """
     with reading(path, 'deformation model'):
         with np.load(path, allow_pickle=False) as data:
+            check_npz_size(data, path, 'deformation model', MAX_FILE_BYTES)
             d = dict(data)
         fmt = d.get('format')
         if fmt is None or np.ndim(fmt) != 0 or fmt.dtype.kind not in 'iu' or int(fmt) != FORMAT:
@@ -203,12 +238,21 @@ def _mesh_from_arrays(d: dict) -> TetMesh:
     if bad:
         raise InvalidInput(f'nodes: {bad} node(s) with a non-finite position')
     n = len(nodes)
+    if n > MAX_MESH_NODES:
+        raise InvalidInput(f'nodes: {n} nodes, more than a mesh of this node may have '
+                           f'({MAX_MESH_NODES})')
     tets = _integer_array(d, 'tets', 4, n)
     if not len(tets):
         raise InvalidInput('tets: no tetrahedra')
-    mesh = TetMesh(nodes=nodes, tets=tets,
-                   fixed_nodes=_integer_array(d, 'fixed_nodes', None, n),
-                   surface_triangles=_integer_array(d, 'surface_triangles', 3, n),
+    fixed = _integer_array(d, 'fixed_nodes', None, n)
+    held = nodes[np.unique(fixed)]
+    if len(held) < 3 or np.linalg.matrix_rank(held - held.mean(axis=0), tol=1e-9) < 2:
+        raise InvalidInput(f'fixed_nodes: {len(held)} node(s) on one line or fewer than 3: '
+                           f'the model would float freely (no support on the table)')
+    triangles = _integer_array(d, 'surface_triangles', 3, n)
+    if not len(triangles):
+        raise InvalidInput('surface_triangles: none (no surface a camera or a probe can see)')
+    mesh = TetMesh(nodes=nodes, tets=tets, fixed_nodes=fixed, surface_triangles=triangles,
                    element_size=_scalar(d, 'element_size', lambda v: np.isfinite(v) and v > 0,
                                         'a positive length in metres'))
     flat = int(np.count_nonzero(~(mesh.volumes() > 0)))
@@ -227,18 +271,34 @@ def _fusion_from_arrays(d: dict) -> Optional[FusionData]:
     """
     if 'fusion_spread' not in d:   # older files have none: the fused force then uses defaults
         return None
-    spread = _scalar(d, 'fusion_spread', lambda v: np.isfinite(v) and v >= 0,
-                     'a finite relative spread >= 0')
+    spread = _scalar(d, 'fusion_spread', lambda v: 0 <= v <= MAX_SPREAD,
+                     f'a relative spread in [0, {MAX_SPREAD:g}]')
     tips = np.asarray(d['fusion_tips'], dtype=np.float64)
     forces = np.asarray(d['fusion_forces'], dtype=np.float64)
     sites = np.asarray(d['fusion_sites'])
+    errors = np.asarray(d['fusion_errors'], dtype=np.float64)
+    source = np.asarray(d['fusion_source'])
     if tips.ndim != 2 or tips.shape[1] != 3 or forces.shape != (len(tips),) or (
             sites.shape != (len(tips),)):
         raise InvalidInput(f'fusion: tips {tips.shape}, forces {forces.shape} and sites '
                            f'{sites.shape} are not (n, 3), (n,), (n,)')
-    return FusionData(fem_spread=spread, spread_source=str(d['fusion_source']), tips=tips,
-                      forces=forces, sites=sites,
-                      errors=np.asarray(d['fusion_errors'], dtype=np.float64),
+    finite = np.isfinite(tips)
+    if not (np.all(finite.all(axis=1) | np.isnan(tips).all(axis=1))
+            and np.all(np.abs(tips[finite]) <= MAX_COORDINATE)):
+        raise InvalidInput(f'fusion_tips: each tip must be a position within '
+                           f'{MAX_COORDINATE:g} m or all NaN (a push without one)')
+    if not (np.all(np.isfinite(forces)) and np.all(forces >= 0)):
+        raise InvalidInput('fusion_forces: every F/T magnitude must be finite and >= 0')
+    if sites.dtype.kind not in 'iu':
+        raise InvalidInput(f'fusion_sites: expected integer site labels, got {sites.dtype}')
+    if errors.ndim != 1 or not np.all(np.isfinite(errors)):
+        raise InvalidInput(f'fusion_errors: expected (k,) finite log errors, got '
+                           f'{errors.shape}')
+    if source.ndim != 0 or source.dtype.kind != 'U':
+        raise InvalidInput(f'fusion_source: expected one string, got {source.dtype} '
+                           f'{source.shape}')
+    return FusionData(fem_spread=spread, spread_source=str(source), tips=tips,
+                      forces=forces, sites=sites, errors=errors,
                       seconds=_scalar(d, 'fusion_seconds', np.isfinite, 'finite seconds'))
 
 
@@ -255,23 +315,28 @@ def _model_from_arrays(d: dict) -> DeformationModel:
         raise InvalidInput(f'young: expected a modulus or ({len(mesh.tets)},) per element, '
                            f'got {young.dtype} {young.shape}')
     young = young.astype(np.float64)
-    if not (np.all(np.isfinite(young)) and np.all(young > 0) and np.all(young <= MAX_YOUNG)):
-        raise InvalidInput(f'young: every modulus must be in (0, {MAX_YOUNG:g}] Pa, got '
-                           f'{young.min():g} .. {young.max():g}')
+    if not (np.all(np.isfinite(young)) and np.all(young >= MIN_YOUNG)
+            and np.all(young <= MAX_YOUNG)):
+        raise InvalidInput(f'young: every modulus must be in [{MIN_YOUNG:g}, {MAX_YOUNG:g}] Pa, '
+                           f'got {young.min():g} .. {young.max():g}')
+    if young.max() > MAX_YOUNG_CONTRAST * young.min():
+        raise InvalidInput(f'young: element moduli {young.min():g} .. {young.max():g} Pa differ '
+                           f'by more than a factor {MAX_YOUNG_CONTRAST:g}')
     rest_offset = np.asarray(d['rest_offset'])
     if rest_offset.dtype.kind not in 'iuf' or rest_offset.shape != (mesh.n_nodes,) or not (
-            np.all(np.isfinite(rest_offset))):
-        raise InvalidInput(f'rest_offset: expected ({mesh.n_nodes},) finite offsets in metres, '
-                           f'got {rest_offset.dtype} {rest_offset.shape}')
+            np.all(np.abs(rest_offset) <= MAX_OFFSET)):
+        raise InvalidInput(f'rest_offset: expected ({mesh.n_nodes},) finite offsets within '
+                           f'{MAX_OFFSET:g} m, got {rest_offset.dtype} {rest_offset.shape}')
     version = np.asarray(d['version'])
     if version.ndim != 0 or version.dtype.kind not in 'iu' or int(version) < 1:
         raise InvalidInput(f'version: must be a whole number >= 1, got {version.tolist()!r}')
     return DeformationModel(
         mesh=mesh, young=float(young) if young.ndim == 0 else young,
-        poisson=_scalar(d, 'poisson', lambda v: -1.0 < v < 0.5, 'a Poisson ratio in (-1, 0.5)'),
+        poisson=_scalar(d, 'poisson', lambda v: POISSON_RANGE[0] <= v <= POISSON_RANGE[1],
+                        f'a Poisson ratio in [{POISSON_RANGE[0]:g}, {POISSON_RANGE[1]:g}]'),
         rest_offset=rest_offset.astype(np.float64),
-        load_radius=_scalar(d, 'load_radius', lambda v: np.isfinite(v) and v > 0,
-                            'a positive length in metres'),
+        load_radius=_scalar(d, 'load_radius', lambda v: 0 < v <= MAX_LOAD_RADIUS,
+                            f'a length in (0, {MAX_LOAD_RADIUS:g}] metres'),
         residual_rms=_scalar(d, 'residual_rms', lambda v: np.isnan(v) or 0 <= v < np.inf,
                              'an rms >= 0 in metres (NaN: not known)'),
         version=int(version), fusion=_fusion_from_arrays(d))

@@ -21,6 +21,8 @@ Thin wiring of the deformation wing (:mod:`pointforce_ros.deformation`, seed 001
   dropped, as realsense-ros marks them; a cloud with no finite point is refused.
 - **F/T**: ``poke_server/wrench`` (``tool0_controller``, the reaction on the tool) is rotated
   into ``base`` with the newest ``poke_server/tcp_pose`` and negated: the force on the object.
+  A camera or TCP pose stamped in another frame than ``frame_id`` (no tf here), or a TCP
+  with a non-finite position, is ignored with a warning.
 - **A poke runs** while that force exceeds ``contact_force`` (it ends below half of it). Its
   contact point is the TCP position (the probe tip) at the first sample above the threshold:
   where the probe met the rest surface, for a normal or an oblique push, with no geometry in
@@ -34,9 +36,10 @@ Thin wiring of the deformation wing (:mod:`pointforce_ros.deformation`, seed 001
   that ``poke_server/poke_landed`` announces next (within ``landed_window`` seconds).
   ``~/observe`` (Trigger) also snapshots the newest cloud, force and contact point by hand
   (``observe-<n>``), for a cell that holds the probe still.
-- ``~/identify`` (IdentifyDeformation): (E, nu) from the chosen observations (all when none
-  are named); the model is saved atomically as the next ``deformation-v<k>.npz`` in
-  ``model_dir`` and used at once. The newest model file is loaded at start-up.
+- ``~/identify`` (IdentifyDeformation): (E, nu) from the chosen observations (each named
+  once, at most ``MAX_IDENTIFY_POKES``; the newest that many when none are named); the model
+  is saved atomically as the next ``deformation-v<k>.npz`` in ``model_dir`` and used at once.
+  The newest model file is loaded at start-up.
 - ``~/estimate_force`` (EstimateForce): the force at a contact point (``base``) that explains
   the newest cloud, camera only, with residual and covariance; with ``use_tip`` the fused
   force at that probe tip (below; refused, with the reason, without a point model, for a
@@ -69,7 +72,7 @@ contact point off the surface (the wing's ``InvalidInput``), and any other excep
 import re
 import threading
 import time
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
@@ -89,7 +92,7 @@ from msg_adapters.geometry import pose_stamped_from_msg, sec_to_stamp, stamp_to_
 from msg_adapters.interfaces import fail
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_from_msg
 from pointforce_ros.deformation.fem import CorotationalFem
-from pointforce_ros.deformation.force import estimate_force, ForceConfig
+from pointforce_ros.deformation.force import estimate_force, ForceConfig, pull_reason
 from pointforce_ros.deformation.fusion import (DEFAULT_FEM_SPREAD, fuse_estimate,
                                                fused_covariance, fusion_data, point_calibration)
 from pointforce_ros.deformation.identify import identify_elasticity, IdentifyConfig, Poke
@@ -109,6 +112,14 @@ LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 STREAM = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 DEFAULT_TOPIC = '/camera/camera/depth/color/points'
+OBSERVATION_BYTES = 512 << 20
+"""Most bytes of clouds the held observations keep (oldest dropped first, as past
+``max_observations``): a depth camera's cloud is about 10 MB, so 100 observations at the
+default would have held 1 GB and the parameter's bound of 10 000 far more."""
+MAX_IDENTIFY_POKES = 16
+"""Most observations one ~/identify uses (none named: the newest). Its time grows with them
+(0.12 s per poke on the test mesh) and the fused force's cross-validation identifies once per
+site; a request naming one observation 1000 times would have run for minutes."""
 
 
 def _reason(exc: Exception) -> str:
@@ -165,7 +176,8 @@ class DeformationForceNode(Node):
                                      'observation if it ended this recently, s',
                                      bounds=(0.0, 3600.0))
         self.max_observations = declare(self, 'max_observations', 100,
-                                        'Observations held (oldest dropped)', bounds=(1, 10000))
+                                        'Observations held (oldest dropped; their clouds '
+                                        'take at most 512 MiB)', bounds=(1, 10000))
         rest_frames = declare(self, 'rest_frames', 4,
                               'Clouds received while no poke runs, stacked as the residual\'s '
                               'reference when the next poke starts (the pushing camera\'s own '
@@ -378,7 +390,22 @@ class DeformationForceNode(Node):
             self.get_logger().error(f'ignoring rest surface: {_reason(exc)}')
 
     # ------------------------------------------------------------------ streams
+    def _foreign_frame(self, msg, what: str) -> bool:
+        """Warn and return True when ``msg`` is stamped in a frame other than ``frame_id``.
+
+        No tf here: a pose in another frame (``map``, a typo) cannot be moved into base, and
+        taking it as base moved every cloud or contact by that frame's offset.
+        """
+        frame = msg.header.frame_id
+        if not frame or frame == self.frame:
+            return False
+        self.get_logger().warn(f'ignoring {what} in frame {frame!r}: only {self.frame!r} is '
+                               f'known (no tf)', throttle_duration_sec=5.0)
+        return True
+
     def _on_camera(self, msg: PoseStamped):
+        if self._foreign_frame(msg, 'camera pose'):
+            return
         try:
             pose = pose_stamped_from_msg(msg)
         except PointforceError as exc:
@@ -394,14 +421,19 @@ class DeformationForceNode(Node):
             self.get_logger().info('camera pose moved: rest frames forgotten')
 
     def _on_tcp(self, msg: PoseStamped):
+        if self._foreign_frame(msg, 'TCP pose'):
+            return
         q = msg.pose.orientation
+        position = vec(msg.pose.position)
         try:
+            if not np.all(np.isfinite(position)):
+                raise InvalidInput(f'non-finite position {position.tolist()}')
             rot = quaternion_to_matrix([q.x, q.y, q.z, q.w])
         except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
             self.get_logger().warn(f'ignoring TCP pose: {exc}', throttle_duration_sec=5.0)
             return
         with self._lock:
-            self._tcp = (vec(msg.pose.position), rot)
+            self._tcp = (position, rot)
 
     def _on_wrench(self, msg: WrenchStamped):
         with self._lock:
@@ -442,8 +474,11 @@ class DeformationForceNode(Node):
     def _add_observation(self, name: str, poke: Poke):
         """Hold one observation (caller holds the lock)."""
         self._observations[name] = poke
-        while len(self._observations) > self.max_observations:
-            self._observations.popitem(last=False)
+        held = sum(p.cloud.nbytes for p in self._observations.values())
+        while len(self._observations) > 1 and (len(self._observations) > self.max_observations
+                                               or held > OBSERVATION_BYTES):
+            _, dropped = self._observations.popitem(last=False)
+            held -= dropped.cloud.nbytes
         self.get_logger().info(f'observation {name}: |F| {np.linalg.norm(poke.force):.2f} N at '
                                f'{np.round(poke.contact_point, 4).tolist()} m, '
                                f'{len(poke.cloud)} points')
@@ -601,10 +636,20 @@ class DeformationForceNode(Node):
         try:
             with self._lock:
                 held = OrderedDict(self._observations)
-            names = list(request.poke_ids) or list(held)
+            names = list(request.poke_ids)
+            repeated = sorted(n for n, k in Counter(names).items() if k > 1)[:10]
+            if repeated:
+                raise InvalidInput(f'poke_ids: {repeated} named more than once (each '
+                                   f'observation counts once)')
+            if len(names) > MAX_IDENTIFY_POKES:
+                raise InvalidInput(f'poke_ids: {len(names)} observations named, at most '
+                                   f'{MAX_IDENTIFY_POKES} per identification')
+            newest = '' if names or len(held) <= MAX_IDENTIFY_POKES else ' (the newest)'
+            names = names or list(held)[-MAX_IDENTIFY_POKES:]
             missing = [n for n in names if n not in held]
             if missing:
-                raise InvalidInput(f'poke_ids: no observation {missing}; held: {list(held)}')
+                raise InvalidInput(f'poke_ids: no observation {missing[:10]}; held: '
+                                   f'{list(held)}')
             if not names:
                 raise InvalidInput('no observations held: run pokes (a cloud while the F/T '
                                    'force exceeds contact_force) or call ~/observe first')
@@ -646,7 +691,7 @@ class DeformationForceNode(Node):
             response.residual_rms = float(fit.residual_rms)
             response.model_version = int(model.version)
             response.message = (f'E {fit.young:.0f} Pa, nu {fit.poisson:.3f} from {len(names)} '
-                                f'observation(s), {fit.points} points, residual '
+                                f'observation(s){newest}, {fit.points} points, residual '
                                 f'{fit.residual_rms * 1e3:.3f} mm in {fit.seconds:.2f} s'
                                 + (' from the scan-time model' if warm else '')
                                 + f'; reference: {reference}; nu interval '
@@ -671,8 +716,12 @@ class DeformationForceNode(Node):
             model = self._model
             offset, reference = self._reference(model.mesh, model.rest_offset,
                                                 "the model's stored reference")
-            est = estimate_force(self._fem, vec(request.contact_point), points,
-                                 ForceConfig(load_radius=model.load_radius), rest_offset=offset)
+            config = ForceConfig(load_radius=model.load_radius)
+            est = estimate_force(self._fem, vec(request.contact_point), points, config,
+                                 rest_offset=offset)
+            pull = pull_reason(self._fem, vec(request.contact_point), est, config)
+            if pull:
+                raise InvalidInput(pull)
             fem, fused, note = est, None, ''
             if request.use_tip:
                 fused, note = self._fuse(est, vec(request.tip))

@@ -14,7 +14,7 @@ from pointforce_ros.deformation.bench import surface_samples
 from pointforce_ros.deformation.fem import (CorotationalFem, load_columns,
                                             surface_point_load)
 from pointforce_ros.deformation.force import (estimate_force, estimate_force_nelder_mead,
-                                              ForceConfig)
+                                              ForceConfig, pull_reason)
 from pointforce_ros.deformation.identify import (identify_elasticity, IdentifyConfig, Poke,
                                                  ReducedPoissonFamily)
 from pointforce_ros.deformation.mesh import block_mesh, volume_mesh_from_surface
@@ -155,6 +155,24 @@ def test_foam_block_identification_and_held_out_force_against_the_cell():
     assert max(errors) < 0.15
 
 
+def test_clouds_that_do_not_see_the_push_identify_no_modulus():
+    """Audit 39: the rest scan given as the pushed cloud "identified" E 0.87 MPa (truth 50 kPa)
+    with a compliance 1.5 standard errors wide of zero; the same push's real cloud is 0.12."""
+    rest = _fixture('rest_foam_block')
+    mesh = volume_mesh_from_surface(rest['points'], rest['normals'], element_size=0.006,
+                                    layers=4)
+    offset = rest_offsets(mesh, rest['points'])
+    push = _fixture('push_foam_block_0')
+    fit, _ = identify_elasticity(mesh, [Poke(push['contact_point'], push['force'][0],
+                                             _cloud(push, 0))], rest_offset=offset)
+    assert fit.young == pytest.approx(float(push['young']), rel=0.2)
+    assert fit.young_std < 0.3 * fit.young
+    for force in (push['force'][0], 1e6 * push['force'][0]):   # E 0.87 MPa, 0.87 TPa before
+        with pytest.raises(InvalidInput, match='do not resolve a displacement'):
+            identify_elasticity(mesh, [Poke(push['contact_point'], force, rest['points'])],
+                                rest_offset=offset)
+
+
 def test_identification_with_a_given_modulus_field_recovers_its_scale_and_local_moduli(mesh):
     # a block twice as stiff on its +x half: a uniform fit reads the two pokes' own moduli
     # apart (local_young), and the true field shape gives back the true scale
@@ -177,3 +195,17 @@ def test_identification_with_a_given_modulus_field_recovers_its_scale_and_local_
     assert 0 < fit.young_std / fit.young < fit.young_relative_std
     with pytest.raises(InvalidInput, match='positive'):
         identify_elasticity(mesh, pokes, young_field=-field)
+
+
+def test_a_cloud_that_bulges_out_at_the_contact_is_a_pull_not_a_push(mesh):
+    fem = CorotationalFem(mesh, 3e4, 0.35)
+    p = [0.5, 0.0, SIZE[2]]
+    press = _sample_surface(mesh, _push(fem, p, [0.1, 0.0, -0.8]), 6000, 5e-5, 3)
+    est = estimate_force(fem, p, press)
+    assert pull_reason(fem, p, est) is None
+    # the same surface pulled out by 0.8 N (a cloud of another state, a wrong contact point)
+    bulge = _sample_surface(mesh, _push(fem, p, [0.1, 0.0, 0.8]), 6000, 5e-5, 4)
+    est = estimate_force(fem, p, bulge)
+    assert est.force[2] > 0.5   # the estimate explains the cloud: an outward force
+    reason = pull_reason(fem, p, est)
+    assert reason is not None and 'outward' in reason

@@ -136,3 +136,24 @@ def test_per_element_modulus_scales_the_response():
     fem.set_material(np.full(len(mesh.tets), 6e4), 0.3)
     np.testing.assert_allclose(fem.solve_linear(load), 0.5 * u1, atol=1e-14)
     np.testing.assert_allclose(fem.element_young, 6e4)
+
+
+def test_a_load_radius_far_below_the_node_spacing_still_gives_finite_weights():
+    """Audit 39: every exp(-(d/r)^2) underflowed to 0, the weights were 0/0 = NaN and the
+    estimate failed in the SVD (a model file with load_radius 1e-300)."""
+    mesh = block_mesh((0.04, 0.04, 0.02), 0.005, 3)
+    point = np.array([0.0213, 0.0187, 0.02])   # on the top, not at a node
+    nodes, w = surface_point_load(mesh, point, 0.004)
+    surf = mesh.surface_nodes
+    d = np.linalg.norm(mesh.nodes[surf] - point, axis=1)
+    tri = mesh.surface_triangles
+    c = mesh.nodes[tri]
+    area = np.bincount(tri.ravel(), np.repeat(0.5 * np.linalg.norm(
+        np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1) / 3.0, 3),
+        minlength=mesh.n_nodes)
+    expected = area[surf[d <= 0.012]] * np.exp(-(d[d <= 0.012] / 0.004) ** 2)
+    np.testing.assert_allclose(w, expected / expected.sum(), rtol=1e-12)   # unchanged
+    for radius in (1e-6, 1e-300, 5e-324):
+        nodes, w = surface_point_load(mesh, point, radius)
+        assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0)
+        assert nodes.tolist() == [surf[np.argmin(d)]]

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from pointforce_ros.deformation.mesh import (block_mesh, crease_nodes, extrude_height_field,
-                                             graded_layers, volume_mesh_from_surface)
+                                             graded_layers, MAX_MESH_NODES,
+                                             volume_mesh_from_surface)
 from pointforce_ros.errors import InvalidInput
 
 
@@ -71,3 +72,18 @@ def test_mesh_from_a_noisy_dome_cloud():
         volume_mesh_from_surface(pts[:5])
     with pytest.raises(InvalidInput):
         volume_mesh_from_surface(np.full((100, 3), np.nan))
+
+
+def test_a_stray_far_point_is_refused_before_the_mesh_is_built():
+    """Audit 39: one stray point 20 m off made the node allocate 3.9 GB for 58 s; at 1 m it
+    silently meshed an isolated column there (the bounding box sets the grid)."""
+    rng = np.random.default_rng(39)
+    points = np.column_stack([rng.uniform(0.0, 0.05, 400), rng.uniform(0.0, 0.05, 400),
+                              np.full(400, 0.03)])
+    normals = np.tile([0.0, 0.0, 1.0], (400, 1))
+    assert volume_mesh_from_surface(points, normals).n_nodes < MAX_MESH_NODES
+    for far in (1.0, 20.0, 1e300):
+        stray = points.copy()
+        stray[0, :2] = far
+        with pytest.raises(InvalidInput, match='stray point'):
+            volume_mesh_from_surface(stray, normals)

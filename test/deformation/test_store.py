@@ -1,6 +1,9 @@
 """Model files (atomic, versioned round trip) and the camera-vs-F/T consistency report."""
 
+from dataclasses import replace
 import os
+import tracemalloc
+import zipfile
 
 import numpy as np
 import pytest
@@ -10,7 +13,8 @@ from pointforce_ros.deformation.fusion import FusionData
 from pointforce_ros.deformation.mesh import block_mesh, volume_mesh_from_surface
 from pointforce_ros.deformation.observe import rest_offsets
 from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, load_latest,
-                                              load_model, model_versions, save_model)
+                                              load_model, MAX_FILE_BYTES, model_versions,
+                                              save_model)
 from pointforce_ros.errors import DataError
 from pointforce_ros.model.files import QUARANTINE
 
@@ -107,6 +111,20 @@ CONTENT_FAULTS = {
     'version_future': (_set('version', np.array(10 ** 12)), 'version'),
     'version_float': (_set('version', np.array(1.0)), 'version'),
     'format_string': (_set('format', np.array('1')), 'format'),
+    # audit 39: each loaded, then failed every estimate (or answered absurdly) with the
+    # older valid version hidden behind it
+    'young_tiny': (_set('young', np.array(1e-300)), 'young'),        # estimate: SVD failed
+    'young_contrast': (lambda d: d.__setitem__(
+        'young', np.where(np.arange(len(d['tets'])) % 2, 1e12, 1e5)), 'young'),  # 40 MN
+    'poisson_locking': (_set('poisson', np.array(0.4999999999)), 'poisson'),  # 1209 N for 4
+    'poisson_near_minus_one': (_set('poisson', np.array(-0.9999999999)), 'poisson'),
+    'no_fixed_nodes': (_set('fixed_nodes', np.zeros(0, dtype=int)), 'fixed_nodes'),  # 0 N
+    'fixed_nodes_on_a_line': (lambda d: d.__setitem__('fixed_nodes', np.flatnonzero(
+        (d['nodes'][:, 2] == 0) & (d['nodes'][:, 1] == 0))), 'fixed_nodes'),
+    'no_surface_triangles': (_set('surface_triangles', np.zeros((0, 3), dtype=int)),
+                             'surface_triangles'),
+    'rest_offset_huge': (_set_item('rest_offset', 2, 1e300), 'rest_offset'),
+    'load_radius_huge': (_set('load_radius', np.array(1e300)), 'load_radius'),
 }
 
 
@@ -122,6 +140,72 @@ def test_a_file_with_content_no_fem_can_use_is_a_data_error_naming_file_and_arra
     np.savez_compressed(path, **d)
     with pytest.raises(DataError, match=f'deformation-v1.npz.*{array}'):
         load_model(str(path))
+
+
+def _fused_small_model():
+    """:func:`_small_model` with the fused force's data of two sites."""
+    return replace(_small_model(), fusion=FusionData(
+        fem_spread=0.3, spread_source='cross-site',
+        tips=np.array([[0.01, 0.01, 0.0095], [np.nan, np.nan, np.nan]]),
+        forces=np.array([1.0, 2.0]), sites=np.array([0, 1]), errors=np.array([0.1, -0.1]),
+        seconds=1.0))
+
+
+FUSION_FAULTS = {
+    'fusion_tips_inf': (_set_item('fusion_tips', (0, 1), np.inf), 'fusion_tips'),
+    'fusion_tips_half_nan': (_set_item('fusion_tips', (1, 0), 0.0), 'fusion_tips'),
+    'fusion_forces_nan': (_set_item('fusion_forces', 0, np.nan), 'fusion_forces'),
+    'fusion_sites_float': (_set('fusion_sites', np.array([0.5, 1.0])), 'fusion_sites'),
+    'fusion_errors_2d': (_set('fusion_errors', np.ones((3, 3))), 'fusion_errors'),
+    'fusion_source_2d': (_set('fusion_source', np.array([['a', 'b']])), 'fusion_source'),
+    'fusion_spread_huge': (_set('fusion_spread', np.array(1e300)), 'fusion_spread'),
+}
+
+
+@pytest.mark.parametrize('fault', sorted(FUSION_FAULTS))
+def test_a_file_with_fusion_data_no_fusion_can_use_is_a_data_error(tmp_path, fault):
+    """Audit 39: these loaded; the fused force then read NaN or absurd inputs."""
+    d = dict(np.load(save_model(str(tmp_path / 'src'), _fused_small_model())))
+    edit, array = FUSION_FAULTS[fault]
+    edit(d)
+    path = tmp_path / 'deformation-v1.npz'
+    np.savez_compressed(path, **d)
+    with pytest.raises(DataError, match=f'deformation-v1.npz.*{array}'):
+        load_model(str(path))
+
+
+def test_a_model_that_would_not_load_back_is_not_saved(tmp_path):
+    """Audit 39: save_model wrote any model; the next start quarantined what it had saved."""
+    model = replace(_small_model(), poisson=0.4999999999)
+    with pytest.raises(DataError, match='would not load back.*poisson'):
+        save_model(str(tmp_path), model)
+    assert model_versions(str(tmp_path)) == []
+    good = load_model(save_model(str(tmp_path), _fused_small_model()))
+    assert good.version == 1 and good.fusion.spread_source == 'cross-site'
+
+
+def test_a_file_that_inflates_past_the_limit_is_refused_before_it_is_read(tmp_path):
+    """Audit 39: a zip bomb (4.6 GiB of zeros in 4.5 MB) was decompressed whole at start-up."""
+    d = dict(np.load(save_model(str(tmp_path / 'src'), _small_model())))
+    path = tmp_path / 'deformation-v1.npz'
+    np.savez_compressed(path, **{k: v for k, v in d.items() if k != 'rest_offset'})
+    count = (MAX_FILE_BYTES + (1 << 20)) // 8
+    with zipfile.ZipFile(path, 'a', compression=zipfile.ZIP_DEFLATED) as z:
+        with z.open('rest_offset.npy', 'w', force_zip64=True) as fh:
+            np.lib.format.write_array_header_1_0(
+                fh, dict(descr='<f8', fortran_order=False, shape=(count,)))
+            chunk = bytes(1 << 20)
+            for _ in range(count * 8 // len(chunk) + 1):
+                fh.write(chunk)
+    assert os.path.getsize(path) < 2 << 20
+    tracemalloc.start()
+    try:
+        with pytest.raises(DataError, match='MiB of arrays uncompressed'):
+            load_model(str(path))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 << 20, peak
 
 
 def test_a_corrupt_newest_file_is_quarantined_and_the_last_valid_one_loaded(tmp_path):

@@ -28,6 +28,7 @@ from std_srvs.srv import Trigger
 from msg_adapters.geometry import to_point
 from msg_adapters.pointcloud2 import msg_from_cloud
 from pointforce_ros.bringup.camera_check import render_view
+from pointforce_ros.deformation.identify import Poke
 from pointforce_ros.deformation.store import load_latest, model_versions
 from pointforce_ros.model.files import ContactModel, QUARANTINE, save_model
 from pointforce_ros.nodes import deformation_force
@@ -320,6 +321,66 @@ def test_an_ft_hovering_at_the_threshold_is_no_observation(cell):
     assert cell.node._observations == {}
     cell.poke(push, 0)          # a real push: its force is newtons
     assert list(cell.node._observations) == ['contact-1']
+
+
+def test_identify_counts_each_observation_once_and_bounds_how_many(cell):
+    """Audit 39: one id named 40 times ran 40 identical pokes (0.12 s each, so a request of
+    1000 ran for minutes) and reported "from 40 observation(s)"."""
+    node = cell.node
+    for k in range(2):
+        cell.poke(_fixture(f'push_foam_block_{k}'), 0)
+    names = list(node._observations)
+    refused = cell.call(cell.identify, IdentifyDeformation.Request(
+        poke_ids=[names[0]] * 40 + [names[1]]), 'identify')
+    assert not refused.success and 'more than once' in refused.message, refused.message
+    assert names[0] in refused.message and node._model is None
+    many = [f'poke-{k}' for k in range(deformation_force.MAX_IDENTIFY_POKES + 1)]
+    refused = cell.call(cell.identify, IdentifyDeformation.Request(poke_ids=many), 'identify')
+    assert not refused.success and f'at most {len(many) - 1}' in refused.message
+    fit = cell.call(cell.identify, IdentifyDeformation.Request(poke_ids=names), 'identify')
+    assert fit.success and 'from 2 observation(s),' in fit.message, fit.message
+
+
+def test_poses_in_an_unknown_frame_or_with_nan_are_ignored(cell):
+    """Audit 39: a camera pose stamped 'map' was taken as base (every cloud moved by it) and
+    a NaN TCP became the next poke's contact point."""
+    node = cell.node
+    cell.tcp([0.5, 0.0, 0.04])
+    held = node._tcp
+
+    def pose(frame, position):
+        msg = PoseStamped()
+        msg.header.frame_id = frame
+        msg.pose.position = to_point(position)
+        msg.pose.orientation.w = 1.0
+        return msg
+
+    node._on_tcp(pose('base', [np.nan, 0.0, 0.0]))
+    node._on_tcp(pose('map', [3.0, 2.0, 1.0]))
+    assert node._tcp is held
+    node._on_camera(pose('map', [3.0, 2.0, 1.0]))
+    assert node._camera_pose is None
+    node._on_camera(pose('', [0.4, 0.0, 0.5]))     # no frame: base, as for clouds
+    np.testing.assert_allclose(node._camera_pose.position, [0.4, 0.0, 0.5])
+    node._on_tcp(pose('base', [0.5, 0.01, 0.04]))
+    np.testing.assert_allclose(node._tcp[0], [0.5, 0.01, 0.04])
+
+
+def test_held_observations_are_bounded_by_the_bytes_of_their_clouds(cell, monkeypatch):
+    """Audit 39: observations kept their whole clouds up to ``max_observations`` (100 by
+    default, bound 10 000): about 1 GB at the default for a depth camera's 10 MB clouds."""
+    node = cell.node
+    cloud = np.random.default_rng(0).uniform(-0.05, 0.05, (20_000, 3))   # 480 kB
+    monkeypatch.setattr(deformation_force, 'OBSERVATION_BYTES', 3 * cloud.nbytes)
+    with node._lock:
+        for k in range(6):
+            node._add_observation(f'big-{k}', Poke([0.5, 0.0, 0.04], [0.0, 0.0, -1.0],
+                                                   cloud + k))
+    assert list(node._observations) == ['big-3', 'big-4', 'big-5']
+    monkeypatch.setattr(deformation_force, 'OBSERVATION_BYTES', cloud.nbytes // 2)
+    with node._lock:   # one cloud over the budget on its own: the newest is still held
+        node._add_observation('big-6', Poke([0.5, 0.0, 0.04], [0.0, 0.0, -1.0], cloud))
+    assert list(node._observations) == ['big-6']
 
 
 @pytest.mark.parametrize('rest_frames', [4, 0])

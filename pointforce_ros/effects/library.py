@@ -446,7 +446,8 @@ def friction_direction(inward: np.ndarray, contact_normal: np.ndarray, motion: n
 
 
 def count_earlier(points: np.ndarray, normals: np.ndarray, peak_force: np.ndarray,
-                  radius: float = PLASTIC_RADIUS, min_force: float = 0.5) -> np.ndarray:
+                  radius: float = PLASTIC_RADIUS, min_force: float = 0.5,
+                  start: int = 0) -> np.ndarray:
     """Earlier pokes within ``radius`` across each poke's axis (pokes in time order).
 
     Args:
@@ -455,16 +456,26 @@ def count_earlier(points: np.ndarray, normals: np.ndarray, peak_force: np.ndarra
         peak_force: (P,) peak normal force, N; pokes below ``min_force`` leave no set.
         radius: lateral radius, metres.
         min_force: least peak force of a poke that counts, N.
+        start: count for the pokes from this index on only (a learner counting its newest).
 
     Returns:
-        (P,) int counts.
+        (P - start,) int counts.
 
     """
     points = np.asarray(points, dtype=np.float64)
-    rel = points[None, :, :] - points[:, None, :]                    # (i, j, 3) p_j - p_i
-    along = np.einsum('ijk,ik->ij', rel, normals)
-    across = rel - along[:, :, None] * normals[:, None, :]
-    near = np.einsum('ijk,ijk->ij', across, across) <= float(radius) ** 2
-    earlier = np.tril(np.ones((len(points), len(points)), dtype=bool), k=-1)
+    normals = np.asarray(normals, dtype=np.float64)
     strong = np.asarray(peak_force) >= float(min_force)
-    return np.count_nonzero(near & earlier & strong[None, :], axis=1)
+    counts = np.zeros(len(points), dtype=np.int64)
+    start = min(max(int(start), 0), len(points))
+    # rows in blocks: (rows, earlier pokes, 3) of at most ~1e6 elements (a full (P, P, 3)
+    # was 216 MB at 3000 pokes)
+    block = max(1, 1_000_000 // max(3 * len(points), 1))
+    for lo in range(start, len(points), block):
+        hi = min(lo + block, len(points))
+        rel = points[None, :hi, :] - points[lo:hi, None, :]          # (i, j, 3) p_j - p_i
+        along = np.einsum('ijk,ik->ij', rel, normals[lo:hi])
+        across = rel - along[:, :, None] * normals[lo:hi, None, :]
+        near = np.einsum('ijk,ijk->ij', across, across) <= float(radius) ** 2
+        earlier = np.arange(hi)[None, :] < np.arange(lo, hi)[:, None]
+        counts[lo:hi] = np.count_nonzero(near & earlier & strong[None, :hi], axis=1)
+    return counts[start:]

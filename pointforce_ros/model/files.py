@@ -43,7 +43,7 @@ from pointforce_ros.contact.simulator import check_decay_law, DECAY_LAW
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, uncertainty_sources
 from pointforce_ros.effects.forward import ForwardTerms
 from pointforce_ros.effects.library import LIBRARY, PROBE_EFFECTS
-from pointforce_ros.errors import DataError, InvalidInput, read_json
+from pointforce_ros.errors import check_npz_size, DataError, InvalidInput, read_json
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.types import Surface
 
@@ -359,6 +359,7 @@ def load_model(path) -> ContactModel:
         raise DataError(f'model file not found: {path}')
     try:
         with np.load(path, allow_pickle=False) as z:
+            check_npz_size(z, path, 'contact model')
             header = json.loads(bytes(z['header']).decode())
             if not isinstance(header, dict) or header.get('format') != FORMAT:
                 found = header.get('format') if isinstance(header, dict) else header
@@ -627,6 +628,7 @@ def load_surface(path) -> Surface:
         raise DataError(f'surface file not found: {path}')
     try:
         with np.load(path, allow_pickle=False) as z:
+            check_npz_size(z, path, 'surface')
             return Surface(points=z['points'], normals=z['normals'], colors=z['colors'],
                            frame=bytes(z['frame']).decode() or 'base')
     except Exception as exc:  # noqa: BLE001 - zipfile, zlib, numpy: many error types

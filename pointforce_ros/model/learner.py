@@ -17,6 +17,7 @@ the corrected surface (surface offset, and the set where the object was poked), 
 saved with the model so that the contact service adds their forward terms.
 """
 
+import copy
 import threading
 import time
 from dataclasses import dataclass, field
@@ -47,6 +48,16 @@ MAX_POKE_FORCE = 1000.0
 mis-scaled sensor, a corrupt sample). No point-probe poke presses that hard (the poke server
 caps its force limit far below; a UR e-series F/T sensor reads up to 50-160 N), and one such
 poke would make the relative contact threshold refuse every later, real poke."""
+MAX_REFITS_PER_UPDATE = 20
+"""Most process refits one update makes: more new pokes than this (a restart over a large
+store) are added in as many groups, each poke's law fitted on its own and the processes refit
+once per group (a model with ``refit_processes``; the model learned is the same, the
+prequential error of a group is that of the model before it)."""
+MONOTONE_TOLERANCE = 1e-5
+"""Share of a row's largest force a baked force may fall by from one depth to the next
+(float32 rounding of the bake) before a monotone model's table counts as decreasing."""
+RMSE_BATCH = 20_000
+"""Most force samples :func:`curve_rmse` predicts in one call (bounded memory, few calls)."""
 MAX_REGION_ROWS = 10_000
 """Most ``(x, y, z, radius)`` rows a planner's region may have: a suggestion compares every
 candidate with every row (a larger region is refused, not left to exhaust memory)."""
@@ -77,19 +88,29 @@ class LearnerStatus:
     skipped: Dict[str, str] = field(default_factory=dict)
 
 
-def curve_rmse(model, curves: Sequence[PokeCurve], surface: Surface) -> float:
-    """RMS of ``model`` against the force samples of ``curves`` (N); NaN for no curves."""
-    from scipy.spatial import cKDTree
+def curve_rmse(model, curves: Sequence[PokeCurve], surface: Surface,
+               tree: Optional[cKDTree] = None) -> float:
+    """RMS of ``model`` against the force samples of ``curves`` (N); NaN for no curves.
+
+    ``tree``: a ``cKDTree`` of ``surface.points`` to reuse (built here when ``None``).
+    """
     if not curves:
         return float('nan')
-    tree = cKDTree(surface.points)
-    errors = []
-    for curve in curves:
-        _, idx = tree.query(curve.point)
-        feats = np.repeat(surface.features[idx][None], len(curve.d), axis=0)
-        errors.append(model.predict(feats, curve.d) - curve.f)
-    err = np.concatenate(errors)
-    return float(np.sqrt(np.mean(err ** 2)))
+    tree = cKDTree(surface.points) if tree is None else tree
+    _, nearest = tree.query(np.array([c.point for c in curves]))
+    sq, count, start = 0.0, 0, 0
+    while start < len(curves):     # a few predictions of at most RMSE_BATCH samples each
+        stop, size = start + 1, len(curves[start].d)
+        while stop < len(curves) and size + len(curves[stop].d) <= RMSE_BATCH:
+            size += len(curves[stop].d)
+            stop += 1
+        batch = curves[start:stop]
+        feats = np.repeat(surface.features[nearest[start:stop]], [len(c.d) for c in batch],
+                          axis=0)
+        err = model.predict(feats, np.concatenate([c.d for c in batch])) \
+            - np.concatenate([c.f for c in batch])
+        sq, count, start = sq + float(np.sum(err ** 2)), count + len(err), stop
+    return float(np.sqrt(sq / count))
 
 
 class OnlineLearner:
@@ -126,6 +147,8 @@ class OnlineLearner:
         contact_snr: noise sigmas a poke's peak must exceed (relative threshold).
         min_peak_fraction: share of the largest peak learned so far a poke's peak must
             exceed (relative threshold).
+        progress: optional callable that takes a line of progress text (an update of many
+            pokes reports each group of them).
 
     Raises:
         InvalidInput: a non-positive shape constant or decay length, or malformed effects.
@@ -138,7 +161,8 @@ class OnlineLearner:
                  corrections: Optional[Callable] = None, effects: Optional[dict] = None,
                  min_peak_force: Optional[float] = None, shape_decay: float = np.inf,
                  contact_snr: float = 5.0, min_peak_fraction: float = 0.02,
-                 shape_decay_law: Optional[str] = None, shape_near: str = 'paper'):
+                 shape_decay_law: Optional[str] = None, shape_near: str = 'paper',
+                 progress: Optional[Callable[[str], None]] = None):
         """Open the store; nothing is fitted until :meth:`update`."""
         if not (np.isfinite(shape_constant) and shape_constant > 0):
             raise InvalidInput(f'shape_constant: must be > 0 m, got {shape_constant}')
@@ -175,6 +199,12 @@ class OnlineLearner:
         self._prequential: List[np.ndarray] = []
         self.status: Optional[LearnerStatus] = None
         self._lock = threading.RLock()  # update() mutates the model that suggest() reads
+        # one update at a time; it holds _lock per group of pokes, so suggest() is answered
+        # between groups rather than after a long update
+        self._updating = threading.Lock()
+        self.progress = progress
+        self._tree = cKDTree(surface.points)   # poked point -> surface point, for the errors
+        self._checked: Optional[ContactModel] = None   # the model _add baked and checked
 
     def _new_curves(self) -> List[PokeCurve]:
         if self.store is None:
@@ -265,19 +295,20 @@ class OnlineLearner:
         ``skipped`` for why).
         """
         fresh = []
-        with self._lock:
-            for record in sorted(records, key=lambda r: float(r.t[0]) if len(r) else 0.0):
-                if record.probe != 'point':
-                    continue
-                try:
-                    curve = self._curve(record)
-                except Exception as exc:  # noqa: BLE001 - one bad poke must not block the rest
-                    self.skipped[record.poke_id] = (
-                        str(exc) if isinstance(exc, PointforceError) else
-                        f'cannot be learned from ({type(exc).__name__}: {exc})')
-                    continue
-                if curve is not None:
-                    fresh.append(curve)
+        with self._updating:
+            with self._lock:
+                for record in sorted(records, key=lambda r: float(r.t[0]) if len(r) else 0.0):
+                    if record.probe != 'point':
+                        continue
+                    try:
+                        curve = self._curve(record)
+                    except Exception as exc:  # noqa: BLE001 - one bad poke must not block
+                        self.skipped[record.poke_id] = (
+                            str(exc) if isinstance(exc, PointforceError) else
+                            f'cannot be learned from ({type(exc).__name__}: {exc})')
+                        continue
+                    if curve is not None:
+                        fresh.append(curve)
             return self._fit(fresh)
 
     def _remember(self, record, peak: float) -> int:
@@ -286,8 +317,18 @@ class OnlineLearner:
                             record.point.copy(), record.normal.copy(), peak))
         if 'plastic_set' not in self.effects:
             return 0
-        counts, order = self._spot_counts()
-        return int(counts[np.flatnonzero(order == len(self._spots) - 1)[0]])
+        # the new poke's own count only (all counts per poke read made a restart cubic in
+        # the pokes): the spots before it in time order, as :meth:`_spot_counts` orders them
+        t, point, normal, _ = self._spots[-1]
+        before = [s for s in self._spots[:-1] if s[0] <= t]
+        if not before:
+            return 0
+        radius = self.effects.get('plastic_set', {}).get('radius', PLASTIC_RADIUS)
+        counts = count_earlier(np.array([s[1] for s in before] + [point]),
+                               np.array([s[2] for s in before] + [normal]),
+                               np.array([s[3] for s in before] + [peak]), radius,
+                               start=len(before))
+        return int(counts[0])
 
     def _spot_counts(self):
         """Earlier pokes within the plastic radius of every remembered poke, in time order."""
@@ -312,32 +353,75 @@ class OnlineLearner:
 
     def update(self) -> Optional[LearnerStatus]:
         """Fit the pokes that arrived since the last call; return the new status or ``None``."""
-        with self._lock:
-            return self._update()
-
-    def _update(self) -> Optional[LearnerStatus]:
-        return self._fit(self._new_curves())
+        with self._updating:
+            with self._lock:
+                fresh = self._new_curves()
+            return self._fit(fresh)
 
     def _fit(self, fresh: List[PokeCurve]) -> Optional[LearnerStatus]:
+        """Add ``fresh`` to the model; save and return the new status, or ``None``.
+
+        A poke that cannot be added, or whose model is not sane (:func:`check_served`), is
+        skipped with the reason and the model stays as it was without it. The model is
+        locked per group of pokes (a suggestion waits for one group, not the whole update).
+        """
         if not fresh:
             return None
         start = time.perf_counter()
-        for curve in fresh:
-            if self.model is not None:
-                self._prequential.append(np.array([curve_rmse(self.model, [curve],
-                                                              self.surface)]))
-            try:
+        grouped = hasattr(self.model_factory(), 'refit_processes')
+        size = -(-len(fresh) // MAX_REFITS_PER_UPDATE) if grouped else 1
+        groups = [fresh[i:i + size] for i in range(0, len(fresh), size)]
+        added = 0
+        for k, group in enumerate(groups):
+            with self._lock:
+                added += self._add(group)
+            if size > 1 and self.progress is not None:
+                self.progress(f'learned {k * size + len(group)} of {len(fresh)} new pokes '
+                              f'({added} added, {time.perf_counter() - start:.1f} s)')
+        if not added:
+            return None
+        with self._lock:
+            return self._save(start, self._checked)
+
+    def _add(self, group: List[PokeCurve]) -> int:
+        """Add ``group`` with one process refit; on failure split it (bad pokes skipped).
+
+        Returns how many pokes were added.
+        """
+        before = (copy.deepcopy(self.model, {id(self.surface): self.surface}),
+                  len(self.curves), len(self._prequential), self._checked)
+        added = []
+        try:
+            for curve in group:
+                if self.model is not None:
+                    self._prequential.append(np.array([curve_rmse(
+                        self.model, [curve], self.surface, self._tree)]))
                 if self.model is None:
                     self.model = self.model_factory().fit([curve], self.surface)
+                elif len(group) > 1:
+                    self.model.partial_fit(curve, self.surface, refit=False)
                 else:
                     self.model.partial_fit(curve, self.surface)
-            except PointforceError as exc:
-                self.skipped[curve.poke_id] = str(exc)
-                continue
-            self.curves.append(curve)
-        if self.model is None:
-            return None
-        return self._save(start)
+                added.append(curve)
+                self.curves.append(curve)
+            if len(group) > 1:
+                self.model.refit_processes()
+            self._checked = check_served(self.contact_model(), self.model)
+            return len(added)
+        except Exception as exc:  # noqa: BLE001 - the model is kept as it was before the group
+            self.model, self.curves, self._prequential, self._checked = (
+                before[0], self.curves[:before[1]], self._prequential[:before[2]], before[3])
+            if len(group) == 1:
+                self._skip(group[0], exc)
+                return 0
+        half = len(group) // 2
+        return self._add(group[:half]) + self._add(group[half:])
+
+    def _skip(self, curve: PokeCurve, exc: Exception) -> None:
+        """Note why ``curve`` was not learned from."""
+        self.skipped[curve.poke_id] = (
+            str(exc) if isinstance(exc, PointforceError) else
+            f'cannot be learned from ({type(exc).__name__}: {exc})')
 
     def set_shape_constant(self, c: float, decay: Optional[float] = None,
                            decay_law: Optional[str] = None,
@@ -368,6 +452,7 @@ class OnlineLearner:
                 self.shape_decay_law = law
             if near is not None:
                 self.shape_near = near
+            self._checked = None   # baked before the change: _save bakes again
             if self.model is None:
                 return None
             self._c_updates += 1
@@ -391,6 +476,7 @@ class OnlineLearner:
             if checked == self.uncertainty:
                 return None
             self.uncertainty = checked
+            self._checked = None   # baked before the change: _save bakes again
             if self.model is None:
                 return None
             self._c_updates += 1
@@ -424,14 +510,14 @@ class OnlineLearner:
                                       'surface_corrected': corrected,
                                       **self.uncertainty})
 
-    def _save(self, start: float) -> LearnerStatus:
-        contact = self.contact_model()
+    def _save(self, start: float, contact: Optional[ContactModel] = None) -> LearnerStatus:
+        contact = self.contact_model() if contact is None else contact
         version = contact.version
         path = None if self.model_dir is None else save_model(contact, self.model_dir)
         pre = np.concatenate(self._prequential) if self._prequential else np.zeros(0)
         self.status = LearnerStatus(
             version=version, num_pokes=len(self.curves),
-            training_rmse=curve_rmse(self.model, self.curves, self.surface),
+            training_rmse=curve_rmse(self.model, self.curves, self.surface, self._tree),
             validation_rmse=float(np.sqrt(np.mean(pre ** 2))) if len(pre) else float('nan'),
             model_path=path, fit_seconds=time.perf_counter() - start,
             skipped=dict(self.skipped))
@@ -516,6 +602,33 @@ class OnlineLearner:
                 return suggest_pokes(self.model, self.surface, int(count),
                                      exclude_radius=exclude_radius, candidates=candidates)
             return picked
+
+
+def check_served(contact: ContactModel, model) -> ContactModel:
+    """Return ``contact`` if its baked table is physically sane, else raise with the reason.
+
+    Sane: finite forces, standard deviations and slopes (the table itself refuses NaN and
+    inf), no negative force or slope and, for a ``model`` whose law is ``monotone``, no force
+    that falls with depth (beyond :data:`MONOTONE_TOLERANCE` of the row's largest force).
+
+    Raises:
+        InvalidInput: the first property the table breaks.
+
+    """
+    table = contact.response
+    forces = table.forces
+    if np.any(forces < 0) or np.any(table.slopes < 0):
+        raise InvalidInput(f'model refused: a negative force ({forces.min():.4g} N) or slope '
+                           f'({table.slopes.min():.4g} N/m) in the baked table')
+    if getattr(model, 'monotone', False) and forces.shape[1] > 1:
+        fall = -np.diff(forces, axis=1)
+        allowed = MONOTONE_TOLERANCE * forces.max(axis=1, keepdims=True) + 1e-12
+        if np.any(fall > allowed):
+            i, k = np.unravel_index(int(np.argmax(fall - allowed)), fall.shape)
+            raise InvalidInput(f'model refused: the force at surface point {i} falls by '
+                               f'{fall[i, k]:.4g} N between depths {table.depths[k]:.4g} and '
+                               f'{table.depths[k + 1]:.4g} m (the law is monotone)')
+    return contact
 
 
 def check_region(region) -> np.ndarray:

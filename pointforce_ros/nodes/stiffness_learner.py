@@ -379,7 +379,8 @@ class StiffnessLearnerNode(Node):
                                          shape_decay_law=self.decay_law,
                                          shape_near=self.near,
                                          min_peak_force=self.min_peak_force or None,
-                                         effects=self.effects)
+                                         effects=self.effects,
+                                         progress=self.get_logger().info)
             self.learner.set_uncertainty(self.uncertainty)
         self.get_logger().info(f'surface of {len(surface)} points; learning from '
                                f'{self.store_dir}')

@@ -46,10 +46,17 @@ def curve_features(curves: Sequence[PokeCurve], surface: Surface,
         raise InvalidInput('fit: the surface has no points')
     pts = np.stack([c.point for c in curves])
     sp = surface.points
-    # (n, N) distances for n pokes: n is small (tens), N up to ~1e5.
-    d2 = (pts * pts).sum(1)[:, None] + (sp * sp).sum(1)[None, :] - 2.0 * pts @ sp.T
-    nearest = np.argmin(d2, axis=1)
-    dist = np.sqrt(np.maximum(d2[np.arange(len(pts)), nearest], 0.0))
+    sp2 = (sp * sp).sum(1)[None, :]
+    nearest = np.zeros(len(pts), dtype=np.int64)
+    dist = np.zeros(len(pts))
+    # (rows, N) distances, N up to ~1e5: pokes in blocks of at most ~16 MB
+    block = max(1, 2_000_000 // max(len(sp), 1))
+    for lo in range(0, len(pts), block):
+        p = pts[lo:lo + block]
+        d2 = (p * p).sum(1)[:, None] + sp2 - 2.0 * p @ sp.T
+        near = np.argmin(d2, axis=1)
+        nearest[lo:lo + block] = near
+        dist[lo:lo + block] = np.sqrt(np.maximum(d2[np.arange(len(p)), near], 0.0))
     far = dist > max_distance
     if np.any(far):
         k = int(np.flatnonzero(far)[0])

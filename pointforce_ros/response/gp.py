@@ -34,6 +34,10 @@ GROUPS = (slice(0, 3), slice(3, 6), slice(6, 9))
 
 BASES = ('none', 'rigid', 'colour')
 
+GRID_CHUNK_ELEMENTS = 2_000_000
+"""Most elements of one (chunk, n, n) array of the grid search (16 MB): :meth:`FeatureGp.fit`
+evaluates fewer grid points at once for many training points, not more memory."""
+
 
 @dataclass(frozen=True)
 class GpGrid:
@@ -231,6 +235,8 @@ class FeatureGp:
         best_val, best = -np.inf, None
         eye = np.diag(self._noise(noise, n))
         rhs = np.stack([np.ones(n), y], axis=1)
+        # a chunk holds a few (chunk, n, n) arrays: at most GRID_CHUNK_ELEMENTS each
+        chunk = max(1, min(int(chunk), GRID_CHUNK_ELEMENTS // (n * n)))
         for lo in range(0, len(combos), chunk):
             c = combos[lo:lo + chunk]
             inv = np.stack([_inv_len2(c[:, 0]), _inv_len2(c[:, 1]), _inv_len2(c[:, 2])], axis=1)

@@ -172,6 +172,13 @@ ROBUST_MIN_POKES = 5
 """Fewest pokes whose parameters are screened for outliers (a median needs company)."""
 ROBUST_SCALE_FLOOR = np.array([2e-4, 0.1, 0.1, 0.1])
 """Smallest robust spread of ``(d0 [m], log F, p, q)`` an outlier is measured against."""
+MAX_PROCESS_POKES = 128
+"""Most pokes the processes are conditioned on. A refit costs about ``n^3`` per grid point and
+the leave-one-out law choice ``n^4``, its memory ``n^2`` per grid point (measured on this machine
+kind: 100 pokes 4.6 s and 140 MB, 300 pokes 61 s and 1.3 GB, 1000 would need about 14 GB); past
+this many, the processes are conditioned on the pokes spread furthest apart over the surface
+(:meth:`ContactGpModel.process_rows`; every poke keeps its own law fit, and the parameters'
+bounds are those of all pokes)."""
 
 _GH_Z, _GH_W = np.polynomial.hermite_e.hermegauss(ONSET_NODES)
 _GH_W = _GH_W / _GH_W.sum()
@@ -212,6 +219,8 @@ class ContactGpModel:
     """
 
     kind = KIND
+    monotone = True
+    """The force never decreases with depth (the contact laws are increasing past the onset)."""
 
     def __init__(self, ref_depth: float = 0.003, exponent_bounds=(0.7, 3.5),
                  prior_scales=(0.003, 1.0, 0.4, 1.0),
@@ -429,9 +438,12 @@ class ContactGpModel:
         self.fit_seconds = time.perf_counter() - start
         return self
 
-    def partial_fit(self, curve: PokeCurve, surface: Optional[Surface] = None
-                    ) -> 'ContactGpModel':
+    def partial_fit(self, curve: PokeCurve, surface: Optional[Surface] = None, *,
+                    refit: bool = True) -> 'ContactGpModel':
         """Add one poke (earlier per-poke fits are reused) and refit the processes.
+
+        ``refit=False`` only adds the poke's own law fit: the model predicts as before until
+        :meth:`refit_processes` (many pokes at once pay for one refit, not one each).
 
         Raises:
             InvalidInput: duplicate poke id, no surface known yet, poke off the surface.
@@ -448,20 +460,57 @@ class ContactGpModel:
         laws = [k for k in self._laws_to_fit()
                 if len(self._thetas[k]) == len(self._ids)]   # loaded without a law: stays out
         fits = self._fit_curve_laws(curve, laws)
-        for law in laws:
-            theta, rms = fits[law]
-            self._thetas[law] = np.vstack([self._thetas[law], theta[None]])
-            self._rms[law] = np.append(self._rms[law], rms)
-        self._ids.append(curve.poke_id)
-        self._samples.append(self._cv_samples(curve))
+        self._thetas = {k: (np.vstack([v, fits[k][0][None]]) if k in fits else v)
+                        for k, v in self._thetas.items()}
+        self._rms = {k: (np.append(v, fits[k][1]) if k in fits else v)
+                     for k, v in self._rms.items()}
+        self._ids = self._ids + [curve.poke_id]
+        self._samples = self._samples + [self._cv_samples(curve)]
         self._features = np.vstack([self._features, feat])
         self._onsets = np.append(self._onsets, float(curve.onset_d))
         if self._frame is None or surface is not self._surface:
             self._frame = FeatureFrame.of_surface(surface.points, surface.colors)
         self._surface = surface
+        if refit:
+            self._fit_processes()
+        self.fit_seconds = time.perf_counter() - start
+        return self
+
+    def refit_processes(self) -> 'ContactGpModel':
+        """Refit the processes on every poke added so far (after ``partial_fit(refit=False)``).
+
+        Raises:
+            ModelNotReady: no poke yet.
+
+        """
+        if not self._ids:
+            raise ModelNotReady('ContactGpModel: no pokes yet; fit the model first')
+        start = time.perf_counter()
         self._fit_processes()
         self.fit_seconds = time.perf_counter() - start
         return self
+
+    def process_rows(self) -> np.ndarray:
+        """Return the indices of the pokes the processes are conditioned on (MAX_PROCESS_POKES).
+
+        All of them up to :data:`MAX_PROCESS_POKES`; past it the newest poke and then, one at a
+        time, the poke farthest in scaled position (object size 1, :class:`FeatureFrame`) from
+        those already taken (deterministic: a reloaded model conditions on the same pokes).
+        """
+        n = len(self._ids)
+        if n <= MAX_PROCESS_POKES:
+            return np.arange(n)
+        scale = self._frame.scale if self._frame is not None else 1.0
+        pos = self._features[:, :3] / scale
+        taken = [n - 1]
+        gap = np.linalg.norm(pos - pos[n - 1], axis=1)
+        gap[n - 1] = -np.inf
+        for _ in range(MAX_PROCESS_POKES - 1):
+            k = int(np.argmax(gap))
+            taken.append(k)
+            gap = np.minimum(gap, np.linalg.norm(pos - pos[k], axis=1))
+            gap[taken] = -np.inf
+        return np.sort(np.array(taken))
 
     def _fit_processes(self, states: Optional[Sequence[GpState]] = None) -> None:
         with single_threaded_blas():
@@ -582,7 +631,8 @@ class ContactGpModel:
 
         ``states``: hyperparameters to condition with (``None``: choose them on the grid).
         """
-        rows = np.arange(len(self._ids)) if rows is None else rows
+        every = rows is None
+        rows = self.process_rows() if every else rows
         theta = self._thetas[law][rows]
         noise = self._outlier_noise(theta)
         mu, scale, chol, priors = self._decorrelation(theta, 1.0 / noise)
@@ -595,8 +645,9 @@ class ContactGpModel:
             else:
                 gp.condition(self._features[rows], y[:, j], states[j], noise)
             gps.append(gp)
-        return gps, (mu, scale, chol), self._bounds(theta, self._onsets[rows]), \
-            self._calibration(gps)
+        bounds = self._bounds(self._thetas[law], self._onsets) if every else \
+            self._bounds(theta, self._onsets[rows])
+        return gps, (mu, scale, chol), bounds, self._calibration(gps)
 
     @staticmethod
     def _calibration(gps: Sequence[FeatureGp]) -> np.ndarray:
@@ -621,11 +672,11 @@ class ContactGpModel:
         Scores the configured mean mode; with ``mean='auto'`` the better of the two (the
         modes' own scores are kept in ``self._mode_scores[law]``).
         """
-        n = len(self._ids)
+        every = self.process_rows()
         states = [gp.state for gp in gps]
         errs = {'mean': [], 'median': []}
-        for i in range(n):
-            rows = np.delete(np.arange(n), i)
+        for j, i in enumerate(every):
+            rows = np.delete(every, j)
             field = self._condition(law, states, rows)
             mean, cov = self._param_dist(field, self._features[i:i + 1])
             d, f = self._samples[i]
@@ -866,11 +917,16 @@ class ContactGpModel:
         h = 1e-5
         grid = np.append(depths, depths[-1] + h)[:, None]                  # (K+1, 1)
         mean, cov = self.predict_param_dist(surface.features)
-        with single_threaded_blas():
-            q1, q2 = self._mean_force(self.law, mean, cov, grid, second=True,
-                                      dtype=np.float32)                 # (K+1, N)
-            m1 = q1 if self.mean == 'mean' else \
-                self._median_force(self.law, mean, grid, dtype=np.float32)
+        # float32 (fast) unless a steep law overflows it deep in the grid (E[f^2] first)
+        for dtype in (np.float32, np.float64):
+            with single_threaded_blas(), np.errstate(over='ignore', invalid='ignore'):
+                q1, q2 = self._mean_force(self.law, mean, cov, grid, second=True,
+                                          dtype=dtype)                  # (K+1, N)
+                m1 = q1 if self.mean == 'mean' else \
+                    self._median_force(self.law, mean, grid, dtype=dtype)
+                if np.isfinite(q2.sum()) and np.isfinite(m1.sum()) \
+                        and np.isfinite(np.square(q1.max(), dtype=dtype)):
+                    break
         var = q2[:-1]
         var -= q1[:-1] ** 2
         np.maximum(var, 0.0, out=var)

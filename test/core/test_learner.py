@@ -1,17 +1,21 @@
 """Online learner over a poke store: refits as pokes land, restart gives the same model."""
 
 import dataclasses
+import threading
 
 import numpy as np
 import pytest
 
 from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
 from pointforce_ros.sim.session import halfspace_object, simulate_campaign
+from pointforce_ros.effects.library import count_earlier
 from pointforce_ros.errors import InvalidInput, ModelNotReady
+from pointforce_ros.model import learner as learner_module
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.files import load_model
 from pointforce_ros.pokes.store import PokeStore
-from pointforce_ros.types import Surface
+from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.types import PokeRecord, Surface
 
 CONTACT = HalfSpaceContact(z0=0.04, k0=1.4e4, exponent=1.5, ripple=0.4, wavelength=0.06)
 OBJECT = halfspace_object(CONTACT, region=((0.47, 0.53), (-0.03, 0.03)))
@@ -222,3 +226,193 @@ def test_implausible_force_poke_is_skipped_and_later_pokes_learn(tmp_path, scale
     assert 'poke-000900' in status.skipped and 'implausible force' in status.skipped['poke-000900']
     assert status.num_pokes == 3 and 'poke-000950' not in status.skipped
     assert np.isfinite(status.training_rmse) and status.training_rmse < 1.0
+
+
+def _record(poke_id, point, force, depth, seed, speed=0.004, rate=250.0, noise=0.01):
+    """A synthetic point poke: hold at the stand-off, push at ``speed`` to ``depth``, retract."""
+    rng = np.random.default_rng(seed)
+    d = np.concatenate([np.full(int(0.3 * rate), -0.005),
+                        np.arange(-0.005, depth, speed / rate),
+                        np.full(int(0.1 * rate), depth), np.linspace(depth, -0.005, 125)])
+    f = force(np.maximum(d, 0.0)) + noise * rng.standard_normal(len(d))
+    t = 10.0 * seed + np.arange(len(d)) / rate
+    pose = np.zeros((len(d), 6))
+    pose[:, :3] = np.asarray(point) - d[:, None] * np.array([0.0, 0.0, 1.0])
+    wrench = np.zeros((len(d), 6))
+    wrench[:, 2] = f
+    return PokeRecord(poke_id=poke_id, point=point, normal=[0.0, 0.0, 1.0], t=t,
+                      t_controller=t, tcp_pose=pose, wrench=wrench, speed=speed)
+
+
+def test_steep_shallow_pokes_give_a_finite_model():
+    """Strain stiffening seen to 1 mm only: the table baked to 25 mm stays finite."""
+    surface = _surface()
+    points = surface.points[np.random.default_rng(3).choice(len(surface), 8, replace=False)]
+    records = [_record(f'poke-{k:06d}', p, lambda s: 0.05 * np.expm1(s / 2e-4), 0.001, k)
+               for k, p in enumerate(points)]
+    learner = OnlineLearner(None, None, surface, shape_constant=0.004)
+    status = learner.learn_records(records)
+    assert status is not None and status.num_pokes == 8 and not status.skipped
+    table = learner.contact_model().response
+    assert np.all(np.isfinite(table.forces)) and np.all(np.isfinite(table.std))
+    assert np.all(np.diff(table.forces, axis=1) >= 0.0)
+    # where the pokes were, the table still says what they measured
+    idx = np.argmin(np.linalg.norm(surface.points[:, None] - points[None], axis=2), axis=0)
+    measured = 0.05 * np.expm1(0.001 / 2e-4)
+    np.testing.assert_allclose(table.force(idx, np.full(len(idx), 0.001)), measured, rtol=0.2)
+
+
+class _BreaksOn(ContactGpModel):
+    """Ours, except that conditioning on poke ``poke-000002`` fails (not a PointforceError)."""
+
+    def _fit_processes(self, states=None):
+        if 'poke-000002' in self._ids:
+            raise np.linalg.LinAlgError('Matrix is not positive definite')
+        super()._fit_processes(states)
+
+
+def test_a_poke_that_breaks_the_refit_is_skipped_and_later_pokes_learn(tmp_path):
+    store = PokeStore(tmp_path / 'pokes')
+    records = _campaign(6, seed=3, id_prefix='poke-0')
+    for k, record in enumerate(records[:4]):
+        store.add(dataclasses.replace(record, poke_id=f'poke-{k:06d}'))
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
+                            shape_constant=0.004, model_factory=_BreaksOn)
+    status = learner.update()
+    assert status.num_pokes == 3 and list(status.skipped) == ['poke-000002']
+    assert 'LinAlgError' in status.skipped['poke-000002']
+    assert learner.model.poke_ids == ['poke-000000', 'poke-000001', 'poke-000003']
+    for k, record in enumerate(records[4:], start=4):
+        store.add(dataclasses.replace(record, poke_id=f'poke-{k:06d}'))
+    again = learner.update()
+    assert again.num_pokes == 5 and again.version == 5
+    assert load_model(again.model_path).meta['pokes'] == learner.model.poke_ids
+
+
+class _FallsWith(ContactGpModel):
+    """Ours, except that with poke ``poke-000003`` the baked force falls at the deepest depth."""
+
+    def bake(self, surface, depths):
+        table = super().bake(surface, depths)
+        if 'poke-000003' not in self._ids:
+            return table
+        forces = table.forces.copy()
+        forces[:, -1] = 0.5 * forces[:, -2]
+        return dataclasses.replace(table, forces=forces)
+
+
+def test_a_model_that_is_not_sane_is_refused_and_the_previous_one_kept(tmp_path):
+    store = PokeStore(tmp_path / 'pokes')
+    records = [dataclasses.replace(r, poke_id=f'poke-{k:06d}')
+               for k, r in enumerate(_campaign(5, seed=8, id_prefix='poke-0'))]
+    for record in records[:3]:
+        store.add(record)
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
+                            shape_constant=0.004, model_factory=_FallsWith)
+    first = learner.update()
+    assert first.version == 3
+    store.add(records[3])
+    assert learner.update() is None      # refused: nothing new is saved
+    assert 'falls' in learner.skipped['poke-000003']
+    assert learner.current_model_path() == first.model_path
+    assert learner.model.poke_ids == ['poke-000000', 'poke-000001', 'poke-000002']
+    store.add(records[4])
+    later = learner.update()
+    assert later.num_pokes == 4 and 'poke-000003' in later.skipped
+    saved = load_model(later.model_path).response.forces
+    assert np.all(np.diff(saved, axis=1) >= 0.0)
+
+
+class _CountsRefits(ContactGpModel):
+    """Ours, counting its process refits."""
+
+    refits = 0
+
+    def _fit_processes(self, states=None):
+        type(self).refits += 1
+        super()._fit_processes(states)
+
+
+def test_many_new_pokes_are_learned_in_a_bounded_number_of_refits(monkeypatch):
+    """A restart over a large store: one refit per group of pokes, the same model."""
+    records = _campaign(12, seed=11, id_prefix='poke-0')
+    surface = _surface()
+    one_by_one = OnlineLearner(None, None, surface, shape_constant=0.004)
+    expected = one_by_one.learn_records(records)
+    monkeypatch.setattr(learner_module, 'MAX_REFITS_PER_UPDATE', 3)
+    lines = []
+    grouped = OnlineLearner(None, None, surface, shape_constant=0.004,
+                            model_factory=_CountsRefits, progress=lines.append)
+    status = grouped.learn_records(records)
+    # three groups of four: the first poke's own fit, then one refit per group
+    assert _CountsRefits.refits == 4 and len(lines) == 3 and '12 of 12' in lines[-1]
+    assert status.version == expected.version == 12 and not status.skipped
+    np.testing.assert_allclose(grouped.contact_model().response.forces,
+                               one_by_one.contact_model().response.forces,
+                               rtol=1e-6, atol=1e-9)
+    assert np.isfinite(status.validation_rmse) and status.validation_rmse < 1.0
+
+
+def test_suggestions_are_answered_between_the_groups_of_a_long_update(monkeypatch):
+    surface = _surface()
+    records = _campaign(10, seed=12, id_prefix='poke-0')
+    monkeypatch.setattr(learner_module, 'MAX_REFITS_PER_UPDATE', 2)
+    reached, answered = threading.Event(), threading.Event()
+
+    def progress(line):
+        reached.set()
+        answered.wait(20.0)      # the update stays in progress until a suggestion came back
+
+    learner = OnlineLearner(None, None, surface, shape_constant=0.004)
+    assert learner.learn_records(records[:3]).num_pokes == 3
+    learner.progress = progress
+    update = threading.Thread(target=learner.learn_records, args=(records[3:],))
+    update.start()
+    try:
+        assert reached.wait(60.0)
+        result = []
+        ask = threading.Thread(target=lambda: result.append(learner.suggest(1)))
+        ask.start()
+        ask.join(10.0)
+        assert not ask.is_alive() and len(result[0].indices) == 1
+        assert update.is_alive()       # answered in the middle of the update
+    finally:
+        answered.set()
+        update.join(60.0)
+    assert learner.status.num_pokes == 10
+
+
+def test_plastic_set_counts_are_blocked_and_the_newest_poke_is_counted_alone():
+    """Audit 39: the counts built (P, P, 3) arrays (216 MB at 3000 pokes) and a learner
+    counted every poke again for each poke it read (cubic in the pokes on a restart)."""
+    rng = np.random.default_rng(5)
+    n = 700
+    points = np.column_stack([rng.uniform(0.0, 0.02, (n, 2)), np.full(n, 0.04)])
+    normals = rng.normal([0.0, 0.0, 1.0], 0.2, (n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    peak = rng.uniform(0.0, 2.0, n)
+    # the definition, written out pair by pair
+    rel = points[None, :, :] - points[:, None, :]
+    across = rel - np.einsum('ijk,ik->ij', rel, normals)[:, :, None] * normals[:, None, :]
+    near = np.linalg.norm(across, axis=2) <= 0.002
+    truth = np.array([np.count_nonzero(near[i, :i] & (peak[:i] >= 0.5)) for i in range(n)])
+    counts = count_earlier(points, normals, peak, 0.002)
+    np.testing.assert_array_equal(counts, truth)
+    assert truth[0] == 0 and truth.max() > 5   # two blocks of rows, counts that differ
+    np.testing.assert_array_equal(count_earlier(points, normals, peak, 0.002, start=n - 3),
+                                  truth[-3:])
+
+
+def test_the_learner_counts_each_new_plastic_set_poke_as_the_whole_history_does(tmp_path):
+    records = _campaign(6, seed=3, id_prefix='poke-0')
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
+                            shape_constant=0.004,
+                            effects={'plastic_set': {'max_set': 0.0008, 'n0': 3.0,
+                                                     'radius': 0.05}})
+    # out of time order on purpose: a late record read first is not earlier than the rest
+    got, whole = [], []
+    for i in [0, 3, 1, 2, 5, 4]:
+        got.append(learner._remember(records[i], 1.0))
+        counts, index = learner._spot_counts()   # every remembered poke, in time order
+        whole.append(int(counts[np.flatnonzero(index == len(index) - 1)[0]]))
+    assert got == whole and max(got) > 0

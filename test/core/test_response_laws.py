@@ -12,6 +12,7 @@ import pytest
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.response.gp import FeatureFrame, FeatureGp
+from pointforce_ros.response import ours
 from pointforce_ros.response.ours import ContactGpModel, ROBUST_Z
 from pointforce_ros.types import Surface
 
@@ -319,3 +320,29 @@ def test_a_noisier_point_pulls_the_process_less():
     assert means[1] < 0.5 * means[0], means
     with pytest.raises(InvalidInput, match='noise factors'):
         FeatureGp(frame, prior_scale=1.0).fit(x, y, noise=np.array([1.0, 0.5, 1.0, 1.0, 1.0]))
+
+
+def test_processes_condition_on_a_capped_spread_of_the_pokes(monkeypatch):
+    """Past MAX_PROCESS_POKES a refit stays bounded: the processes see a spread subset."""
+    monkeypatch.setattr(ours, 'MAX_PROCESS_POKES', 10)
+    surface = flat_surface()
+    rng = np.random.default_rng(7)
+    index = rng.choice(len(surface), 30, replace=False)
+    log_f = np.log(2.0) + 6.0 * surface.points[:, 0]          # stiffer towards +x
+    curves = [make_curve(k, surface, i, (0.0, log_f[i], 1.5), 0.006, rng)
+              for k, i in enumerate(index)]
+    model = ContactGpModel(law='power').fit(curves, surface)
+    rows = model.process_rows()
+    assert len(rows) == 10 and 29 in rows
+    assert all(len(gp._alpha) == 10 for gp in model._gps)
+    # spread: every poke lies closer to a conditioned one than to the first ten pokes
+    pts = surface.points[index]
+    gap = np.linalg.norm(pts[:, None] - pts[None, rows], axis=2).min(axis=1).max()
+    first = np.linalg.norm(pts[:, None] - pts[None, :10], axis=2).min(axis=1).max()
+    assert gap < first
+    # every poke still predicted from the field (the unconditioned ones too)
+    np.testing.assert_allclose(model.predict_params(surface.features[index])[:, 1],
+                               log_f[index], atol=0.1)
+    loaded = ContactGpModel.from_dict(model.to_dict())
+    np.testing.assert_allclose(loaded.predict(surface.features, 0.004),
+                               model.predict(surface.features, 0.004), rtol=1e-12)

@@ -1,6 +1,7 @@
 """Force-response models on a synthetic heterogeneous object: ours against the seed's ET."""
 
 import json
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +12,14 @@ from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.response import ForceResponseModel
 from pointforce_ros.lab.baseline import AutoEtBaseline, EtBaseline
 from pointforce_ros.lab.evaluate import learning_curve
+from pointforce_ros.response.common import curve_features
 from pointforce_ros.response.scoring import heldout_errors
 from pointforce_ros.response.gp import FeatureFrame, FeatureGp
 from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.lab.model_store import (load_response_model, model_from_dict,
                                             save_response_model)
 from pointforce_ros.lab.synthetic_response import spread_indices, SyntheticObject
+from pointforce_ros.types import Surface
 
 DEPTHS = np.linspace(-0.008, 0.014, 45)
 OLD_MODEL = Path(__file__).resolve().parents[1] / 'data' / 'models' / 'contact_gp_independent.json'
@@ -291,3 +294,43 @@ def test_decorrelated_processes_beat_independent_ones_where_the_parameters_trade
     # median
     assert res['dec']['mean'] < 0.9 * res['indep']['mean'], res
     assert res['dec']['median'] < res['indep']['median'], res
+
+
+def _peak_bytes(call):
+    tracemalloc.start()
+    try:
+        result = call()
+        return result, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_gp_grid_search_memory_stays_bounded_with_many_points():
+    rng = np.random.default_rng(5)
+    n = 240
+    features = np.zeros((n, 9))
+    features[:, :2] = rng.uniform(0.0, 0.1, (n, 2))
+    features[:, 3:6] = 0.5
+    features[:, 8] = 1.0
+    y = np.sin(40.0 * features[:, 0]) + 0.05 * rng.standard_normal(n)
+    gp = FeatureGp(FeatureFrame.of_surface(features[:, :3], features[:, 3:6]), 1.0)
+    state, peak = _peak_bytes(lambda: gp.fit(features, y))
+    assert peak < 120e6
+    # the same hyperparameters as a search one grid point at a time
+    one = FeatureGp(FeatureFrame.of_surface(features[:, :3], features[:, 3:6]), 1.0)
+    assert one.fit(features, y, chunk=1) == state
+    np.testing.assert_allclose(gp.predict(features[:5]), y[:5], atol=0.2)
+
+
+def test_poke_features_of_many_pokes_on_a_large_cloud_stay_bounded():
+    rng = np.random.default_rng(9)
+    xs, ys = np.meshgrid(np.linspace(0.0, 0.2, 200), np.linspace(0.0, 0.2, 200))
+    points = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    surface = Surface(points=points, normals=np.tile([0.0, 0.0, 1.0], (len(points), 1)))
+    index = rng.integers(len(points), size=400)
+    curves = [PokeCurve(poke_id=f'p{k}', point=points[i] + [0.0, 0.0, 1e-4],
+                        normal=[0.0, 0.0, 1.0], d=[0.0, 1e-3], f=[0.0, 1.0], onset_d=0.0,
+                        t=[0.0, 1.0]) for k, i in enumerate(index)]
+    feats, peak = _peak_bytes(lambda: curve_features(curves, surface))
+    assert peak < 60e6
+    np.testing.assert_array_equal(feats, surface.features[index])

@@ -10,6 +10,7 @@ catch one type, turn it into ``success=False`` with the message, and keep servin
 import json
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Optional
 
 
 class PointforceError(Exception):
@@ -66,6 +67,30 @@ def reading(path, what: str):
         raise
     except Exception as exc:  # noqa: BLE001 - codecs, json, yaml, zipfile, numpy: many types
         raise DataError(f'{path}: unreadable {what}: {type(exc).__name__}: {exc}') from exc
+
+
+NPZ_BYTES = 512 << 20
+"""Largest uncompressed content of an ``.npz`` the package reads, bytes (a surface of 7 M
+points; the cell's models and surfaces are a few to tens of MB): a compressed file of a few MB
+can hold gigabytes of zeros, and ``np.load`` inflates each array whole."""
+
+
+def check_npz_size(archive, path, what: str, limit: Optional[int] = None) -> None:
+    """Refuse an open ``np.load`` archive whose arrays inflate past ``limit`` bytes.
+
+    ``limit`` None: :data:`NPZ_BYTES`.
+
+    Reads only the zip directory, so a zip bomb is refused before any array is inflated.
+
+    Raises:
+        DataError: ``'<path>: <n> MiB of arrays uncompressed (limit ...)'``.
+
+    """
+    limit = NPZ_BYTES if limit is None else limit
+    size = sum(info.file_size for info in archive.zip.infolist())
+    if size > limit:
+        raise DataError(f'{path}: {size / 2 ** 20:.0f} MiB of arrays uncompressed (limit '
+                        f'{limit / 2 ** 20:.0f} MiB): not a {what} this node can hold')
 
 
 def read_json(path, what: str) -> dict:

@@ -49,7 +49,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from pointforce_ros.errors import DataError, InvalidInput, read_json
+from pointforce_ros.errors import check_npz_size, DataError, InvalidInput, read_json
 from pointforce_ros.rotations import (matrix_to_quaternion, quaternion_to_rotvec,
                                       rotvec_to_matrix)
 from pointforce_ros.types import check_poke_id, PokeRecord
@@ -332,6 +332,7 @@ def load_recovery(path) -> PokeRecord:
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
+            check_npz_size(z, path, 'poke recovery file')
             header = json.loads(bytes(z['header']).decode())
             if header.get('recovery_format') != RECOVERY_FORMAT:
                 raise DataError(f'{path}: not a poke recovery file')

@@ -12,11 +12,14 @@ import zipfile
 import numpy as np
 import pytest
 
+from pointforce_ros import errors
 from pointforce_ros.errors import DataError
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import (content_digest, ContactModel, highest_version,
-                                        load_latest_model, load_model, model_path, QUARANTINE,
-                                        save_model, UnsupportedModel)
+                                        load_latest_model, load_model, load_surface,
+                                        model_path, QUARANTINE, save_model, save_surface,
+                                        UnsupportedModel)
+from pointforce_ros.pokes.store import load_recovery
 from pointforce_ros.model.serving import WrenchServer
 
 MODEL = patch_contact_model(spacing=0.006)
@@ -245,3 +248,33 @@ def test_an_implausible_version_counter_is_ignored_and_the_names_on_disk_bound_i
     assert any('versions.json' in r.getMessage() for r in caplog.records)
     assert save_model(_other(2), tmp_path) == model_path(tmp_path, 2)
     assert highest_version(tmp_path) == 2
+
+
+def _inflating(path, name, megabytes):
+    """Add ``name``: an array of ``megabytes`` MiB of zeros (a few kB compressed) to ``path``."""
+    with zipfile.ZipFile(path, 'a', compression=zipfile.ZIP_DEFLATED) as z:
+        with z.open(f'{name}.npy', 'w') as fh:
+            np.lib.format.write_array_header_1_0(
+                fh, dict(descr='<f8', fortran_order=False, shape=(megabytes << 17,)))
+            for _ in range(megabytes):
+                fh.write(bytes(1 << 20))
+
+
+def test_files_that_inflate_past_the_limit_are_refused_before_an_array_is_read(
+        tmp_path, monkeypatch):
+    """Audit 39: a contact model, a surface or a recovery file of a few MB could hold
+    gigabytes of zeros, and each was inflated whole at start-up."""
+    monkeypatch.setattr(errors, 'NPZ_BYTES', 4 << 20)
+    model = save_model(MODEL, tmp_path / 'models')
+    surface = tmp_path / 'surface.npz'
+    save_surface(MODEL.surface, surface)
+    recovery = tmp_path / 'poke-000001.npz'
+    np.savez(recovery, header=np.frombuffer(b'{}', dtype=np.uint8))
+    assert load_model(model).version == MODEL.version   # within the limit: read as before
+    np.testing.assert_array_equal(load_surface(surface).points, MODEL.surface.points)
+    for path, load in ((model, load_model), (surface, load_surface),
+                       (recovery, load_recovery)):
+        _inflating(path, 'zeros', 6)
+        assert path.stat().st_size < (1 << 20)
+        with pytest.raises(DataError, match='MiB of arrays uncompressed'):
+            load(path)

@@ -128,20 +128,6 @@ CONTENT_FAULTS = {
 }
 
 
-@pytest.mark.parametrize('fault', sorted(CONTENT_FAULTS))
-def test_a_file_with_content_no_fem_can_use_is_a_data_error_naming_file_and_array(
-        tmp_path, fault):
-    """Audit D6: such files loaded, then failed in the FEM with a bare error naming no file."""
-    good = save_model(str(tmp_path / 'src'), _small_model())
-    d = dict(np.load(good))
-    edit, array = CONTENT_FAULTS[fault]
-    edit(d)
-    path = tmp_path / 'deformation-v1.npz'
-    np.savez_compressed(path, **d)
-    with pytest.raises(DataError, match=f'deformation-v1.npz.*{array}'):
-        load_model(str(path))
-
-
 def _fused_small_model():
     """:func:`_small_model` with the fused force's data of two sites."""
     return replace(_small_model(), fusion=FusionData(
@@ -162,11 +148,15 @@ FUSION_FAULTS = {
 }
 
 
-@pytest.mark.parametrize('fault', sorted(FUSION_FAULTS))
-def test_a_file_with_fusion_data_no_fusion_can_use_is_a_data_error(tmp_path, fault):
-    """Audit 39: these loaded; the fused force then read NaN or absurd inputs."""
-    d = dict(np.load(save_model(str(tmp_path / 'src'), _fused_small_model())))
-    edit, array = FUSION_FAULTS[fault]
+@pytest.mark.parametrize('fault', sorted(CONTENT_FAULTS) + sorted(FUSION_FAULTS))
+def test_a_file_with_content_no_fem_can_use_is_a_data_error_naming_file_and_array(
+        tmp_path, fault):
+    """Audit D6 (mesh and material) and audit 39 (fused-force data, moduli, support): such
+    files loaded, then failed in the FEM or the fusion with a bare error naming no file."""
+    fused = fault in FUSION_FAULTS
+    good = save_model(str(tmp_path / 'src'), _fused_small_model() if fused else _small_model())
+    d = dict(np.load(good))
+    edit, array = (FUSION_FAULTS if fused else CONTENT_FAULTS)[fault]
     edit(d)
     path = tmp_path / 'deformation-v1.npz'
     np.savez_compressed(path, **d)

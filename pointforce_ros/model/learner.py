@@ -371,25 +371,50 @@ class OnlineLearner:
         grouped = hasattr(self.model_factory(), 'refit_processes')
         size = -(-len(fresh) // MAX_REFITS_PER_UPDATE) if grouped else 1
         groups = [fresh[i:i + size] for i in range(0, len(fresh), size)]
-        added = 0
-        for k, group in enumerate(groups):
+        # one sanity check of the model the whole update gives (a bake of the surface each);
+        # only when it fails, again group by group with a check each, to find the poke
+        before = self._state() if len(groups) > 1 else None
+        added = self._add_groups(groups, start, len(fresh), check=before is None)
+        if before is not None and added:
             with self._lock:
-                added += self._add(group)
-            if size > 1 and self.progress is not None:
-                self.progress(f'learned {k * size + len(group)} of {len(fresh)} new pokes '
-                              f'({added} added, {time.perf_counter() - start:.1f} s)')
+                try:
+                    self._checked = check_served(self.contact_model(), self.model)
+                except Exception:  # noqa: BLE001 - found again, per group, below
+                    self._restore(before)
+                    added = self._add_groups(groups, start, len(fresh), check=True)
         if not added:
             return None
         with self._lock:
             return self._save(start, self._checked)
 
-    def _add(self, group: List[PokeCurve]) -> int:
+    def _add_groups(self, groups, start: float, total: int, check: bool) -> int:
+        """Add each group (:meth:`_add`) under the model lock, with progress; return how many."""
+        added = 0
+        for k, group in enumerate(groups):
+            with self._lock:
+                added += self._add(group, check)
+            if len(groups[0]) > 1 and self.progress is not None:
+                self.progress(f'learned {k * len(groups[0]) + len(group)} of {total} new pokes '
+                              f'({added} added, {time.perf_counter() - start:.1f} s)')
+        return added
+
+    def _state(self) -> tuple:
+        """Return what :meth:`_restore` puts back: the model (a copy), how far each list went."""
+        return (copy.deepcopy(self.model, {id(self.surface): self.surface}),
+                len(self.curves), len(self._prequential), self._checked, dict(self.skipped))
+
+    def _restore(self, state: tuple) -> None:
+        self.model, self.curves, self._prequential, self._checked, self.skipped = (
+            state[0], self.curves[:state[1]], self._prequential[:state[2]], state[3],
+            dict(state[4]))
+
+    def _add(self, group: List[PokeCurve], check: bool = True) -> int:
         """Add ``group`` with one process refit; on failure split it (bad pokes skipped).
 
+        ``check``: refuse a model that is not sane (:func:`check_served`) after the group.
         Returns how many pokes were added.
         """
-        before = (copy.deepcopy(self.model, {id(self.surface): self.surface}),
-                  len(self.curves), len(self._prequential), self._checked)
+        before = self._state()
         added = []
         try:
             for curve in group:
@@ -406,16 +431,15 @@ class OnlineLearner:
                 self.curves.append(curve)
             if len(group) > 1:
                 self.model.refit_processes()
-            self._checked = check_served(self.contact_model(), self.model)
+            self._checked = check_served(self.contact_model(), self.model) if check else None
             return len(added)
         except Exception as exc:  # noqa: BLE001 - the model is kept as it was before the group
-            self.model, self.curves, self._prequential, self._checked = (
-                before[0], self.curves[:before[1]], self._prequential[:before[2]], before[3])
+            self._restore(before)
             if len(group) == 1:
                 self._skip(group[0], exc)
                 return 0
         half = len(group) // 2
-        return self._add(group[:half]) + self._add(group[half:])
+        return self._add(group[:half], check) + self._add(group[half:], check)
 
     def _skip(self, curve: PokeCurve, exc: Exception) -> None:
         """Note why ``curve`` was not learned from."""

@@ -323,6 +323,25 @@ def test_a_model_that_is_not_sane_is_refused_and_the_previous_one_kept(tmp_path)
     assert np.all(np.diff(saved, axis=1) >= 0.0)
 
 
+def test_an_update_of_many_pokes_checks_once_and_finds_the_one_that_breaks_the_model(
+        tmp_path):
+    """Many new pokes at once (a restart) are checked as one model; when it is not sane, each
+    group is checked again and only the poke that breaks it is skipped."""
+    store = PokeStore(tmp_path / 'pokes')
+    for k, record in enumerate(_campaign(5, seed=8, id_prefix='poke-0')):
+        store.add(dataclasses.replace(record, poke_id=f'poke-{k:06d}'))
+    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
+                            shape_constant=0.004, model_factory=_FallsWith)
+    status = learner.update()
+    assert status.num_pokes == 4 and list(status.skipped) == ['poke-000003']
+    assert 'falls' in status.skipped['poke-000003']
+    assert learner.model.poke_ids == ['poke-000000', 'poke-000001', 'poke-000002',
+                                      'poke-000004']
+    assert len(learner._prequential) == 3   # the first poke has none; the skipped one none
+    saved = load_model(status.model_path).response.forces
+    assert np.all(np.diff(saved, axis=1) >= 0.0)
+
+
 class _CountsRefits(ContactGpModel):
     """Ours, counting its process refits."""
 

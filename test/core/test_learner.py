@@ -271,19 +271,27 @@ class _BreaksOn(ContactGpModel):
         super()._fit_processes(states)
 
 
-def test_a_poke_that_breaks_the_refit_is_skipped_and_later_pokes_learn(tmp_path):
+def _learner_of(tmp_path, factory, count: int, stored: int, seed: int):
+    """``(store, records, learner)``: ``count`` clean pokes named poke-000000 on, the first
+    ``stored`` in the store, and a learner on it with ``factory`` as its model."""
     store = PokeStore(tmp_path / 'pokes')
-    records = _campaign(6, seed=3, id_prefix='poke-0')
-    for k, record in enumerate(records[:4]):
-        store.add(dataclasses.replace(record, poke_id=f'poke-{k:06d}'))
+    records = [dataclasses.replace(r, poke_id=f'poke-{k:06d}')
+               for k, r in enumerate(_campaign(count, seed=seed, id_prefix='poke-0'))]
+    for record in records[:stored]:
+        store.add(record)
     learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
-                            shape_constant=0.004, model_factory=_BreaksOn)
+                            shape_constant=0.004, model_factory=factory)
+    return store, records, learner
+
+
+def test_a_poke_that_breaks_the_refit_is_skipped_and_later_pokes_learn(tmp_path):
+    store, records, learner = _learner_of(tmp_path, _BreaksOn, 6, 4, seed=3)
     status = learner.update()
     assert status.num_pokes == 3 and list(status.skipped) == ['poke-000002']
     assert 'LinAlgError' in status.skipped['poke-000002']
     assert learner.model.poke_ids == ['poke-000000', 'poke-000001', 'poke-000003']
-    for k, record in enumerate(records[4:], start=4):
-        store.add(dataclasses.replace(record, poke_id=f'poke-{k:06d}'))
+    for record in records[4:]:
+        store.add(record)
     again = learner.update()
     assert again.num_pokes == 5 and again.version == 5
     assert load_model(again.model_path).meta['pokes'] == learner.model.poke_ids
@@ -302,13 +310,7 @@ class _FallsWith(ContactGpModel):
 
 
 def test_a_model_that_is_not_sane_is_refused_and_the_previous_one_kept(tmp_path):
-    store = PokeStore(tmp_path / 'pokes')
-    records = [dataclasses.replace(r, poke_id=f'poke-{k:06d}')
-               for k, r in enumerate(_campaign(5, seed=8, id_prefix='poke-0'))]
-    for record in records[:3]:
-        store.add(record)
-    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
-                            shape_constant=0.004, model_factory=_FallsWith)
+    store, records, learner = _learner_of(tmp_path, _FallsWith, 5, 3, seed=8)
     first = learner.update()
     assert first.version == 3
     store.add(records[3])
@@ -327,11 +329,7 @@ def test_an_update_of_many_pokes_checks_once_and_finds_the_one_that_breaks_the_m
         tmp_path):
     """Many new pokes at once (a restart) are checked as one model; when it is not sane, each
     group is checked again and only the poke that breaks it is skipped."""
-    store = PokeStore(tmp_path / 'pokes')
-    for k, record in enumerate(_campaign(5, seed=8, id_prefix='poke-0')):
-        store.add(dataclasses.replace(record, poke_id=f'poke-{k:06d}'))
-    learner = OnlineLearner(tmp_path / 'pokes', tmp_path / 'models', _surface(),
-                            shape_constant=0.004, model_factory=_FallsWith)
+    _, _, learner = _learner_of(tmp_path, _FallsWith, 5, 5, seed=8)
     status = learner.update()
     assert status.num_pokes == 4 and list(status.skipped) == ['poke-000003']
     assert 'falls' in status.skipped['poke-000003']

@@ -18,6 +18,10 @@ controller):
   controller sample per ``1 / stream_hz`` slot of controller time (de-duplicated on
   ``getTimestamp``; a slot holds two 500 Hz samples, so one sample lost under load opens no
   gap), re-reads a sample whose timestamp changed mid-read, and detects the faults below. A
+  slot that passed unread is never silent: the sample after it carries a :class:`StreamLoss`
+  (:meth:`UrArm.stream_losses`, :attr:`UrArm.lost_samples`) with how long the poller was held
+  up before it (no poll, or no new controller sample, for longer than a slot: a loaded machine
+  or a late controller; a loss without it is the reader's own). A
   reader thread in this process hands the :class:`ArmSample` records to callbacks, a bounded
   ring buffer and any running :meth:`UrArm.push_until`; the pipe between them buffers ~2 s, so
   a late reader delays samples but loses none. ``waitPeriod`` is not used: it truncates the
@@ -81,6 +85,7 @@ FAULT_KINDS = (EVENT_CONNECTION_LOST, EVENT_PROTECTIVE_STOP, EVENT_PROGRAM_STOPP
 
 _HEADER = struct.Struct('<cH')       # worker -> parent message: kind, payload length
 _SAMPLE = struct.Struct('<14d')      # t_wall, t_controller, pose (6), wrench (6)
+_LOSS = struct.Struct('<dqd')        # StreamLoss: t_controller, lost, held_s
 _PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 
 
@@ -116,6 +121,25 @@ class ArmEvent:
     kind: str
     t_wall: float
     message: str
+
+
+@dataclass(frozen=True)
+class StreamLoss:
+    """Slots of the stream that passed without a sample (the poller read none of them).
+
+    Attributes:
+        t_controller: controller time of the first sample after the loss, s.
+        lost: number of ``1 / stream_hz`` slots with no sample before it.
+        held_s: the longest the poller went, since the sample before the loss, without a poll
+            or without a new controller sample, wall seconds. Longer than a slot: the poller or
+            the stream was held up (a loaded machine at normal priority, a late controller);
+            shorter: the reader lost the samples itself.
+
+    """
+
+    t_controller: float
+    lost: int
+    held_s: float
 
 
 @dataclass(frozen=True)
@@ -288,6 +312,10 @@ class UrArm:
         self._sample_callbacks: List[Callable[[ArmSample], None]] = []
         self._event_callbacks: List[Callable[[ArmEvent], None]] = []
         self._events = deque(maxlen=1000)
+        self._losses = deque(maxlen=1000)
+        self.lost_samples = 0
+        """Stream slots that passed without a sample since the stream started (every one is in
+        a :class:`StreamLoss`; the newest 1000 records are kept)."""
         self._event_count = 0
         self._active = set()
         self._sample_count = 0
@@ -430,6 +458,11 @@ class UrArm:
                     self._clear(info['kind'], info['message'], info['t_wall'])
                 else:
                     self._emit(info['kind'], info['message'], info['t_wall'])
+            elif kind == b'L':
+                loss = StreamLoss(*_LOSS.unpack(payload))
+                with self._cond:
+                    self._losses.append(loss)
+                    self.lost_samples += loss.lost
             elif kind == b'P':
                 self.stream_scheduling = json.loads(payload)['scheduling']
             elif kind == b'X':
@@ -532,6 +565,11 @@ class UrArm:
         """Return a copy of the recent fault and recovery records, oldest first."""
         with self._lock:
             return list(self._events)
+
+    def stream_losses(self) -> List[StreamLoss]:
+        """Return a copy of the recent stream losses, oldest first (see :class:`StreamLoss`)."""
+        with self._lock:
+            return list(self._losses)
 
     def active_faults(self) -> List[str]:
         """Return the fault kinds in effect now, in :data:`FAULT_KINDS` order."""
@@ -937,11 +975,13 @@ class _StreamPoller:
     """Polling loop over one ``RTDEReceiveInterface``: slots, de-duplication, fault detection.
 
     ``on_sample(t_wall, t_controller, pose, wrench)`` gets every kept sample;
-    ``on_event(kind, message, cleared)`` gets each change of a fault condition.
+    ``on_event(kind, message, cleared)`` gets each change of a fault condition;
+    ``on_loss(t_controller, lost, held_s)`` (a :class:`StreamLoss`) comes before a sample that
+    follows slots with none.
     """
 
     def __init__(self, rx, host: str, frequency: float, stream_hz: float, stall_timeout: float,
-                 ft_freeze_timeout: Optional[float], on_sample, on_event):
+                 ft_freeze_timeout: Optional[float], on_sample, on_event, on_loss=None):
         self.rx = rx
         self.host = host
         self.slot_period = 1.0 / stream_hz
@@ -950,6 +990,7 @@ class _StreamPoller:
         self.ft_freeze_timeout = ft_freeze_timeout
         self.on_sample = on_sample
         self.on_event = on_event
+        self.on_loss = on_loss
         self.active = set()
 
     def _event(self, kind: str, message: str, cleared: bool = False) -> None:
@@ -981,6 +1022,8 @@ class _StreamPoller:
         frozen_since = None
         protective = False
         playing = None
+        polled = time.monotonic()
+        held = 0.0        # longest without a poll or a new sample since the last kept sample
         while not should_stop():
             try:
                 if not rx.isConnected():
@@ -988,12 +1031,15 @@ class _StreamPoller:
                     return
                 t = rx.getTimestamp()
                 now = time.monotonic()
+                held = max(held, now - polled)
+                polled = now
                 if t == last_t:
                     if now - last_new > self.stall_timeout:
                         self._event(EVENT_STALL,
                                     f'no new controller sample for {now - last_new:.3f} s')
                     time.sleep(0.0005)
                     continue
+                held = max(held, now - last_new)
                 last_new = now
                 if last_t is not None and t < last_t:
                     last_slot = None
@@ -1005,7 +1051,11 @@ class _StreamPoller:
                     if got is not None:
                         t, pose, wrench = got
                         last_t = t
-                        last_slot = math.floor((t + self.slot_offset) / self.slot_period)
+                        slot = math.floor((t + self.slot_offset) / self.slot_period)
+                        if (last_slot is not None and slot > last_slot + 1
+                                and self.on_loss is not None):
+                            self.on_loss(t, slot - last_slot - 1, held)
+                        last_slot, held = slot, 0.0
                         self.on_sample(time.time(), t, pose, wrench)
                         if self.ft_freeze_timeout is not None:
                             if wrench == last_wrench:
@@ -1038,6 +1088,23 @@ class _StreamPoller:
                 self._event(EVENT_PROGRAM_STOPPED, 'control program running', cleared=True)
             playing = now_playing
             time.sleep(0.0005)
+
+
+def missing_slots(t_controller, stream_hz: float = 250.0,
+                  frequency: float = 500.0) -> Tuple[np.ndarray, np.ndarray]:
+    """``(after, count)``: where a recorded stream has slots without a sample, and how many.
+
+    ``t_controller``: (T,) controller times of the delivered samples, s, increasing. A slot is
+    ``1 / stream_hz`` of controller time, as the stream poller counts them (one sample kept per
+    slot, a half ``1 / frequency`` period early so that a slot holds whole controller periods).
+    ``after``: (G,) indices of the first sample after each run of empty slots; ``count``: (G,)
+    the empty slots of each run. The stream reports the same runs as :class:`StreamLoss`.
+    """
+    t = np.asarray(t_controller, dtype=float).reshape(-1)
+    slots = np.floor((t + 0.5 / frequency) / (1.0 / stream_hz))
+    empty = np.diff(slots) - 1
+    after = np.flatnonzero(empty > 0) + 1
+    return after, empty[after - 1].astype(np.int64)
 
 
 def _realtime_poller(rt_priority: int) -> str:
@@ -1101,6 +1168,9 @@ def _stream_worker(argv: Sequence[str]) -> int:
     def on_sample(t_wall, t, pose, wrench):
         send(b'S', _SAMPLE.pack(t_wall, t, *pose, *wrench))
 
+    def on_loss(t, lost, held_s):
+        send(b'L', _LOSS.pack(t, lost, held_s))
+
     def on_event(kind, message, cleared):
         send(b'E', json.dumps({'kind': kind, 'message': message, 'cleared': cleared,
                                't_wall': time.time()}).encode())
@@ -1114,7 +1184,7 @@ def _stream_worker(argv: Sequence[str]) -> int:
         freeze = None if args.ft_freeze_timeout == 'none' else float(args.ft_freeze_timeout)
         send(b'P', json.dumps({'scheduling': _realtime_poller(args.rt_priority)}).encode())
         poller = _StreamPoller(rx, args.host, args.frequency, args.stream_hz,
-                               args.stall_timeout, freeze, on_sample, on_event)
+                               args.stall_timeout, freeze, on_sample, on_event, on_loss)
         checks = {'n': 0}
 
         def should_stop() -> bool:

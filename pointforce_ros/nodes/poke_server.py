@@ -90,6 +90,20 @@ LIMITS = ('max_force', 'max_depth', 'max_speed', 'max_push_time', 'surface_toler
 """The goal limits (:class:`PokeLimits` fields), each a parameter of the same name."""
 
 
+def _losses_within(arm, t_controller) -> list:
+    """``[[t_controller, lost, held_s], ...]``: the stream's losses inside one push's samples.
+
+    Each is a :class:`~pointforce_ros.drivers.ur_arm.StreamLoss` whose first sample after the
+    empty slots lies in the record; stored in the poke's ``meta['stream_losses']`` so that a
+    record says where it has no samples and why (``held_s`` over a slot: the poller was held
+    up). An arm without the accounting gives none.
+    """
+    t = np.asarray(t_controller, dtype=float)
+    losses = getattr(arm, 'stream_losses', lambda: [])()
+    return [[float(x.t_controller), int(x.lost), float(x.held_s)] for x in losses
+            if len(t) and t[0] < x.t_controller <= t[-1]]
+
+
 class PokeServerNode(Node):
     """The Poke action server on a UR arm."""
 
@@ -358,11 +372,13 @@ class PokeServerNode(Node):
         except PointforceError as exc:
             goal_handle.abort()
             return poke_result_msg('', 0, 0.0, 0.0, 'aborted', str(exc))
-        saved_id, samples, peak, depth = '', 0, 0.0, 0.0
+        saved_id, samples, peak, depth, losses = '', 0, 0.0, 0.0, []
         if result is not None and len(result) > 1:
+            losses = _losses_within(arm, result.t_controller)
             meta = {'standoff': goal.standoff, 'force_limit': goal.force_limit,
                     'depth_limit': goal.depth_limit, 'surface_index': goal.surface_index,
-                    'robot_ip': self.robot_ip}
+                    'robot_ip': self.robot_ip,
+                    'stream_losses': losses}
             try:
                 record = PokeRecord(poke_id=poke_id, point=point, normal=normal,
                                     t=result.t_wall, t_controller=result.t_controller,
@@ -397,8 +413,11 @@ class PokeServerNode(Node):
                                    'canceled; the arm stopped and retracted')
         self.landed_pub.publish(String(data=saved_id))
         goal_handle.succeed()
+        lost = sum(loss[1] for loss in losses)
         self.get_logger().info(f'{saved_id}: {result.outcome}, peak {peak:.2f} N at '
-                               f'{1e3 * depth:.1f} mm, {samples} samples')
+                               f'{1e3 * depth:.1f} mm, {samples} samples'
+                               + (f', {lost} stream slots empty (meta stream_losses)'
+                                  if lost else ''))
         return poke_result_msg(saved_id, samples, peak, depth, result.outcome, '')
 
     def _store(self, record: PokeRecord):

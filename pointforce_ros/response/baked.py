@@ -28,6 +28,15 @@ past the learned depth (61 % with the model's own spread) to at least its covera
 fifth's coverage past the depth goes 72 -> 81 % (plush), 58 -> 82 (vest), 48 -> 62 (lamb),
 71 -> 94 (dome), 49 -> 51 (thin layer, whose substrate arrives abruptly)."""
 
+EXTRAPOLATION_HORIZON = 2.0
+"""Multiple of the depth the pokes reached past which a baked table grows no faster than its
+tangent there (:meth:`BakedResponse.with_extrapolation`). A stiffening law fitted on shallow
+pokes, continued to the end of the grid, gave absurd finite forces (1e26 N at 25 mm from pokes
+to 1 mm); the seed paper continues its data along their slope from the deepest sample. Twice
+the learned depth keeps every answer of the simulated cell's studies (probe trials press to
+1.5 times pokes cut at 3 mm); ``data/figures/extrapolation_horizon.py`` measures the error past
+it with and without the cap (record ``extrapolation_horizon.log``)."""
+
 
 @dataclass(frozen=True)
 class BakedResponse:
@@ -69,32 +78,43 @@ class BakedResponse:
         object.__setattr__(self, 'std', std)
         object.__setattr__(self, 'meta', dict(self.meta))
 
-    def with_extrapolation(self, learned_depth: float,
-                           kappa: float = EXTRAPOLATION_KAPPA) -> 'BakedResponse':
-        """Return this table with its ``std`` grown past the depth the pokes reached.
+    def with_extrapolation(self, learned_depth: float, kappa: float = EXTRAPOLATION_KAPPA,
+                           horizon: float = EXTRAPOLATION_HORIZON) -> 'BakedResponse':
+        """Return this table capped and with its ``std`` grown past the depth the pokes reached.
 
-        :func:`extrapolation_std` is added in variance past ``learned_depth`` (metres, the
-        deepest nominal displacement the pokes reached).
+        ``learned_depth``: metres, the deepest nominal displacement the pokes reached (``D``).
 
         Within the pokes a model's spread says how far its curve may be off; past them the
         curve is its law continued, and the spread of its parameters (fitted where the data
         were) does not grow with the distance (the true forces 3 mm past pokes cut at 3 mm:
         31-42 % inside the lamb's and the vest's 90 % intervals, 79-85 % within the pokes).
-        A table without ``std``, or a ``learned_depth`` that is not a positive number, is
-        returned unchanged; so is one with ``kappa`` 0. ``meta['learned_depth']`` and
-        ``meta['extrapolation_kappa']`` record what was added.
+        So :func:`extrapolation_std` is added in variance past ``D``. Past ``horizon * D``
+        (the first grid depth at or beyond it, ``H``) each row grows no faster than its
+        segment into ``H``: the force is the smaller of the law's and that tangent's
+        continuation (a stiffening law is capped, a softening one kept), the extrapolation
+        slope past the grid at most the tangent's, and the model's own ``std`` keeps its share
+        of the force there. A table without ``std`` is only capped; a ``learned_depth`` that
+        is not a positive number returns the table unchanged; ``kappa`` 0 adds no ``std``,
+        ``horizon`` ``inf`` caps nothing. ``meta['learned_depth']``,
+        ``meta['extrapolation_kappa']`` and ``meta['extrapolation_horizon']`` record it.
         """
         try:
             depth = float(learned_depth)
+            horizon = float(horizon)
         except (TypeError, ValueError):
             return self
-        if self.std is None or not kappa or not np.isfinite(depth) or depth <= 0:
+        if not np.isfinite(depth) or depth <= 0 or not horizon > 0:
             return self
-        extra = extrapolation_std(self.forces, self.depths[None, :], depth, kappa)
-        return BakedResponse(depths=self.depths, forces=self.forces, slopes=self.slopes,
-                             std=np.sqrt(self.std ** 2 + extra ** 2), version=self.version,
+        forces, slopes, std = _tangent_cap(self.depths, self.forces, self.slopes, self.std,
+                                           horizon * depth)
+        if std is not None and kappa:
+            extra = extrapolation_std(forces, self.depths[None, :], depth, kappa)
+            std = np.sqrt(std ** 2 + extra ** 2)
+        return BakedResponse(depths=self.depths, forces=forces, slopes=slopes, std=std,
+                             version=self.version,
                              meta={**self.meta, 'learned_depth': depth,
-                                   'extrapolation_kappa': float(kappa)})
+                                   'extrapolation_kappa': float(kappa),
+                                   'extrapolation_horizon': horizon})
 
     def __len__(self) -> int:
         """Return the number of surface points ``N``."""
@@ -156,6 +176,31 @@ class BakedResponse:
             out = np.where(above, self.forces[indices, -1]
                            + self.slopes[indices] * (d - grid[-1]), out)
         return out
+
+
+def _tangent_cap(depths, forces, slopes, std, at: float):
+    """Return ``(forces, slopes, std)`` grown no faster than each row's tangent past ``at`` (m).
+
+    ``H`` is the first grid depth at or beyond ``at`` (the second, if that is the first);
+    past ``H`` a row's force is the smaller of its own and ``F(H) + s (d - H)``, ``s`` its
+    segment's slope into ``H``, its slope past the grid the smaller of its own and ``s``, and
+    its ``std`` scaled with the force it kept. Unchanged when ``at`` lies past the grid.
+    """
+    if not np.isfinite(at) or at >= depths[-1]:
+        return forces, slopes, std
+    j = max(int(np.searchsorted(depths, at)), 1)
+    s = np.maximum((forces[:, j] - forces[:, j - 1]) / (depths[j] - depths[j - 1]), 0.0)
+    line = forces[:, j, None] + s[:, None] * (depths[None, j + 1:] - depths[j])
+    tail = forces[:, j + 1:]
+    capped = np.minimum(tail, line)
+    out = forces.copy()
+    out[:, j + 1:] = capped
+    if std is not None:
+        std = std.copy()
+        with np.errstate(divide='ignore', invalid='ignore'):
+            share = np.where(tail > 0, capped / tail, 1.0)
+        std[:, j + 1:] *= share
+    return out, np.minimum(slopes, s), std
 
 
 def extrapolation_std(force, depth, learned_depth, kappa: float) -> np.ndarray:

@@ -227,11 +227,43 @@ def test_response_part_reaches_contacts_before_the_observed_surface():
                                rtol=1e-6, atol=1e-9)
 
 
+def test_past_the_horizon_a_stiffening_row_follows_its_tangent_and_a_softening_one_its_law():
+    # rows: F = a s^3 (stiffening: a pokes-to-1-mm law run to 25 mm is absurd), F = a s^0.5
+    # (softening), and a row still out of contact; grid 0.5 mm to 25 mm, pokes to 2 mm
+    depths = np.linspace(0.0, 0.025, 51)
+    forces = np.stack([1e9 * depths ** 3, 30.0 * np.sqrt(depths), np.zeros_like(depths)])
+    slopes = np.array([3e9 * 0.025 ** 2, 15.0 / np.sqrt(0.025), 0.0])
+    table = BakedResponse(depths, forces, slopes, std=0.2 * forces)
+    capped = table.with_extrapolation(0.002, kappa=0.1)      # horizon 2: H = 4 mm on the grid
+    assert capped.meta['extrapolation_horizon'] == 2.0
+    k = int(np.flatnonzero(np.isclose(depths, 0.004))[0])
+    tangent = (forces[0, k] - forces[0, k - 1]) / (depths[k] - depths[k - 1])
+    want = forces[0, k] + tangent * (depths[k:] - depths[k])
+    np.testing.assert_allclose(capped.forces[0, k:], want, rtol=1e-12)
+    np.testing.assert_array_equal(capped.forces[0, :k + 1], forces[0, :k + 1])
+    assert capped.slopes[0] == pytest.approx(tangent, rel=1e-12)
+    assert capped.forces[0, -1] < 0.1 * forces[0, -1]
+    # continued past the grid along the tangent too, not the law's slope
+    far = capped.force(np.array([0]), np.array([0.035]))[0]
+    assert far == pytest.approx(want[-1] + tangent * 0.010, rel=1e-12)
+    np.testing.assert_array_equal(capped.forces[1:], forces[1:])
+    np.testing.assert_array_equal(capped.slopes[1:], slopes[1:])
+    # the model's own std keeps its 20 % share of the force it kept; kappa's term is added
+    past = depths > 0.002
+    own = 0.2 * capped.forces
+    extra = 0.1 * capped.forces * (depths - 0.002) / 0.002
+    np.testing.assert_allclose(capped.std[:, past], np.hypot(own, extra)[:, past], rtol=1e-9)
+    assert np.all(np.diff(capped.forces, axis=1) >= 0.0)
+    # a horizon past the grid caps nothing
+    same = table.with_extrapolation(0.002, kappa=0.1, horizon=20.0)
+    np.testing.assert_array_equal(same.forces, forces)
+
+
 def test_the_response_std_grows_past_the_learned_depth():
     # the table: sqrt(std^2 + (kappa F (d - D) / D)^2) past D, the model's own std before it
     model = _with_std(patch_contact_model(), 0.02)
     r = model.response
-    grown = r.with_extrapolation(0.004, kappa=0.1)
+    grown = r.with_extrapolation(0.004, kappa=0.1, horizon=np.inf)
     past = r.depths > 0.004
     assert past.any() and (~past).any()
     want = np.sqrt(r.std ** 2 + (0.1 * r.forces * (r.depths - 0.004) / 0.004) ** 2)
@@ -239,11 +271,16 @@ def test_the_response_std_grows_past_the_learned_depth():
     np.testing.assert_array_equal(grown.std[:, ~past], r.std[:, ~past])
     np.testing.assert_array_equal(grown.forces, r.forces)
     assert grown.meta['learned_depth'] == 0.004 and grown.meta['extrapolation_kappa'] == 0.1
+    # the default horizon (twice the learned depth) leaves the table to there as it was
+    capped = r.with_extrapolation(0.004, kappa=0.1)
+    within = r.depths <= 0.008
+    np.testing.assert_array_equal(capped.forces[:, within], r.forces[:, within])
+    np.testing.assert_allclose(capped.std[:, within], grown.std[:, within], rtol=1e-12)
     # nothing to grow: no std, no depth, kappa 0
     for same in (BakedResponse(r.depths, r.forces, r.slopes).with_extrapolation(0.004),
                  r.with_extrapolation(None),
                  r.with_extrapolation(float('nan')), r.with_extrapolation(0.0),
-                 r.with_extrapolation(0.004, kappa=0.0)):
+                 r.with_extrapolation(0.004, kappa=0.0, horizon=np.inf)):
         assert same.std is None or np.array_equal(same.std, r.std)
     # the wrench: queries pressing 2-3 mm keep their response part when the pokes reached
     # 10 mm and get a wider one when they reached 1 mm, wider still at a larger kappa

@@ -260,6 +260,14 @@ def test_steep_shallow_pokes_give_a_finite_model():
     idx = np.argmin(np.linalg.norm(surface.points[:, None] - points[None], axis=2), axis=0)
     measured = 0.05 * np.expm1(0.001 / 2e-4)
     np.testing.assert_allclose(table.force(idx, np.full(len(idx), 0.001)), measured, rtol=0.2)
+    # past twice the learned depth no row grows faster than its tangent there: the law's own
+    # continuation to 25 mm was 1e26 N; the cap keeps it within that tangent's kilonewtons
+    deep = learner.model.bake(surface, learner.depths).forces[idx, -1]
+    at = np.searchsorted(table.depths, 2 * table.meta['learned_depth'])
+    tangent = (table.forces[idx, at] - table.forces[idx, at - 1]) / np.diff(table.depths)[0]
+    bound = table.forces[idx, at] + tangent * (table.depths[-1] - table.depths[at])
+    np.testing.assert_allclose(table.forces[idx, -1], np.minimum(deep, bound), rtol=1e-9)
+    assert np.all(table.forces[idx, -1] < 1e-3 * deep) and np.all(table.forces < 1e5)
 
 
 class _BreaksOn(ContactGpModel):

@@ -12,7 +12,8 @@ import pytest
 
 from pointforce_ros.drivers.ur_arm import (_realtime_poller, active_fault_message, ArmEvent,
                                            EVENT_CONNECTION_LOST, EVENT_FT_FROZEN,
-                                           EVENT_PROTECTIVE_STOP, EVENT_STALL, PushFault, UrArm)
+                                           EVENT_PROTECTIVE_STOP, EVENT_STALL, missing_slots,
+                                           PushFault, UrArm)
 from pointforce_ros.errors import DeviceFault, InvalidInput, UnsafeCommand
 
 pytestmark = pytest.mark.e2e
@@ -55,7 +56,26 @@ def test_connect_failure_names_the_host():
     assert time.monotonic() - t0 < 2.5
 
 
-def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
+def unexplained_gaps(arm, t):
+    """Runs of empty slots in ``t`` the stream did not report, or reported with the poller
+    on time: each ``(controller time after the run, empty slots, reported, held_s)``.
+
+    Every run of slots without a sample must come back as a :class:`StreamLoss` of the same
+    size at the sample after it; and at normal priority on a loaded machine a slot may pass
+    unread only while the poller was held up (no poll, or no new controller sample, for more
+    than a slot): a loss with the poller on time is the reader's own.
+    """
+    t = np.asarray(t)
+    losses = {round(loss.t_controller, 6): loss for loss in arm.stream_losses()}
+    bad = []
+    for k, count in zip(*missing_slots(t)):
+        loss = losses.get(round(float(t[k]), 6))
+        if loss is None or loss.lost != count or loss.held_s <= 1.0 / 250.0:
+            bad.append((float(t[k]), int(count), loss and loss.lost, loss and loss.held_s))
+    return bad
+
+
+def test_stream_is_250_hz_without_duplicates_or_unreported_gaps(cell):
     emu, arm = cell
     got = []
     before = emu.control.state()
@@ -66,9 +86,14 @@ def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
     t = np.array([s.t_controller for s in got])
     wall = np.array([s.t_wall for s in got])
     rate = (len(t) - 1) / (t[-1] - t[0])
+    after, count = missing_slots(t)
     print(f'stream: {len(got)} samples in 3 s, {rate:.1f} Hz, max gap '
           f'{np.diff(t).max() * 1e3:.1f} ms, max wall gap {np.diff(wall).max() * 1e3:.1f} ms; '
-          f'emulator dropped {100 * starved:.1f} % of its periods')
+          f'{int(count.sum())} slots empty in {len(after)} runs; emulator dropped '
+          f'{100 * starved:.1f} % of its periods')
+    assert np.all(np.diff(t) > 0), 'duplicated or reordered controller timestamps'
+    # every slot that passed unread is reported, and only while the poller was held up
+    assert not unexplained_gaps(arm, t)
     if starved > 0.05:
         # a fresh-clone run of the whole suite: 406 samples, the emulator's clock at 57 % of
         # the wall's, 235.5 Hz, a 24 ms gap: the test harness was starved, not the reader
@@ -80,12 +105,35 @@ def test_stream_is_250_hz_without_duplicates_or_gaps(cell):
     # wall time only says that the emulator ran at all)
     assert len(got) >= 0.95 * 250 * (t[-1] - t[0])
     assert t[-1] - t[0] >= 1.5
-    assert np.all(np.diff(t) > 0), 'duplicated or reordered controller timestamps'
-    assert np.diff(t).max() <= 0.012 + 1e-9, f'gap of {np.diff(t).max() * 1e3:.1f} ms'
     # delivery to callbacks: below the poke server's F/T stall threshold (50 ms), which is the
     # bound that matters; a fresh-clone CI run on a loaded 2-core machine saw 31 ms
     assert np.diff(wall).max() < 0.05
     assert len(arm.samples()) >= len(got)
+    assert not arm.active_faults()
+
+
+def test_a_held_up_stream_worker_reports_the_slots_it_missed(cell):
+    """SIGSTOP the stream worker for 80 ms: the samples of that time never reach it (ur_rtde
+    keeps the newest), and the stream says so, with how long it was held."""
+    emu, arm = cell
+    got = []
+    arm.add_sample_callback(got.append)
+    assert arm.wait_samples(50, 2.0)
+    pid = arm.stream_pid
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        time.sleep(0.08)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    assert arm.wait_samples(100, 3.0)
+    arm.remove_sample_callback(got.append)
+    t = np.array([s.t_controller for s in got])
+    after, count = missing_slots(t)
+    assert count.max() >= 10, f'no 40 ms run of empty slots: {count}'
+    assert not unexplained_gaps(arm, t)
+    big = [loss for loss in arm.stream_losses() if loss.lost == count.max()]
+    assert len(big) == 1 and big[0].held_s >= 0.07
+    assert arm.lost_samples >= int(count.sum())
     assert not arm.active_faults()
 
 

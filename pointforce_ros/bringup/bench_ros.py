@@ -448,7 +448,7 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
         for client in (trigger, trigger_mt, trigger_direct):
             warm_up_call(client, Trigger.Request(), 'trigger')
     rtt, msg_rtt, trigger_rtt, mt_rtt, mt_trigger_rtt = [], [], [], [], []
-    direct_rtt, direct_trigger_rtt, idle_rtt = [], [], []
+    direct_rtt, direct_trigger_rtt, idle_rtt, std_rtt = [], [], [], []
 
     def contact(client, request):
         elapsed, resp = (_direct_trip(client, request) if client is single_direct
@@ -464,6 +464,12 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
                                     (single_mt, flat, mt_rtt), (single_direct, flat, direct_rtt)):
             requests = [_single_request(pose, mesh) for pose in block]
             times.extend(contact(client, request) for request in requests)
+        for pose in block:    # with the wrench's standard deviation, in the same blocks
+            elapsed, resp = round_trip(single, _single_request(pose, flat, False), 30,
+                                       'contact_wrench')
+            if not (resp.success and resp.has_wrench_std):
+                raise RuntimeError(f'contact_wrench gave no wrench_std: {resp.message}')
+            std_rtt.append(elapsed)
         for client, times in ((trigger, trigger_rtt), (trigger_mt, mt_trigger_rtt)):
             times.extend(round_trip(client, Trigger.Request(), 30, 'trigger')[0]
                          for _ in block)
@@ -475,13 +481,6 @@ def _timed_round_trips(single, batch, trigger, single_mt, trigger_mt, single_dir
         request = _single_request(pose, flat)
         time.sleep(IDLE_S)
         idle_rtt.append(contact(single_direct, request))
-    std_rtt = []
-    for pose in poses[:max(n_single // 5, 20)]:   # with the wrench's standard deviation
-        elapsed, resp = round_trip(single, _single_request(pose, flat, False), 30,
-                                   'contact_wrench')
-        if not (resp.success and resp.has_wrench_std):
-            raise RuntimeError(f'contact_wrench gave no wrench_std: {resp.message}')
-        std_rtt.append(elapsed)
     small_rtt = []
     n_batch = len(poses)
     for i in range(n_small):

@@ -3,7 +3,10 @@
 Subscribes to a PointCloud2 topic (realsense-ros name by default; remap it), keeps the newest
 cloud, and on ``~/add_scan`` puts it in the merge set with the camera pose of that moment (there
 is no tf2 here: the pose comes from the ``camera_pose`` parameter or, if published, the
-``~/camera_pose`` topic, ``base`` <- optical frame). ``~/capture`` builds the surface (crop,
+``~/camera_pose`` topic, ``base`` <- optical frame). A cloud stamped in ``frame_id`` (``base``)
+is taken as it is; one in the camera's optical frame (``camera_frame``; empty: the first other
+frame a cloud comes in) or unstamped is moved with that pose; one in any other frame is refused
+(:class:`~pointforce_ros.nodes.common.CameraFrame`). ``~/capture`` builds the surface (crop,
 voxel, outliers, outward normals: :mod:`pointforce_ros.surface.equilibrium`), publishes it
 latched, stores it, and clears the merge set. A bad cloud is refused with a message; the node
 keeps serving (every callback is a fault boundary: any exception, ``MemoryError`` included,
@@ -16,6 +19,7 @@ import time
 from collections import deque
 from pathlib import Path
 
+import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -27,8 +31,8 @@ from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import save_surface
-from pointforce_ros.nodes.common import (contained, declare, failure_reason, live, qos_watch,
-                                         run)
+from pointforce_ros.nodes.common import (CameraFrame, contained, declare, failure_reason, live,
+                                         qos_watch, run)
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
@@ -73,6 +77,11 @@ class CloudCaptureNode(Node):
                                        read_only=True))
         self.frame = declare(self, 'frame_id', 'base', 'Frame of the published surface',
                              read_only=True)
+        self.camera_frame = CameraFrame(self.frame, declare(
+            self, 'camera_frame', '', 'Optical frame of the camera the camera pose places: '
+            'clouds in it (or unstamped) are moved to base, clouds in frame_id taken as they '
+            'are; empty: the first other frame a cloud comes in. Any other frame is refused '
+            '(no tf)', read_only=True), say=self.get_logger().info)
         try:
             self.config = SurfaceConfig(roi_min=roi[:3], roi_max=roi[3:], voxel_size=voxel,
                                         orientation=orientation)
@@ -148,10 +157,12 @@ class CloudCaptureNode(Node):
         if latest is None:
             raise PointforceError('no cloud received yet on the camera topic')
         msg, pose = latest[0], latest[1] or self.default_pose
+        in_base = self.camera_frame.classify(msg.header.frame_id, empty='camera') == 'base'
         cloud = cloud_from_msg(msg, drop_nan=True)
         if len(cloud.points) == 0:
             raise PointforceError('the latest cloud has no valid (finite) point')
-        return Scan(points=cloud.points, colors=cloud.rgb, transform=pose_to_matrix(pose))
+        return Scan(points=cloud.points, colors=cloud.rgb,
+                    transform=np.eye(4) if in_base else pose_to_matrix(pose))
 
     def _on_add(self, request, response):
         try:

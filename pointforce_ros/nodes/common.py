@@ -20,7 +20,7 @@ from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.node import Node
 
 from pointforce_ros.dds import use_package_dds_profile
-from pointforce_ros.errors import PointforceError
+from pointforce_ros.errors import InvalidInput, PointforceError
 
 
 def declare(node: Node, name: str, default, description: str, *,
@@ -322,3 +322,62 @@ def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
         if node is not None:
             destroy_node(node)
         rclpy.try_shutdown()
+
+
+class CameraFrame:
+    """Which ``frame_id`` of a cloud a node takes as the camera's optical frame (no tf here).
+
+    A cloud stamped in the robot base frame ``base`` is used as it is; one in the camera's
+    optical frame is moved into ``base`` with the camera pose. ``pinned`` names that frame
+    (the ``camera_frame`` parameter); empty, the first frame other than ``base`` a cloud
+    arrives in is taken as the camera's, once, and said so (:attr:`adopted`). A cloud in any
+    other frame (a second camera, a frame that needs tf) is refused: moving it with this
+    camera's pose would place it wrong by that frame's offset, silently.
+    """
+
+    def __init__(self, base: str, pinned: str = '', say: Callable[[str], None] = None):
+        """Keep the base frame, the pinned camera frame ('' = the first one seen) and ``say``.
+
+        ``say(line)`` is told once which frame was taken as the camera's (a node's logger).
+        """
+        self.base = str(base)
+        self.pinned = str(pinned or '')
+        self.say = say
+        self._lock = threading.Lock()
+        self.adopted = None
+        """The frame taken as the camera's when none was pinned (``None`` until one came)."""
+
+    @property
+    def camera(self) -> Optional[str]:
+        """The camera's optical frame: pinned, or adopted, or ``None`` before either."""
+        return self.pinned or self.adopted
+
+    def classify(self, frame: str, empty: str) -> str:
+        """Return ``'base'`` or ``'camera'`` for a cloud stamped ``frame``.
+
+        ``empty``: what an unstamped cloud (``frame`` ``''``) is, ``'base'`` or ``'camera'``.
+
+        Raises:
+            InvalidInput: ``frame`` is neither the base frame nor the camera's.
+
+        """
+        frame = str(frame or '')
+        if not frame:
+            return empty
+        if frame == self.base:
+            return 'base'
+        with self._lock:
+            adopt = not self.pinned and self.adopted is None
+            if adopt:
+                self.adopted = frame
+            camera = self.pinned or self.adopted
+        if adopt and self.say is not None:
+            self.say(f'taking frame {frame!r} as the camera\'s optical frame (the first cloud '
+                     f'not in {self.base!r}); clouds in any other frame are refused: set '
+                     'camera_frame to name it')
+        if frame == camera:
+            return 'camera'
+        raise InvalidInput(f'cloud in frame {frame!r}: neither the base frame {self.base!r} nor '
+                           f'the camera frame {camera!r}' + ('' if self.pinned else
+                                                             ' (the first one a cloud came in)')
+                           + '; no tf here: set camera_frame, or publish it in the base frame')

@@ -15,10 +15,13 @@ Thin wiring of the deformation wing (:mod:`pointforce_ros.deformation`, seed 001
   8 mm): mean magnitude error 16.0 % (worst 34 %) from the merged surface, 4.6 % (worst 10 %)
   from 4 rest frames (``test/nodes/test_deformation_force_node.py``).
 - **Deformed clouds**: ``cloud_topic`` (PointCloud2). A cloud whose ``frame_id`` is
-  ``frame_id`` (``base``) is used as is; any other (the camera's optical frame) is moved into
+  ``frame_id`` (``base``) or empty is used as is; one in the camera's optical frame
+  (``camera_frame``; empty: the first other frame a cloud comes in) is moved into
   ``base`` with the newest ``cloud_capture/camera_pose`` (PoseStamped, ``base`` <- optical
-  frame), else the ``camera_pose`` parameter, as cloud_capture does. Invalid (NaN) pixels are
-  dropped, as realsense-ros marks them; a cloud with no finite point is refused.
+  frame), else the ``camera_pose`` parameter, as cloud_capture does; a cloud in any other
+  frame is refused with the reason (no tf: :class:`~pointforce_ros.nodes.common.CameraFrame`).
+  Invalid (NaN) pixels are dropped, as realsense-ros marks them; a cloud with no finite point
+  is refused.
 - **F/T**: ``poke_server/wrench`` (``tool0_controller``, the reaction on the tool) is rotated
   into ``base`` with the newest ``poke_server/tcp_pose`` and negated: the force on the object.
   A camera or TCP pose stamped in another frame than ``frame_id`` (no tf here), or a TCP
@@ -103,7 +106,8 @@ from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, 
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
                                         version_of_path)
-from pointforce_ros.nodes.common import declare, failure_reason, live, report_folder, run
+from pointforce_ros.nodes.common import (CameraFrame, declare, failure_reason, live,
+                                         report_folder, run)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
@@ -152,6 +156,11 @@ class DeformationForceNode(Node):
         self.frame = declare(self, 'frame_id', 'base',
                              'Robot base frame: clouds in it are not transformed, outputs are '
                              'in it', read_only=True)
+        self.camera_frame = CameraFrame(self.frame, declare(
+            self, 'camera_frame', '', 'Optical frame of the camera the camera pose places: '
+            'clouds in it are moved to base; empty: the first frame other than frame_id a cloud '
+            'comes in. A cloud in any other frame is refused (no tf)', read_only=True),
+            say=self.get_logger().info)
         self.element_size = declare(self, 'element_size', 0.004,
                                     'Volume mesh element size in x-y, m (base)',
                                     bounds=(0.001, 0.05), read_only=True)
@@ -490,7 +499,7 @@ class DeformationForceNode(Node):
         points = raw[np.all(np.isfinite(raw), axis=1)]
         if len(raw) and not len(points):
             raise InvalidInput(f'cloud: all {len(raw)} points are NaN or inf (no valid depth)')
-        if msg.header.frame_id and msg.header.frame_id != self.frame:
+        if self.camera_frame.classify(msg.header.frame_id, empty='base') == 'camera':
             with self._lock:
                 pose = self._camera_pose or self.default_pose
             m = pose_to_matrix(pose)
@@ -512,6 +521,7 @@ class DeformationForceNode(Node):
         except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
             with self._lock:
                 self._cloud = f'latest cloud refused: {_reason(exc)}'
+            self.get_logger().warn(self._cloud, throttle_duration_sec=5.0)
             return
         with self._lock:
             # the same frame delivered again (a republishing driver, a best-effort resend)

@@ -102,9 +102,47 @@ def test_a_cloud_is_paired_with_the_camera_pose_of_its_own_stamp(ros_graph, tmp_
     pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose_b), stamp=10.5))
     ros_graph.wait_for(lambda: len(node._pose_history) == 2, 10, 'two poses')
     cloud_pub.publish(msg_from_cloud(np.random.default_rng(1).uniform(0.2, 0.3, (100, 3)),
-                                     stamp=10.0))
+                                     stamp=10.0, frame_id='camera_depth_optical_frame'))
     ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
     np.testing.assert_allclose(node._scan_from_latest().transform, pose_a, atol=1e-9)
+
+
+@pytest.mark.parametrize('pinned', ['', 'camera_color_optical_frame'])
+def test_a_cloud_is_moved_by_its_frame_and_one_in_an_unknown_frame_is_refused(
+        ros_graph, tmp_path, pinned):
+    """Session 40: a cloud already in base was moved again by the camera pose, and a cloud in
+    any frame at all was taken as the camera's."""
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 's.npz')),
+        Parameter('camera_frame', value=pinned)]))
+    test_node = ros_graph.add(Node('frame_driver', context=ros_graph.context))
+    cloud_pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    add = test_node.create_client(Trigger, '/cloud_capture/add_scan')
+    camera = look_at([0.5, -0.3, 0.3], [0.5, 0.0, 0.0])
+    node._new_camera_pose(list(Pose.from_matrix(camera).position)
+                          + list(Pose.from_matrix(camera).orientation))()
+    points = np.random.default_rng(4).uniform(0.2, 0.3, (100, 3))
+    optical = pinned or 'camera_depth_optical_frame'
+
+    def latest(frame):
+        node._latest = None
+        cloud_pub.publish(msg_from_cloud(points, frame_id=frame))
+        ros_graph.wait_for(lambda: node._latest is not None, 10, f'cloud in {frame!r}')
+
+    latest('base')                                       # taken as it is
+    np.testing.assert_allclose(node._scan_from_latest().transform, np.eye(4), atol=0)
+    latest(optical)                                      # the camera's: moved with its pose
+    np.testing.assert_allclose(node._scan_from_latest().transform, camera, atol=1e-9)
+    assert node.camera_frame.camera == optical
+    latest('')                                           # unstamped: the camera's, as before
+    np.testing.assert_allclose(node._scan_from_latest().transform, camera, atol=1e-9)
+    latest('map')                                        # needs tf: refused with the reason
+    refused = _call(ros_graph, add, 'add_scan of a cloud in map')
+    assert not refused.success, refused.message
+    assert "'map'" in refused.message and repr(optical) in refused.message
+    assert not node._scans
+    latest(optical)                                      # and the node goes on
+    assert _call(ros_graph, add, 'add_scan in the camera frame').success
 
 
 def test_hostile_clouds_are_refused_with_a_reason_and_the_node_keeps_serving(ros_graph,

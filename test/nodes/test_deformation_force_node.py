@@ -34,7 +34,8 @@ from pointforce_ros.model.files import ContactModel, QUARANTINE, save_model
 from pointforce_ros.nodes import deformation_force
 from pointforce_ros.nodes.deformation_force import DeformationForceNode, LATCHED, STREAM
 from pointforce_ros.response.baked import BakedResponse
-from pointforce_ros.rotations import matrix_to_quaternion, quaternion_to_matrix
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.rotations import matrix_to_quaternion, pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.sim.camera import DepthCamera, ring_viewpoints
 from pointforce_ros.sim.objects import load_object
 from pointforce_ros.types import Surface
@@ -364,6 +365,27 @@ def test_poses_in_an_unknown_frame_or_with_nan_are_ignored(cell):
     np.testing.assert_allclose(node._camera_pose.position, [0.4, 0.0, 0.5])
     node._on_tcp(pose('base', [0.5, 0.01, 0.04]))
     np.testing.assert_allclose(node._tcp[0], [0.5, 0.01, 0.04])
+
+
+def test_a_cloud_in_a_frame_that_is_neither_base_nor_the_cameras_is_refused(cell):
+    """Session 40: a cloud in any frame but base was taken as the camera's and moved by its
+    pose (a second camera's cloud, or one that needs tf, landed wrong by that frame's offset)."""
+    node = cell.node
+    points = np.random.default_rng(6).uniform(-0.05, 0.05, (200, 3)) + [0.5, 0.0, 0.3]
+    m = pose_to_matrix(node.default_pose)
+    for frame in ('base', ''):                         # base, and unstamped, as they are
+        np.testing.assert_allclose(node._cloud_in_base(msg_from_cloud(points, frame_id=frame)),
+                                   points, atol=1e-6)
+    moved = node._cloud_in_base(msg_from_cloud(points, frame_id='camera_depth_optical_frame'))
+    np.testing.assert_allclose(moved, points @ m[:3, :3].T + m[:3, 3], atol=1e-6)
+    assert node.camera_frame.camera == 'camera_depth_optical_frame'
+    with pytest.raises(InvalidInput, match="'map'.*'camera_depth_optical_frame'"):
+        node._cloud_in_base(msg_from_cloud(points, frame_id='map'))
+    # over the topic: refused with the reason kept for the next answer; the node goes on
+    cell.send_cloud(points, frame='camera_color_optical_frame')
+    assert 'camera_color_optical_frame' in node._cloud and 'refused' in node._cloud
+    cell.send_cloud(points, frame='camera_depth_optical_frame')
+    assert isinstance(node._cloud, tuple) and len(node._cloud[0]) == len(points)
 
 
 def test_held_observations_are_bounded_by_the_bytes_of_their_clouds(cell, monkeypatch):

@@ -96,12 +96,16 @@ def _losses_within(arm, t_controller) -> list:
     Each is a :class:`~pointforce_ros.drivers.ur_arm.StreamLoss` whose first sample after the
     empty slots lies in the record; stored in the poke's ``meta['stream_losses']`` so that a
     record says where it has no samples and why (``held_s`` over a slot: the poller was held
-    up). An arm without the accounting gives none.
+    up). An arm without the accounting gives none; nor does one whose accounting fails (the
+    arm moved: the samples are stored whatever this says).
     """
-    t = np.asarray(t_controller, dtype=float)
-    losses = getattr(arm, 'stream_losses', lambda: [])()
-    return [[float(x.t_controller), int(x.lost), float(x.held_s)] for x in losses
-            if len(t) and t[0] < x.t_controller <= t[-1]]
+    try:
+        t = np.asarray(t_controller, dtype=float)
+        losses = getattr(arm, 'stream_losses', lambda: [])()
+        return [[float(x.t_controller), int(x.lost), float(x.held_s)] for x in losses
+                if len(t) and t[0] < x.t_controller <= t[-1]]
+    except Exception:  # noqa: BLE001 - never between a push and the store
+        return []
 
 
 class PokeServerNode(Node):

@@ -79,7 +79,11 @@ def _speed_of(t: np.ndarray, depth: np.ndarray) -> float:
     """Median inward speed of the samples moving in faster than a fifth of the fastest."""
     if len(t) < 2:
         return 0.002
-    v = np.diff(depth) / np.diff(t)
+    with np.errstate(divide='ignore', invalid='ignore'):   # repeated times: refused later
+        v = np.diff(depth) / np.diff(t)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return 0.002
     fast = v[v > 0.2 * v.max()] if v.max() > 0 else v[:0]
     return float(np.median(fast)) if len(fast) else 0.002
 

@@ -21,9 +21,10 @@ the real ``ur_rtde``, and the bench is a DDS client in this process.
    SIGKILLed and restarted (seconds until it publishes again; model versions whose content
    changed = versions reused); the controller killed in the middle of a push (pokes lost: a push
    whose samples are neither in the store nor in a recovery file; seconds until a poke succeeds
-   again on a restarted controller); the newest poke bag corrupted (the next poke's id is new and
-   it is stored). The full run also SIGTERMs a whole ``pointforce cell`` and checks that no
-   emulator outlives it.
+   again on a restarted controller); the F/T stream worker held (SIGSTOP) for 60 ms in a push
+   (the poke stored, every run of slots its bag misses reported in its ``stream_losses``); the
+   newest poke bag corrupted (the next poke's id is new and it is stored). The full run also
+   SIGTERMs a whole ``pointforce cell`` and checks that no emulator outlives it.
 4. **Memory**: peak RSS (VmHWM) of every contact service process.
 
 "Seconds until it answers" counts from the restart (the process spawn, so it includes the Python
@@ -61,6 +62,7 @@ from rclpy.parameter import Parameter
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup.launcher import InProcessLauncher
+from pointforce_ros.drivers.ur_arm import missing_slots
 from pointforce_ros.errors import DeviceFault
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import (ContactModel, content_digest, load_model, save_model,
@@ -79,6 +81,9 @@ HANG_S = 5.0
 """An answer slower than this is a hang."""
 RETRY_S = 0.05
 """Seconds between the requests of a client waiting for a (re)started service."""
+HOLD_S = 0.06
+"""Seconds the F/T stream worker is held (SIGSTOP) in a push: 15 slots at 250 Hz. Its poller is
+held with it, so no stall is seen: it finds the slots passed when it runs again."""
 ABSURD = 1e3
 """N and N m: the sphere on the 60 mm test patch gives a few newtons."""
 HUGE = [float('nan'), float('inf'), -float('inf'), 1e9, -1e9, 1e20, 1e300, -1e308]
@@ -648,6 +653,7 @@ def poke_faults(bench: Bench, rng, quick: bool) -> dict:
 
     corrupted = ['']
     first = poke()
+    held_up = _held_up_stream(server, poke, store_dir)
     # the controller dies in the middle of a push (a push the loaded machine aborts before the
     # kill, e.g. a stalled stream, is tried again, at most 3 times)
     fired = threading.Event()
@@ -702,7 +708,44 @@ def poke_faults(bench: Bench, rng, quick: bool) -> dict:
                    outcomes=sorted(r.outcome for r in results))
     return dict(malformed_goals=goals, first_poke=None if first is None else first.outcome,
                 pokes=summary, faults=dict(dead_controller_mid_poke=dead_controller,
-                                           corrupt_newest_bag=corrupt_bag))
+                                           corrupt_newest_bag=corrupt_bag,
+                                           stream_held_up_mid_push=held_up))
+
+
+def _held_up_stream(server, poke, store_dir: Path) -> dict:
+    """Stop the F/T stream worker for :data:`HOLD_S` in a push (SIGSTOP: a loaded machine).
+
+    Its slots pass unread (ur_rtde keeps only the newest sample); the poke must be stored
+    with each run of empty slots reported in ``meta['stream_losses']``. Counted: the slots
+    the bag misses (:func:`~pointforce_ros.drivers.ur_arm.missing_slots`), the runs of them
+    not reported with the same size, the longest hold reported, and whether the poke was kept.
+    """
+    fired = threading.Event()
+
+    def hold_mid_push(msg):
+        if msg.feedback.phase == 'push' and msg.feedback.depth > 0.0005 and not fired.is_set():
+            fired.set()
+            pid = server._arm.stream_pid
+            os.kill(pid, signal.SIGSTOP)
+            try:
+                time.sleep(HOLD_S)
+            finally:
+                os.kill(pid, signal.SIGCONT)
+    result = poke(hold_mid_push)
+    out = dict(held_mid_push=fired.is_set(), hold_s=HOLD_S,
+               outcome=None if result is None else result.outcome,
+               stored=bool(result is not None and result.poke_id))
+    if not out['stored']:
+        return out
+    record = read_poke_bag(store_dir / result.poke_id)
+    after, count = missing_slots(record.t_controller)
+    reported = {round(x[0], 6): x for x in record.meta.get('stream_losses', [])}
+    unreported = sum(1 for k, n in zip(after, count)
+                     if reported.get(round(float(record.t_controller[k]), 6), [0, -1])[1] != n)
+    return dict(out, slots_missed=int(count.sum()), runs=len(after),
+                runs_unreported=int(unreported),
+                longest_held_ms=round(1e3 * max((x[2] for x in reported.values()), default=0.0),
+                                      1))
 
 
 # --------------------------------------------------------------------------- the whole cell

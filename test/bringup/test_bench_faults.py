@@ -3,8 +3,9 @@
 The quick run sends 48 malformed contact requests (40 single, 8 batch), 17 malformed poke goals
 (each bad kind once, two NaN goals, one in a foreign frame), and injects every fault once: the
 contact service SIGKILLed, SIGTERMed and restarted over a truncated, an empty and a garbage
-newest model file, the learner SIGKILLed, the controller killed mid-push, the newest bag
-corrupted. The counts must add up to what was injected, and every fault must be survived.
+newest model file, the learner SIGKILLed, the controller killed mid-push, the F/T stream worker
+held 60 ms mid-push, the newest bag corrupted. The counts must add up to what was injected,
+and every fault must be survived.
 """
 
 import json
@@ -50,6 +51,11 @@ def test_the_quick_fault_bench_counts_what_it_injected(tmp_path):
     dead = faults['dead_controller_mid_poke']
     assert dead['killed_mid_push'] and dead['outcome'] == 'aborted' and dead['samples'] > 0
     assert dead['pokes_lost'] == 0 and dead['pokes_to_recover'] <= 5
+    held = faults['stream_held_up_mid_push']
+    assert held['held_mid_push'] and held['stored'] and held['outcome'] == 'force_limit', held
+    # the 60 ms the worker was stopped: about 15 slots missed, every run of them reported
+    assert held['slots_missed'] >= 10 and held['runs_unreported'] == 0, held
+    assert held['longest_held_ms'] >= 55, held
     bag = faults['corrupt_newest_bag']
     assert not bag['id_reused'] and bag['pokes_lost'] == 0 and bag['next_id'] > bag['corrupted']
     pokes = report['pokes']

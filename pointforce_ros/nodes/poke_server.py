@@ -26,10 +26,11 @@ import threading
 import time
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from pointforce_interfaces.action import Poke
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -45,7 +46,7 @@ from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.rotations import rotvec_aligning_z, rotvec_matrix_and_quaternion
 from pointforce_ros.types import PokeRecord
-from pointforce_ros.drivers.ur_arm import STREAM_RT_PRIORITY, UrArm
+from pointforce_ros.drivers.ur_arm import active_fault_message, STREAM_RT_PRIORITY, UrArm
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
@@ -106,6 +107,25 @@ def _losses_within(arm, t_controller) -> list:
                 if len(t) and t[0] < x.t_controller <= t[-1]]
     except Exception:  # noqa: BLE001 - never between a push and the store
         return []
+
+
+DIAGNOSTICS_PERIOD = 1.0
+"""Seconds between the node's ``/diagnostics`` reports (the diagnostic_updater convention)."""
+STREAM_SILENCE = 0.5
+"""Seconds without an arm sample that make the stream's report an ERROR."""
+STREAM_LOSS_WARN = 0.01
+"""Share of a report period's stream slots missed that makes the report a WARN: a slot now
+and then goes when the controller's samples come in a burst (one in a few seconds seen on an
+idle machine); a held-up stream worker misses runs of them."""
+STREAM_RATE_WARN = 0.8
+"""Share of the stream's rate below which a report is a WARN (a controller or a reader that
+cannot keep up; the loopback emulator's clock slows when its process is starved)."""
+
+
+def _status(level: bytes, message: str, name: str, hardware: str,
+            values: dict) -> DiagnosticStatus:
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware,
+                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
 
 
 class PokeServerNode(Node):
@@ -177,6 +197,10 @@ class PokeServerNode(Node):
         self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,
                                  LATCHED, callback_group=group)
         self.create_service(Trigger, '~/zero_ftsensor', self._on_zero, callback_group=group)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag_last = (time.monotonic(), 0, 0, 0)   # when; samples, refused, slots missed
+        self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics,
+                          callback_group=MutuallyExclusiveCallbackGroup())
         self._server = ActionServer(self, Poke, '~/poke', execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group, goal_service_qos_profile=REQUESTS,
@@ -211,6 +235,8 @@ class PokeServerNode(Node):
                 self._arm.close()
                 self._arm = None
             arm = self._arm_factory(self.robot_ip)
+            # the next health report counts from here (a new arm counts its losses from 0)
+            self._diag_last = (time.monotonic(), self.samples_streamed, self.samples_refused, 0)
             arm.add_sample_callback(self._stream_sample)
             self._arm = arm
             self.get_logger().info(f'connected to the UR controller at {self.robot_ip}')
@@ -220,6 +246,80 @@ class PokeServerNode(Node):
                        else self.get_logger().info)
                 log(f'F/T stream worker: {scheduling}')
             return arm
+
+    def diagnostics(self) -> DiagnosticStatus:
+        """Return the arm's and the F/T stream's health since the last call (no robot call).
+
+        ERROR: no arm, an active fault (connection lost, protective stop, program stopped,
+        stall, frozen F/T), or no sample for :data:`STREAM_SILENCE`; WARN: more than
+        :data:`STREAM_LOSS_WARN` of the stream's slots missed since the last report
+        (:class:`~pointforce_ros.drivers.ur_arm.StreamLoss`), a sample rate under
+        :data:`STREAM_RATE_WARN` of the stream's, samples refused since then, or a refused
+        real-time priority; else OK. ``values``: the sample rate and the counts, the
+        scheduling, whether a poke runs, the last goal rejection.
+        """
+        now = time.monotonic()
+        then, streamed, refused, missed = self._diag_last
+        arm = self._arm
+        lost = int(getattr(arm, 'lost_samples', 0)) if arm is not None else missed
+        self._diag_last = (now, self.samples_streamed, self.samples_refused, lost)
+        name, hardware = f'{self.get_name()}: arm and F/T stream', self.robot_ip
+        values = {'robot_ip': self.robot_ip,
+                  'sample_rate_hz': round((self.samples_streamed - streamed)
+                                          / max(now - then, 1e-3), 1),
+                  'slots_missed': lost, 'slots_missed_since_last': lost - missed,
+                  'samples_refused': self.samples_refused,
+                  'poke_running': self._busy.locked(), 'last_rejection': self.last_rejection}
+        if arm is None:
+            return _status(DiagnosticStatus.ERROR, 'no arm connected (tried again on the next '
+                           'goal)', name, hardware, values)
+        scheduling = getattr(arm, 'stream_scheduling', None) or ''
+        values['stream_scheduling'] = scheduling
+        faults = arm.active_faults()
+        values['active_faults'] = ','.join(faults)
+        latest = arm.latest()
+        silent = time.time() - latest.t_wall
+        values['newest_sample_age_s'] = round(silent, 3)
+        if faults:
+            return _status(DiagnosticStatus.ERROR, active_fault_message(arm.events(), faults),
+                           name, hardware, values)
+        if silent > STREAM_SILENCE:
+            return _status(DiagnosticStatus.ERROR, f'no arm sample for {silent:.1f} s', name,
+                           hardware, values)
+        warnings = []
+        stream_hz = float(getattr(arm, 'stream_hz', 250.0))
+        expected = max(now - then, 1e-3) * stream_hz
+        if values['sample_rate_hz'] < STREAM_RATE_WARN * stream_hz:
+            warnings.append(f'the stream delivered {values["sample_rate_hz"]:g} samples/s of '
+                            f'{stream_hz:g}')
+        if lost - missed > STREAM_LOSS_WARN * expected:
+            warnings.append(f'{lost - missed} stream slots missed since the last report '
+                            f'({100 * (lost - missed) / expected:.1f} %: the stream worker was '
+                            'held up; each poke lists its own in meta stream_losses)')
+        if self.samples_refused > refused:
+            warnings.append(f'{self.samples_refused - refused} samples not published')
+        if 'refused' in scheduling:
+            warnings.append(f'F/T stream worker at normal priority: {scheduling}')
+        if warnings:
+            return _status(DiagnosticStatus.WARN, '; '.join(warnings), name, hardware, values)
+        return _status(DiagnosticStatus.OK, f'streaming at {values["sample_rate_hz"]:g} Hz',
+                       name, hardware, values)
+
+    def _publish_diagnostics(self):
+        """Publish :meth:`diagnostics` on ``/diagnostics`` (a timer: a fault boundary)."""
+        try:
+            status = self.diagnostics()
+        except Exception as exc:  # noqa: BLE001 - a timer must not end the executor
+            status = _status(DiagnosticStatus.ERROR, f'health unknown: {type(exc).__name__}: '
+                             f'{exc}', f'{self.get_name()}: arm and F/T stream', self.robot_ip,
+                             {})
+        try:
+            msg = DiagnosticArray(status=[status])
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self.diagnostics_pub.publish(msg)
+        except Exception as exc:  # noqa: BLE001 - a timer must not end the executor
+            self.get_logger().warn(f'diagnostics not published: {type(exc).__name__}: {exc}',
+                                   throttle_duration_sec=10.0)
 
     def _stream_sample(self, sample):
         """Publish one 250 Hz sample (driver thread; must neither block nor raise).

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from pointforce_interfaces.action import Poke
 from rclpy.action import ActionClient
 from rclpy.node import Node
@@ -89,11 +90,11 @@ def test_poke_end_to_end_with_feedback_and_a_250hz_bag(cell):
     rate = 1.0 / np.median(dt)
     assert rate == pytest.approx(250.0, rel=0.05)
     # as in the driver's own stream test (test_ur_arm_driver.py): every run of empty slots is
-    # in the poke's meta, at the sample after it, and happened while the poller was held up
+    # in the poke's meta, at the sample after it, with its size
     losses = {round(x[0], 6): x for x in record.meta['stream_losses']}
     for k, count in zip(*missing_slots(record.t_controller)):
         loss = losses.pop(round(float(record.t_controller[k]), 6), None)
-        assert loss is not None and loss[1] == count and loss[2] > 1.0 / 250.0, \
+        assert loss is not None and loss[1] == count, \
             (float(record.t_controller[k]), int(count), loss)
     assert not losses, f'losses reported where the record has no gap: {losses}'
     if starved <= 0.05:
@@ -211,3 +212,53 @@ def test_second_goal_while_busy_is_rejected(cell):
     time.sleep(0.3)
     assert not _send(graph, client, _goal()).accepted
     graph.wait_future(first.get_result_async(), 40, 'first result')
+
+
+def test_diagnostics_report_the_arm_and_stream_health_over_dds(cell):
+    """``/diagnostics`` (the diagnostic_updater convention, 1 Hz): OK while the stream flows,
+    WARN for the slots a held-up stream worker missed, ERROR on a protective stop and, once it
+    is released, for the control program it stopped."""
+    graph, emulator, server, client_node, client, tmp_path = cell
+    got = []
+    client_node.create_subscription(DiagnosticArray, '/diagnostics',
+                                    lambda m: got.extend(m.status), 10)
+
+    def next_report(what, timeout=10.0):
+        got.clear()
+        graph.wait_for(lambda: got, timeout, what)
+        status = got[-1]
+        return status, {v.key: v.value for v in status.values}
+
+    status, values = next_report('a report')
+    assert status.name == 'poke_server: arm and F/T stream'
+    assert status.hardware_id == emulator.host
+    # steady streaming (in the first seconds of a node and its graph the emulator's clock may
+    # slow or a few slots go: a WARN, named)
+    graph.wait_for(lambda: got and got[-1].level == DiagnosticStatus.OK, 15, 'an OK report')
+    values = {v.key: v.value for v in got[-1].values}
+    assert 200.0 <= float(values['sample_rate_hz']) < 300.0, values
+    assert 'streaming at' in got[-1].message
+    # the stream worker held 60 ms: its missed slots make the next report a warning
+    pid = server._arm.stream_pid
+    got.clear()
+    os.kill(pid, signal.SIGSTOP)
+    time.sleep(0.06)
+    os.kill(pid, signal.SIGCONT)
+    graph.wait_for(lambda: any(s.level == DiagnosticStatus.WARN for s in got), 5,
+                   'a WARN report after the hold')
+    status = next(s for s in got if s.level == DiagnosticStatus.WARN)
+    values = {v.key: v.value for v in status.values}
+    assert 'slots missed' in status.message, status.message
+    assert int(values['slots_missed_since_last']) >= 10
+    assert int(values['slots_missed']) == server._arm.lost_samples
+    # a protective stop is an error, named
+    emulator.control.protective_stop()
+    graph.wait_for(lambda: got and got[-1].level == DiagnosticStatus.ERROR, 10,
+                   'an ERROR report')
+    assert 'protective' in got[-1].message, got[-1].message
+    # released, the stop is no longer named; the control script it ended still is (a UR's
+    # protective stop ends the program; the arm is not ready until it runs again)
+    assert emulator.control.unlock()
+    graph.wait_for(lambda: got and 'protective' not in got[-1].message, 10, 'stop released')
+    assert got[-1].level == DiagnosticStatus.ERROR
+    assert 'control program' in got[-1].message, got[-1].message

@@ -12,9 +12,11 @@ from pathlib import Path
 from typing import Callable, Dict, Optional, Sequence
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.node import Node
@@ -381,3 +383,38 @@ class CameraFrame:
                            f'the camera frame {camera!r}' + ('' if self.pinned else
                                                              ' (the first one a cloud came in)')
                            + '; no tf here: set camera_frame, or publish it in the base frame')
+
+
+DIAGNOSTICS_PERIOD = 1.0
+"""Seconds between a node's ``/diagnostics`` reports (the diagnostic_updater convention)."""
+
+
+def publish_health(node: Node, task: str, report: Callable[[], tuple],
+                   hardware: Callable[[], str] = lambda: '') -> None:
+    """Publish ``report()`` on ``/diagnostics`` every :data:`DIAGNOSTICS_PERIOD` seconds.
+
+    ``report() -> (level, message, values)``: a ``DiagnosticStatus`` level (``OK``, ``WARN``,
+    ``ERROR``), one line, and a mapping of key -> value (stringified). Each report is a
+    ``DiagnosticArray`` holding one status named ``'<node name>: <task>'`` with
+    ``hardware()`` as its id, what rqt_robot_monitor and diagnostic_aggregator read. The timer
+    is a fault boundary: a report that raises is published as an ERROR saying so.
+    """
+    publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+    name = f'{node.get_name()}: {task}'
+
+    def tick():
+        try:
+            level, message, values = report()
+        except Exception as exc:  # noqa: BLE001 - a timer must not end the executor
+            level, message, values = (DiagnosticStatus.ERROR,
+                                      f'health unknown: {type(exc).__name__}: {exc}', {})
+        try:
+            msg = DiagnosticArray(status=[DiagnosticStatus(
+                level=level, name=name, message=str(message), hardware_id=str(hardware()),
+                values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])])
+            msg.header.stamp = node.get_clock().now().to_msg()
+            publisher.publish(msg)
+        except Exception as exc:  # noqa: BLE001 - a timer must not end the executor
+            node.get_logger().warn(f'/diagnostics not published: {type(exc).__name__}: {exc}',
+                                   throttle_duration_sec=10.0)
+    node.create_timer(DIAGNOSTICS_PERIOD, tick, callback_group=MutuallyExclusiveCallbackGroup())

@@ -50,7 +50,7 @@ from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_fr
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import (build_node, declare, init_or_exit, live,
-                                         report_folder)
+                                         publish_health, report_folder)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
 from pointforce_ros.response.blas import limit_blas_for_process
@@ -191,8 +191,36 @@ class ContactWrenchNode(Node):
                     'marker_rate': lambda v: lambda: self._set_marker_rate(v),
                     'marker_force_scale': lambda v: lambda: setattr(self, 'marker_scale', v),
                     'hot_wait': lambda v: lambda: self._service_loop.set_hot_wait(v)})
+        self._health = (0, 0, 0)     # answered, refused, callback faults at the last report
+        publish_health(self, 'contact service', self.health)
         self._service_loop.start()
         self.get_logger().info(f'serving contact wrenches (model version {self.server.version})')
+
+    def health(self) -> tuple:
+        """Return ``(level, message, values)`` for ``/diagnostics`` since the last call.
+
+        ERROR: no model loaded (every request is refused); WARN: a request callback failed
+        past its own checks (``ServiceLoop.faults``) since the last report; else OK, naming the
+        model version and the requests answered and refused since then (a refused request is
+        the client's: its answer says why).
+        """
+        served, failed, faults = (self.requests_served, self.requests_failed,
+                                  self._service_loop.faults)
+        before = self._health
+        self._health = (served, failed, faults)
+        version = self.server.version
+        values = {'model_version': version, 'model_dir': self.model_dir or '',
+                  'answered': served, 'refused': failed, 'callback_faults': faults,
+                  'answered_since_last': served - before[0],
+                  'refused_since_last': failed - before[1]}
+        if version < 0:
+            return (DiagnosticStatus.ERROR, 'no contact model loaded: every request is refused '
+                    '(waiting for model_dir or stiffness_learner/model)', values)
+        if faults > before[2]:
+            return (DiagnosticStatus.WARN, f'{faults - before[2]} request callback faults since '
+                    'the last report (see the log)', values)
+        return (DiagnosticStatus.OK, f'serving model v{version}: {served - before[0]} answered, '
+                f'{failed - before[1]} refused since the last report', values)
 
     def destroy_node(self):
         """Stop the service loop (its services first), then destroy the node."""

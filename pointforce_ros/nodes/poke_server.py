@@ -26,11 +26,11 @@ import threading
 import time
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from pointforce_interfaces.action import Poke
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -41,7 +41,8 @@ from msg_adapters.geometry import sec_to_stamp
 from msg_adapters.interfaces import (poke_feedback_msg, poke_goal_from_msg, poke_result_msg)
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.errors import DeviceFault, PointforceError
-from pointforce_ros.nodes.common import declare, destroy_waitables, live, run
+from pointforce_ros.nodes.common import (declare, destroy_waitables, live, publish_health,
+                                         run)
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.rotations import rotvec_aligning_z, rotvec_matrix_and_quaternion
@@ -109,8 +110,6 @@ def _losses_within(arm, t_controller) -> list:
         return []
 
 
-DIAGNOSTICS_PERIOD = 1.0
-"""Seconds between the node's ``/diagnostics`` reports (the diagnostic_updater convention)."""
 STREAM_SILENCE = 0.5
 """Seconds without an arm sample that make the stream's report an ERROR."""
 STREAM_LOSS_WARN = 0.01
@@ -120,12 +119,6 @@ idle machine); a held-up stream worker misses runs of them."""
 STREAM_RATE_WARN = 0.8
 """Share of the stream's rate below which a report is a WARN (a controller or a reader that
 cannot keep up; the loopback emulator's clock slows when its process is starved)."""
-
-
-def _status(level: bytes, message: str, name: str, hardware: str,
-            values: dict) -> DiagnosticStatus:
-    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware,
-                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
 
 
 class PokeServerNode(Node):
@@ -197,10 +190,8 @@ class PokeServerNode(Node):
         self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,
                                  LATCHED, callback_group=group)
         self.create_service(Trigger, '~/zero_ftsensor', self._on_zero, callback_group=group)
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._diag_last = (time.monotonic(), 0, 0, 0)   # when; samples, refused, slots missed
-        self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics,
-                          callback_group=MutuallyExclusiveCallbackGroup())
+        publish_health(self, 'arm and F/T stream', self.diagnostics, lambda: self.robot_ip)
         self._server = ActionServer(self, Poke, '~/poke', execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=group, goal_service_qos_profile=REQUESTS,
@@ -247,8 +238,11 @@ class PokeServerNode(Node):
                 log(f'F/T stream worker: {scheduling}')
             return arm
 
-    def diagnostics(self) -> DiagnosticStatus:
-        """Return the arm's and the F/T stream's health since the last call (no robot call).
+    def diagnostics(self) -> tuple:
+        """Return ``(level, message, values)``: arm and F/T stream health since the last call.
+
+        For ``/diagnostics`` (:func:`~pointforce_ros.nodes.common.publish_health`); it makes no
+        call to the robot.
 
         ERROR: no arm, an active fault (connection lost, protective stop, program stopped,
         stall, frozen F/T), or no sample for :data:`STREAM_SILENCE`; WARN: more than
@@ -263,7 +257,6 @@ class PokeServerNode(Node):
         arm = self._arm
         lost = int(getattr(arm, 'lost_samples', 0)) if arm is not None else missed
         self._diag_last = (now, self.samples_streamed, self.samples_refused, lost)
-        name, hardware = f'{self.get_name()}: arm and F/T stream', self.robot_ip
         values = {'robot_ip': self.robot_ip,
                   'sample_rate_hz': round((self.samples_streamed - streamed)
                                           / max(now - then, 1e-3), 1),
@@ -271,8 +264,8 @@ class PokeServerNode(Node):
                   'samples_refused': self.samples_refused,
                   'poke_running': self._busy.locked(), 'last_rejection': self.last_rejection}
         if arm is None:
-            return _status(DiagnosticStatus.ERROR, 'no arm connected (tried again on the next '
-                           'goal)', name, hardware, values)
+            return (DiagnosticStatus.ERROR, 'no arm connected (tried again on the next goal)',
+                    values)
         scheduling = getattr(arm, 'stream_scheduling', None) or ''
         values['stream_scheduling'] = scheduling
         faults = arm.active_faults()
@@ -281,11 +274,9 @@ class PokeServerNode(Node):
         silent = time.time() - latest.t_wall
         values['newest_sample_age_s'] = round(silent, 3)
         if faults:
-            return _status(DiagnosticStatus.ERROR, active_fault_message(arm.events(), faults),
-                           name, hardware, values)
+            return DiagnosticStatus.ERROR, active_fault_message(arm.events(), faults), values
         if silent > STREAM_SILENCE:
-            return _status(DiagnosticStatus.ERROR, f'no arm sample for {silent:.1f} s', name,
-                           hardware, values)
+            return DiagnosticStatus.ERROR, f'no arm sample for {silent:.1f} s', values
         warnings = []
         stream_hz = float(getattr(arm, 'stream_hz', 250.0))
         expected = max(now - then, 1e-3) * stream_hz
@@ -301,25 +292,8 @@ class PokeServerNode(Node):
         if 'refused' in scheduling:
             warnings.append(f'F/T stream worker at normal priority: {scheduling}')
         if warnings:
-            return _status(DiagnosticStatus.WARN, '; '.join(warnings), name, hardware, values)
-        return _status(DiagnosticStatus.OK, f'streaming at {values["sample_rate_hz"]:g} Hz',
-                       name, hardware, values)
-
-    def _publish_diagnostics(self):
-        """Publish :meth:`diagnostics` on ``/diagnostics`` (a timer: a fault boundary)."""
-        try:
-            status = self.diagnostics()
-        except Exception as exc:  # noqa: BLE001 - a timer must not end the executor
-            status = _status(DiagnosticStatus.ERROR, f'health unknown: {type(exc).__name__}: '
-                             f'{exc}', f'{self.get_name()}: arm and F/T stream', self.robot_ip,
-                             {})
-        try:
-            msg = DiagnosticArray(status=[status])
-            msg.header.stamp = self.get_clock().now().to_msg()
-            self.diagnostics_pub.publish(msg)
-        except Exception as exc:  # noqa: BLE001 - a timer must not end the executor
-            self.get_logger().warn(f'diagnostics not published: {type(exc).__name__}: {exc}',
-                                   throttle_duration_sec=10.0)
+            return DiagnosticStatus.WARN, '; '.join(warnings), values
+        return DiagnosticStatus.OK, f'streaming at {values["sample_rate_hz"]:g} Hz', values
 
     def _stream_sample(self, sample):
         """Publish one 250 Hz sample (driver thread; must neither block nor raise).

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import SuggestPoke
@@ -51,7 +52,8 @@ from pointforce_ros.model.learner import check_region, OnlineLearner
 from pointforce_ros.model.files import (load_model, load_shape, load_shape_law, load_shape_near,
                                         load_shape_uncertainty, load_surface, save_shape,
                                         version_of_path)
-from pointforce_ros.nodes.common import contained, declare, live, qos_watch, report_folder, run
+from pointforce_ros.nodes.common import (contained, declare, live, publish_health, qos_watch,
+                                         report_folder, run)
 from pointforce_ros.pokes.recorder import StreamRecorder
 from pointforce_ros.pokes.store import PokeStore
 
@@ -176,6 +178,11 @@ class StiffnessLearnerNode(Node):
         self._lock = threading.Lock()
         self.learner = None
         self._last_status = None   # the newest model's status, for redrawing the markers
+        self._health_skipped = 0   # pokes skipped at the last /diagnostics report
+        self._health_errors = 0    # refit failures at the last report
+        self.refit_errors = 0
+        self.last_refit_error = ''
+        publish_health(self, 'stiffness learner', self.health)
         self.recorder = StreamRecorder() if record else None
         self.model_pub = self.create_publisher(ModelStatus, '~/model', LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, '~/markers', LATCHED)
@@ -428,11 +435,50 @@ class StiffnessLearnerNode(Node):
             try:
                 status = learner.update()
             except PointforceError as exc:
+                self.refit_errors += 1
+                self.last_refit_error = str(exc)
                 self.get_logger().error(f'refit failed: {exc}')
                 return
         if status is None:
             return
         self._publish(status, learner)
+
+    def health(self) -> tuple:
+        """Return ``(level, message, values)`` for ``/diagnostics`` since the last call.
+
+        ERROR: an update failed since the last report (the reason); WARN: no surface yet, no
+        model yet, or pokes skipped since the last report (the newest named with its reason:
+        they are not in the model); else OK, naming the model and its prequential error.
+        """
+        learner, status = self.learner, self._last_status
+        skipped = getattr(learner, 'skipped', None) or {}
+        count = len(skipped)
+        new, self._health_skipped = count - self._health_skipped, count
+        errors, self._health_errors = self.refit_errors - self._health_errors, self.refit_errors
+        values = {'model_version': -1 if status is None else status.version,
+                  'pokes': 0 if status is None else status.num_pokes,
+                  'pokes_skipped': count, 'refit_errors': self.refit_errors}
+        if status is not None:
+            values.update(training_rmse_n=round(status.training_rmse, 4),
+                          prequential_rmse_n=round(status.validation_rmse, 4))
+        if errors > 0:
+            return (DiagnosticStatus.ERROR, f'{errors} model updates failed since the last '
+                    f'report: {self.last_refit_error}', values)
+        if learner is None:
+            return (DiagnosticStatus.WARN, 'no surface yet: waiting for cloud_capture/surface '
+                    '(or surface_file)', values)
+        if status is None:
+            return DiagnosticStatus.WARN, 'no model yet: no poke learned', values
+        if new > 0:
+            try:
+                poke, why = list(skipped.items())[-1]
+                newest = f' (newest {poke}: {why})'
+            except (RuntimeError, IndexError):    # changed by an update meanwhile
+                newest = ''
+            return (DiagnosticStatus.WARN, f'{new} pokes skipped since the last report, not in '
+                    f'the model{newest}', values)
+        return (DiagnosticStatus.OK, f'model v{status.version} from {status.num_pokes} pokes, '
+                f'prequential RMSE {status.validation_rmse:.3f} N', values)
 
     def _publish(self, status, learner):
         saved = version_of_path(status.model_path) if status.model_path is not None else None

@@ -642,7 +642,8 @@ class PokeStore:
         """Persist ``record`` (atomically) and index it; returns the bag path.
 
         Raises:
-            InvalidInput: a poke id that is no plain file name, or a name the store uses.
+            InvalidInput: a poke id that is no plain file name, a name the store uses, or
+                not ``poke-<number>`` (the only bags a store lists when it is opened again).
             DataError: the id is stored already.
 
         """
@@ -650,6 +651,11 @@ class PokeStore:
         if record.poke_id in self.RESERVED:
             raise InvalidInput(f'PokeStore.add: poke_id {record.poke_id!r} is a name the store '
                                'uses for its own files')
+        if not _ID.match(record.poke_id):
+            raise InvalidInput(f"PokeStore.add: poke_id {record.poke_id!r} is not "
+                               "'poke-<number>': a store lists only such bags when it is opened "
+                               'again, so this poke would vanish from it (name it with '
+                               'next_id())')
         with self._lock:
             path = write_poke_bag(record, self.root / record.poke_id)
             self._index[record.poke_id] = self._entry(record)

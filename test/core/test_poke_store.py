@@ -239,6 +239,21 @@ def test_a_poke_id_that_is_no_plain_name_is_refused_naming_it(tmp_path, bad_id):
     assert json.loads(bytes(np.load(kept)['header']).decode())['poke_id'] == bad_id
 
 
+@pytest.mark.parametrize('name', ['air-000001', 'site A 2', 'step-0001', 'Poke-000001'])
+def test_a_plain_id_that_is_no_poke_number_is_refused_not_lost_on_reopening(tmp_path, name):
+    """Session 40: the store took 'air-000001' and listed it, and the same store opened again
+    (a restarted learner, ``refresh``) no longer did: the poke was gone from it."""
+    store = st.PokeStore(tmp_path / 'store')
+    store.add(make_record('poke-000001', n=10))
+    with pytest.raises(InvalidInput, match=re.escape(repr(name)) + r".*'poke-<number>'"):
+        store.add(make_record(name, n=10))
+    assert store.ids() == ['poke-000001'] and not (tmp_path / 'store' / name).exists()
+    store.add(make_record('poke-000007', n=10))
+    store.refresh()
+    listed = ['poke-000001', 'poke-000007']
+    assert store.ids() == st.PokeStore(tmp_path / 'store').ids() == listed
+
+
 def test_the_topic_recorder_refuses_a_path_as_poke_id_and_records_the_next_poke(tmp_path):
     """Audit, path traversal: the learner wrote bags outside its store."""
     record = make_record('poke-000001', n=20, seed=4)

@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Vector3
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
@@ -378,3 +379,33 @@ def test_client_lanes_answer_as_the_shared_service_does(ros_graph, tmp_path):
         assert all(a.success for a in answers), [a.message for a in answers]
         forces = [(a.wrench.force.x, a.wrench.force.y, a.wrench.force.z) for a in answers]
         assert forces[0][2] > 0.1 and forces[1] == forces[0] and forces[2] == forces[0]
+
+
+def test_diagnostics_say_whether_the_service_answers_and_on_which_model(ros_graph, tmp_path):
+    """``/diagnostics`` (1 Hz): ERROR while no model is loaded (every request refused), OK
+    naming the model and the requests answered and refused since the last report."""
+    node = ros_graph.add(ContactWrenchNode(
+        context=ros_graph.context,
+        parameter_overrides=[Parameter('model_dir', value=str(tmp_path / 'models')),
+                             Parameter('poll_period', value=0.1)]))
+    probe = ros_graph.add(Node('health_probe', context=ros_graph.context))
+    got = []
+    probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: got.extend(
+        s for s in m.status if s.name == 'contact_wrench: contact service'), 10)
+    ros_graph.wait_for(lambda: got, 10, 'a report')
+    assert got[-1].level == DiagnosticStatus.ERROR and 'no contact model' in got[-1].message
+    model = patch_contact_model(spacing=0.003)
+    save_model(model, tmp_path / 'models')
+    ros_graph.wait_for(lambda: node.server.version == model.version, 10, 'model loaded')
+    assert node._on_single(_request(0.003)[0], ContactWrench.Response()).success
+    bad, _ = _request(0.003)
+    bad.pose.position.x = float('nan')
+    assert not node._on_single(bad, ContactWrench.Response()).success
+    got.clear()
+    ros_graph.wait_for(lambda: got, 10, 'a report after the requests')
+    status = got[-1]
+    values = {v.key: v.value for v in status.values}
+    assert status.level == DiagnosticStatus.OK, status.message
+    assert f'serving model v{model.version}' in status.message
+    assert values['model_version'] == str(model.version)
+    assert int(values['answered']) >= 1 and int(values['refused']) >= 1

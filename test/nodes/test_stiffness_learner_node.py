@@ -1,9 +1,11 @@
 """stiffness_learner over DDS: refits on poke_landed, latched model, restart, suggestions."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import SuggestPoke
 from rcl_interfaces.srv import SetParameters
@@ -14,6 +16,7 @@ from std_msgs.msg import String
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.simulator import DECAY_LAW
 from pointforce_ros.effects.accepted import effects_to_dict
+from pointforce_ros.errors import DataError
 from pointforce_ros.effects.forward import model_surface
 from pointforce_ros.sim.scenario import HalfSpaceContact, load_scenario
 from pointforce_ros.sim.session import halfspace_object, simulate_campaign
@@ -325,3 +328,55 @@ def test_soft_pokes_are_learned_by_default_and_skipped_under_a_fixed_threshold(
                        and len(node.learner.curves) + len(node.learner.skipped) >= 4, 30,
                        'every poke considered')
     assert len(node.learner.curves) == learned, node.learner.skipped
+
+
+def test_diagnostics_say_what_the_learner_lacks_and_which_pokes_it_skipped(
+        ros_graph, tmp_path, monkeypatch):
+    """``/diagnostics`` (1 Hz): WARN with no model yet, OK with one, WARN naming a poke that
+    could not be learned, ERROR for an update that failed."""
+    _, records = _setup(tmp_path)                   # the surface; the pokes go in one by one
+    store = PokeStore(tmp_path / 'fresh')
+    node = ros_graph.add(StiffnessLearnerNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('store_dir', value=str(tmp_path / 'fresh')),
+        Parameter('model_dir', value=str(tmp_path / 'models')),
+        Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
+        Parameter('poll_period', value=600.0)]))
+    probe = ros_graph.add(Node('health_probe', context=ros_graph.context))
+    got = []
+    probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: got.extend(
+        s for s in m.status if s.name == 'stiffness_learner: stiffness learner'), 10)
+
+    def report(what, level, text):
+        """The first report at ``level`` since ``got`` was last cleared (a report says what
+        changed since the one before, so clear before the change)."""
+        try:
+            ros_graph.wait_for(lambda: any(s.level == level for s in got), 10, what)
+        except RuntimeError as exc:
+            raise AssertionError(f'{what}: {[(s.level, s.message) for s in got[-2:]]}') from exc
+        status = next(s for s in got if s.level == level)
+        assert text in status.message, status.message
+        got.clear()
+        return {v.key: v.value for v in status.values}
+
+    report('no model yet', DiagnosticStatus.WARN, 'no model yet')
+    got.clear()
+    for record in records[:3]:
+        store.add(record)
+    node.refit()
+    values = report('a model', DiagnosticStatus.OK, 'model v3 from 3 pokes')
+    assert values['pokes'] == '3' and float(values['prequential_rmse_n']) > 0
+    air = dataclasses.replace(simulate_campaign(
+        OBJECT, load_scenario('clean'), points=[[0.5, 0.0, 0.07]], normals=[[0.0, 0.0, 1.0]],
+        force_limit=3.0, depth_limit=0.005, speed=0.004)[0], poke_id=store.next_id())
+    got.clear()
+    store.add(air)                          # a push into the air: no contact to learn from
+    node.refit()
+    report('a skipped poke', DiagnosticStatus.WARN, f'newest {air.poke_id}: ')
+    report('OK again', DiagnosticStatus.OK, 'model v3')
+
+    def fails():
+        raise DataError('poke store index unreadable (injected)')
+    monkeypatch.setattr(node.learner, 'update', fails)
+    got.clear()
+    node.refit()
+    report('a failed update', DiagnosticStatus.ERROR, 'index unreadable (injected)')

@@ -20,6 +20,7 @@ from collections import deque
 from pathlib import Path
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -32,7 +33,7 @@ from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import save_surface
 from pointforce_ros.nodes.common import (CameraFrame, contained, declare, failure_reason, live,
-                                         qos_watch, run)
+                                         publish_health, qos_watch, run)
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
@@ -106,6 +107,8 @@ class CloudCaptureNode(Node):
         self.create_service(Trigger, '~/add_scan', self._on_add, callback_group=group)
         self.create_service(Trigger, '~/capture', self._on_capture, callback_group=group)
         self.create_service(Trigger, '~/clear', self._on_clear, callback_group=group)
+        self._refusal = ''      # why the last add_scan / capture was refused
+        publish_health(self, 'surface capture', self.health)
         live(self, {'roi': self._new_roi, 'voxel_size': self._new_voxel,
                     'normal_orientation': self._new_orientation,
                     'camera_pose': self._new_camera_pose})
@@ -125,6 +128,29 @@ class CloudCaptureNode(Node):
     def _new_orientation(self, orientation):
         config = dataclasses.replace(self.config, orientation=orientation)
         return lambda: setattr(self, 'config', config)
+
+    def health(self) -> tuple:
+        """Return ``(level, message, values)`` for ``/diagnostics``.
+
+        WARN: no cloud received yet on the camera topic, or no surface captured yet (the
+        learner and the poke server wait for it), naming the last refusal if there was one;
+        else OK, naming the surface's size.
+        """
+        with self._lock:
+            latest = self._latest
+        surface = self.surface
+        values = {'scans_in_merge_set': len(self._scans),
+                  'surface_points': 0 if surface is None else len(surface),
+                  'camera_frame': self.camera_frame.camera or '',
+                  'last_refusal': self._refusal}
+        why = f' (last refusal: {self._refusal})' if self._refusal else ''
+        if latest is None and surface is None:
+            return (DiagnosticStatus.WARN, 'no cloud received yet on the camera topic' + why,
+                    values)
+        if surface is None:
+            return (DiagnosticStatus.WARN, f'no surface captured yet ({len(self._scans)} scans '
+                    'in the merge set: ~/add_scan, then ~/capture)' + why, values)
+        return (DiagnosticStatus.OK, f'surface of {len(surface)} points published', values)
 
     def _new_camera_pose(self, pose7):
         if len(pose7) != 7:
@@ -177,6 +203,7 @@ class CloudCaptureNode(Node):
             response.message = f'{len(self._scans)} scan(s) in the merge set'
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             response.success, response.message = False, _reason(exc)
+            self._refusal = response.message
             self.get_logger().warn(f'add_scan refused: {response.message}',
                                    throttle_duration_sec=2.0)
         return response
@@ -204,6 +231,7 @@ class CloudCaptureNode(Node):
             self.get_logger().info(response.message)
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             response.success, response.message = False, _reason(exc)
+            self._refusal = response.message
             self.get_logger().warn(f'capture refused: {response.message}')
         return response
 

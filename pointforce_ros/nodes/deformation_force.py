@@ -107,7 +107,7 @@ from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
                                         version_of_path)
 from pointforce_ros.nodes.common import (CameraFrame, declare, failure_reason, live,
-                                         report_folder, run)
+                                         publish_health, report_folder, run)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
@@ -240,6 +240,7 @@ class DeformationForceNode(Node):
         #                             note): the point model's depth offset for that pair
         self.clouds_received = 0
         self.estimates_published = 0
+        self._health_clouds = 0     # clouds received at the last /diagnostics report
         self._load_model()
         if surface_file:
             try:
@@ -247,6 +248,7 @@ class DeformationForceNode(Node):
             except Exception as exc:  # noqa: BLE001 - start without a surface, say why
                 self.get_logger().error(f'cannot use surface_file {surface_file}: '
                                         f'{_reason(exc)}')
+        publish_health(self, 'deformation model', self.health)
         work = MutuallyExclusiveCallbackGroup()
         # the arm's and camera's streams on a wait loop of their own, one thread as before:
         # the executor spent about 0.8 ms of CPU per 250 Hz message (see ServiceLoop)
@@ -391,6 +393,35 @@ class DeformationForceNode(Node):
             self._scan_fem = scanned
         self.get_logger().info(f'rest surface of {len(surface)} points: mesh of '
                                f'{mesh.n_nodes} nodes, {len(mesh.tets)} tetrahedra')
+
+    def health(self) -> tuple:
+        """Return ``(level, message, values)`` for ``/diagnostics`` since the last call.
+
+        WARN: no rest surface (nothing to mesh), the latest cloud refused (its reason), or no
+        identified model (estimates are refused); else OK, naming the model's moduli.
+        """
+        with self._lock:
+            cloud, model, rest = self._cloud, self._model, self._rest
+            held = len(self._observations)
+        received, before = self.clouds_received, self._health_clouds
+        self._health_clouds = received
+        values = {'clouds_received': received, 'clouds_since_last': received - before,
+                  'observations_held': held,
+                  'model_version': -1 if model is None else model.version,
+                  'rest_mesh_nodes': 0 if rest is None else len(rest[0].nodes)}
+        if model is not None:
+            young = np.atleast_1d(np.asarray(model.young, dtype=float))
+            values.update(young_pa=f'{np.median(young):.4g}', poisson=f'{model.poisson:.3f}')
+        if rest is None:
+            return (DiagnosticStatus.WARN, 'no rest surface yet: waiting for '
+                    'cloud_capture/surface (or surface_file)', values)
+        if isinstance(cloud, str):
+            return DiagnosticStatus.WARN, cloud, values
+        if model is None:
+            return (DiagnosticStatus.WARN, 'no deformation model yet: call ~/identify after '
+                    'pokes with clouds', values)
+        return (DiagnosticStatus.OK, f'model v{model.version}: E {values["young_pa"]} Pa, '
+                f'nu {values["poisson"]}', values)
 
     def _on_surface(self, msg: PointCloud2):
         try:

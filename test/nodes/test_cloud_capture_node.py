@@ -4,6 +4,7 @@ import time
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -70,6 +71,8 @@ def test_two_views_merge_into_a_latched_outward_surface(ros_graph, tmp_path):
     assert np.mean(out > 0.5) > 0.9
     stored = load_surface(tmp_path / 'surface.npz')
     np.testing.assert_allclose(stored.points, surface.points, atol=1e-6)
+    level, message, values = node.health()               # /diagnostics: captured
+    assert level == DiagnosticStatus.OK and f'{len(surface)} points' in message
 
 
 def test_bad_or_missing_cloud_is_refused_and_node_keeps_serving(ros_graph, tmp_path):
@@ -129,6 +132,8 @@ def test_a_cloud_is_moved_by_its_frame_and_one_in_an_unknown_frame_is_refused(
         cloud_pub.publish(msg_from_cloud(points, frame_id=frame))
         ros_graph.wait_for(lambda: node._latest is not None, 10, f'cloud in {frame!r}')
 
+    level, message, _ = node.health()                    # /diagnostics: nothing yet
+    assert level == DiagnosticStatus.WARN and 'no cloud received yet' in message
     latest('base')                                       # taken as it is
     np.testing.assert_allclose(node._scan_from_latest().transform, np.eye(4), atol=0)
     latest(optical)                                      # the camera's: moved with its pose
@@ -141,6 +146,9 @@ def test_a_cloud_is_moved_by_its_frame_and_one_in_an_unknown_frame_is_refused(
     assert not refused.success, refused.message
     assert "'map'" in refused.message and repr(optical) in refused.message
     assert not node._scans
+    level, message, values = node.health()
+    assert level == DiagnosticStatus.WARN and 'no surface captured yet' in message
+    assert "'map'" in values['last_refusal'] and "'map'" in message
     latest(optical)                                      # and the node goes on
     assert _call(ros_graph, add, 'add_scan in the camera frame').success
 

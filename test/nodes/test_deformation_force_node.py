@@ -381,11 +381,20 @@ def test_a_cloud_in_a_frame_that_is_neither_base_nor_the_cameras_is_refused(cell
     assert node.camera_frame.camera == 'camera_depth_optical_frame'
     with pytest.raises(InvalidInput, match="'map'.*'camera_depth_optical_frame'"):
         node._cloud_in_base(msg_from_cloud(points, frame_id='map'))
-    # over the topic: refused with the reason kept for the next answer; the node goes on
+    # /diagnostics before: a rest mesh, no model yet
+    level, message, values = node.health()
+    assert level == DiagnosticStatus.WARN and 'no deformation model yet' in message
+    assert int(values['rest_mesh_nodes']) > 0
+    # over the topic: refused with the reason kept for the next answer and the health report;
+    # the node goes on
     cell.send_cloud(points, frame='camera_color_optical_frame')
     assert 'camera_color_optical_frame' in node._cloud and 'refused' in node._cloud
+    level, message, values = node.health()
+    assert level == DiagnosticStatus.WARN and "'camera_color_optical_frame'" in message
+    assert int(values['clouds_since_last']) >= 1
     cell.send_cloud(points, frame='camera_depth_optical_frame')
     assert isinstance(node._cloud, tuple) and len(node._cloud[0]) == len(points)
+    assert 'no deformation model yet' in node.health()[1]
 
 
 def test_held_observations_are_bounded_by_the_bytes_of_their_clouds(cell, monkeypatch):

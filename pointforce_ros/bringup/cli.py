@@ -182,6 +182,10 @@ def _cmd_deformation(args) -> int:
     return _load('pointforce_ros.lab.deformation_figures:main')(args.rest)
 
 
+def _cmd_health(args) -> int:
+    return _load('pointforce_ros.bringup.health:run_health')(args.wait, json_out=args.json)
+
+
 def _cmd_replay(args) -> int:
     return _load('pointforce_ros.bringup.replay:run_replay')(args.bag, rate=args.rate)
 
@@ -264,6 +268,13 @@ def build_parser() -> argparse.ArgumentParser:
                         help='speed-up factor (1 = real time; at least '
                         f'{arguments.MIN_REPLAY_RATE:g})')
     replay.set_defaults(func=_cmd_replay)
+
+    health = sub.add_parser('health', help="the running cell's nodes' /diagnostics reports "
+                            '(exit 0 all OK, 1 a warning, 2 an error, 3 none heard)')
+    health.add_argument('--wait', type=float, default=3.0,
+                        help='seconds to listen (the nodes report once a second)')
+    health.add_argument('--json', action='store_true', help='one JSON object with the values')
+    health.set_defaults(func=_cmd_health)
 
     bench = sub.add_parser('bench', help='benchmarks; ratios against a baseline in the same run')
     bench.add_argument('name', choices=sorted(BENCHMARKS) + ['all'])

@@ -268,13 +268,16 @@ class PokeServerNode(Node):
                     values)
         scheduling = getattr(arm, 'stream_scheduling', None) or ''
         values['stream_scheduling'] = scheduling
-        faults = arm.active_faults()
+        # another driver (arm_factory) may not keep faults or a ring buffer: not checked then
+        faults = list(getattr(arm, 'active_faults', list)())
         values['active_faults'] = ','.join(faults)
-        latest = arm.latest()
-        silent = time.time() - latest.t_wall
+        latest = getattr(arm, 'latest', None)
+        newest = latest() if latest is not None and self.samples_streamed else None
+        silent = 0.0 if newest is None else time.time() - newest.t_wall
         values['newest_sample_age_s'] = round(silent, 3)
         if faults:
-            return DiagnosticStatus.ERROR, active_fault_message(arm.events(), faults), values
+            events = getattr(arm, 'events', list)()
+            return DiagnosticStatus.ERROR, active_fault_message(events, faults), values
         if silent > STREAM_SILENCE:
             return DiagnosticStatus.ERROR, f'no arm sample for {silent:.1f} s', values
         warnings = []

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from pointforce_interfaces.action import Poke
 from pointforce_interfaces.msg import ModelStatus
 from pointforce_interfaces.srv import SuggestPoke
@@ -179,6 +180,9 @@ def test_five_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp
         Parameter('model_dir', value=str(tmp_path / 'deformation')),
         Parameter('point_model_dir', value='')]))
     probe = ros_graph.add(Node('qos_probe', context=ctx))
+    health = {}
+    probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: health.update(
+        (s.name, s) for s in m.status), 50)
 
     def matched():
         subs = {(s.node_name, t) for t in ('/poke_server/tcp_pose', '/poke_server/wrench',
@@ -201,6 +205,15 @@ def test_five_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp
                 ('deformation_force', '/stiffness_learner/model')} <= subs
     ros_graph.wait_for(matched, 15, 'the five nodes discovered')
     assert _incompatible_pairs(probe) == []
+    # each node reports its health on /diagnostics under a name of its own (1 Hz)
+    names = {'cloud_capture: surface capture', 'poke_server: arm and F/T stream',
+             'stiffness_learner: stiffness learner', 'contact_wrench: contact service',
+             'deformation_force: deformation model'}
+    ros_graph.wait_for(lambda: names <= set(health), 10, 'five health reports')
+    assert all(health[name].message for name in names)
+    assert health['contact_wrench: contact service'].level == DiagnosticStatus.ERROR  # no model
+    # a stand-in driver without the fault and loss records (arm_factory) is no error itself
+    assert 'health unknown' not in health['poke_server: arm and F/T stream'].message
     client = ActionClient(probe, Poke, '/poke_server/poke')
     assert client.wait_for_server(timeout_sec=30.0)
     goal = poke_goal_to_msg(PokeGoal(point=[0.5, 0.0, 0.04], normal=[0.0, 0.0, 1.0],

@@ -30,6 +30,7 @@ from pointforce_ros.bringup import plots
 from pointforce_ros.bringup.camera_check import camera_force_checks
 from pointforce_ros.bringup.cell import CellSession
 from pointforce_ros.bringup.domain import private_domain
+from pointforce_ros.bringup.health import collect, LEVELS
 from pointforce_ros.bringup.worker import in_fresh_process, shape_calibration
 from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.contact.simulator import check_decay_law
@@ -479,6 +480,23 @@ def _ground_truth(spec, queries):
     return gt, path
 
 
+def _print_health(cell) -> None:
+    """Print each node's newest ``/diagnostics`` report (what ``pointforce health`` shows)."""
+    try:
+        heard = collect(cell.client_launcher, 1.5)
+    except Exception as exc:  # noqa: BLE001 - the demo's results are out already
+        print(f'[demo] node health not read: {type(exc).__name__}: {exc}')
+        return
+    parts = []
+    for name in sorted(heard):
+        report = heard[name]
+        level = LEVELS.get(report['level'], str(report['level']))
+        parts.append(f'{name.split(":")[0]} {level}'
+                     + ('' if report['level'] == 0 else f' ({report["message"]})'))
+    print('[demo] node health (/diagnostics, `pointforce health`): '
+          + ('; '.join(parts) if parts else 'no report heard'))
+
+
 def run_demo(out: str = 'out/demo', quick: bool = False, object_name: str = 'lamb',
              scenario: str = 'realistic', pokes: int = 0, camera_check: bool = False,
              domain: Optional[int] = None, region: bool = True,
@@ -655,6 +673,7 @@ def _run_demo(out, quick: bool, object_name: str, scenario: str, pokes: int,
                                            figures / 'wrench_pred_vs_true.png',
                                            title=f'{object_name}: planner queries, service '
                                            'against FEM truth')
+        _print_health(cell)
         print(f'[demo] figures: {", ".join(sorted(p.name for p in figures.glob("*.png")))} in '
               f'{figures}')
         print(f'[demo] poke bags (rosbag2 MCAP): {cell.paths["store"]}; models: '

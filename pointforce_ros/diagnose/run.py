@@ -727,6 +727,10 @@ def _diagnose(data, *, seed: int = 0, alpha: float = 0.01, folds: int = 2,
     source = str(data) if not isinstance(data, (list, tuple)) else f'{len(records)} records'
     probes_in_records = sum(1 for r in records if r.probe != 'point')
     batch, notes = make_batch(records, window=window, max_rate=max_rate)
+    lossy = stream_loss_note(records)
+    if lossy:
+        notes.append(lossy)
+        say(lossy)
     not_applicable: Dict[str, str] = {}
     per_poke = float(np.median(np.diff(batch.starts)))
     if per_poke < STEP_SAMPLES:
@@ -1054,6 +1058,33 @@ def check_report_dir(out_dir) -> Path:
     if not os.access(existing, os.W_OK | os.X_OK):
         raise InvalidInput(f'--out {out}: folder {existing} is not writable')
     return out
+
+
+def stream_loss_note(records) -> str:
+    """Return a note on the pokes whose F/T stream missed slots (``''`` when none did).
+
+    The poke server stores the runs of 250 Hz slots with no sample in a poke's
+    ``meta['stream_losses']`` (``[[t_controller, slots, held_s], ...]``,
+    :class:`~pointforce_ros.drivers.ur_arm.StreamLoss`); their samples are analysed as
+    recorded, and the report says which pokes have such holes. Malformed entries (a bag from
+    elsewhere) are not counted.
+    """
+    lossy = {}
+    for record in records:
+        losses = (record.meta or {}).get('stream_losses')
+        if not isinstance(losses, list):
+            continue
+        slots = [int(x[1]) for x in losses if isinstance(x, (list, tuple)) and len(x) >= 2
+                 and isinstance(x[1], (int, float)) and np.isfinite(x[1]) and x[1] > 0]
+        if slots:
+            lossy[record.poke_id] = (sum(slots), len(slots))
+    if not lossy:
+        return ''
+    worst = sorted(lossy, key=lambda k: -lossy[k][0])[:3]
+    return (f'{len(lossy)} poke(s) have F/T stream slots with no sample ('
+            f'{sum(v[0] for v in lossy.values())} slots in {sum(v[1] for v in lossy.values())} '
+            'runs; most: ' + ', '.join(f'{k} {lossy[k][0]}' for k in worst)
+            + '): analysed as recorded (meta stream_losses)')
 
 
 def run_diagnose(data, out_dir, seed: int = 0, json_out: bool = False, **kwargs) -> int:

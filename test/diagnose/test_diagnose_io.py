@@ -1,5 +1,6 @@
 """Data in and out of diagnose: tables, stores, bags, corrections, stored effects, report, CLI."""
 
+import dataclasses
 import functools
 import importlib.util
 import json
@@ -19,6 +20,7 @@ from pointforce_ros.pokes.table import load_pokes, read_poke_table, write_poke_t
 from pointforce_ros.diagnose.batch import make_batch
 from pointforce_ros.diagnose.model import fit_global
 from pointforce_ros.diagnose.report import write_report
+from pointforce_ros.diagnose.run import stream_loss_note
 from pointforce_ros.errors import DataError, InvalidInput
 from pointforce_ros.model.files import ContactModel, load_model, save_model
 from pointforce_ros.pokes.curves import extract_curve
@@ -362,3 +364,22 @@ def test_forward_terms_say_what_they_apply_and_why_not():
     done = ContactModel(surface=surface, response=table, shape_constant=0.004, effects=effects,
                         meta={'surface_corrected': ['surface_offset']})
     np.testing.assert_allclose(model_surface(done).points[:, 2], 0.0)
+
+
+def test_pokes_whose_stream_missed_slots_are_named_in_the_report_notes(tmp_path):
+    """The poke server stores the runs of 250 Hz slots with no sample in a poke's meta
+    (``stream_losses``); diagnose names those pokes, after a round trip through the bags, and
+    counts nothing from a malformed entry."""
+    recs = simulate_campaign(HalfSpaceContact(ripple=0.3), Scenario('clean', effects=()),
+                             count=3, seed=4, speed=0.004, force_limit=2.0, rate=100.0)
+    losses = {0: [[1.25, 4, 0.02], [1.5, 1, 0.004]], 2: [[2.0, 15, 0.066]]}
+    store = PokeStore(tmp_path / 'pokes')
+    for k, record in enumerate(recs):
+        meta = dict(record.meta, stream_losses=losses.get(k, []))
+        if k == 1:
+            meta['stream_losses'] = [['x', 'many'], [1.0], 'garbage', [1.0, float('nan'), 0]]
+        store.add(dataclasses.replace(record, meta=meta))
+    note = stream_loss_note(load_pokes(tmp_path / 'pokes'))
+    assert note.startswith('2 poke(s) have F/T stream slots with no sample (20 slots in 3 runs')
+    assert f'{recs[2].poke_id} 15, {recs[0].poke_id} 5' in note
+    assert stream_loss_note(recs) == ''

@@ -29,8 +29,8 @@ from pointforce_ros.lab.coverage import cut_curve
 from pointforce_ros.lab.figures import full_depth_truth, load_poke_fixture, OBJECTS
 from pointforce_ros.model.learner import DEFAULT_DEPTHS
 from pointforce_ros.pokes.curves import learned_depth
-from pointforce_ros.response.baked import (_tangent_cap, BakedResponse, EXTRAPOLATION_KAPPA,
-                                           extrapolation_std)
+from pointforce_ros.response.baked import (BakedResponse, EXTRAPOLATION_KAPPA,
+                                           extrapolation_std, tangent_cap)
 from pointforce_ros.response.common import curve_features
 from pointforce_ros.response.ours import ContactGpModel
 
@@ -60,7 +60,7 @@ def errors(name, cut, size, repeats, horizons, seed=0):
                          for i in range(len(held))])
         slopes = np.maximum((rows[:, -1] - rows[:, -2]) / (grid[-1] - grid[-2]), 0.0)
         for h in horizons:
-            f, s, sd = _tangent_cap(grid, rows, slopes, stds, h * D)
+            f, s, sd = tangent_cap(grid, rows, slopes, stds, h * D)
             sd = np.hypot(sd, extrapolation_std(f, grid[None, :], D, EXTRAPOLATION_KAPPA))
             table = BakedResponse(depths=grid, forces=f, slopes=s)
             spread = BakedResponse(depths=grid, forces=sd, slopes=np.zeros(len(sd)))

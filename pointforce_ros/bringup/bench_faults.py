@@ -62,7 +62,7 @@ from rclpy.parameter import Parameter
 from msg_adapters.geometry import mesh_to_msg, pose_to_msg, to_point
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.bringup.launcher import InProcessLauncher
-from pointforce_ros.drivers.ur_arm import missing_slots
+from pointforce_ros.drivers.ur_arm import missing_slots, unreported_runs
 from pointforce_ros.errors import DeviceFault
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import (ContactModel, content_digest, load_model, save_model,
@@ -739,13 +739,10 @@ def _held_up_stream(server, poke, store_dir: Path) -> dict:
         return out
     record = read_poke_bag(store_dir / result.poke_id)
     after, count = missing_slots(record.t_controller)
-    reported = {round(x[0], 6): x for x in record.meta.get('stream_losses', [])}
-    unreported = sum(1 for k, n in zip(after, count)
-                     if reported.get(round(float(record.t_controller[k]), 6), [0, -1])[1] != n)
+    losses = record.meta.get('stream_losses', [])
     return dict(out, slots_missed=int(count.sum()), runs=len(after),
-                runs_unreported=int(unreported),
-                longest_held_ms=round(1e3 * max((x[2] for x in reported.values()), default=0.0),
-                                      1))
+                runs_unreported=len(unreported_runs(record.t_controller, losses)),
+                longest_held_ms=round(1e3 * max((x[2] for x in losses), default=0.0), 1))
 
 
 # --------------------------------------------------------------------------- the whole cell

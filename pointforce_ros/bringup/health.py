@@ -13,6 +13,9 @@ import json
 import time
 from typing import Dict
 
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+
 from pointforce_ros.bringup.launcher import InProcessLauncher
 from pointforce_ros.errors import InvalidInput
 
@@ -27,9 +30,6 @@ def collect(launcher, wait: float) -> Dict[str, dict]:
     Each entry: ``level`` (0-3), ``message``, ``hardware_id``, ``values`` (dict), ``stamp``
     (seconds, the report's header).
     """
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.node import Node
-
     heard: Dict[str, dict] = {}
 
     def on_report(msg):

@@ -20,8 +20,8 @@ controller):
   gap), re-reads a sample whose timestamp changed mid-read, and detects the faults below. A
   slot that passed unread is never silent: the sample after it carries a :class:`StreamLoss`
   (:meth:`UrArm.stream_losses`, :attr:`UrArm.lost_samples`) with how long the poller was held
-  up before it (no poll, or no new controller sample, for longer than a slot: a loaded machine
-  or a late controller; a loss without it is the reader's own). A
+  up before it (no poll, or no new controller sample: a loaded machine, or the controller's
+  samples arriving in a burst, which can overwrite a slot within a poll or two). A
   reader thread in this process hands the :class:`ArmSample` records to callbacks, a bounded
   ring buffer and any running :meth:`UrArm.push_until`; the pipe between them buffers ~2 s, so
   a late reader delays samples but loses none. ``waitPeriod`` is not used: it truncates the
@@ -131,9 +131,10 @@ class StreamLoss:
         t_controller: controller time of the first sample after the loss, s.
         lost: number of ``1 / stream_hz`` slots with no sample before it.
         held_s: the longest the poller went, since the sample before the loss, without a poll
-            or without a new controller sample, wall seconds. Longer than a slot: the poller or
-            the stream was held up (a loaded machine at normal priority, a late controller);
-            shorter: the reader lost the samples itself.
+            or without a new controller sample, wall seconds: tens of milliseconds when the
+            poller or the stream was held up (a loaded machine at normal priority, a late
+            controller); a few when the controller's samples came in a burst (a slot the
+            poller sees is always kept, so every loss is one it never saw).
 
     """
 
@@ -1105,6 +1106,28 @@ def missing_slots(t_controller, stream_hz: float = 250.0,
     empty = np.diff(slots) - 1
     after = np.flatnonzero(empty > 0) + 1
     return after, empty[after - 1].astype(np.int64)
+
+
+def unreported_runs(t_controller, losses, stream_hz: float = 250.0,
+                    frequency: float = 500.0) -> List[Tuple[float, int, Optional[int]]]:
+    """Return the runs of empty slots in a record that ``losses`` does not report as such.
+
+    ``losses``: :class:`StreamLoss` records, or ``[t_controller, lost, ...]`` rows as a poke's
+    ``meta['stream_losses']`` holds them. Each run :func:`missing_slots` finds must have a loss
+    at the controller time of the sample after it with the same ``lost``; the others come
+    back as ``(controller time after the run, empty slots, slots reported there or None)``.
+    """
+    t = np.asarray(t_controller, dtype=float).reshape(-1)
+    reported = {}
+    for loss in losses:
+        at, lost = (loss.t_controller, loss.lost) if isinstance(loss, StreamLoss) else loss[:2]
+        reported[round(float(at), 6)] = int(lost)
+    out = []
+    for k, count in zip(*missing_slots(t, stream_hz, frequency)):
+        got = reported.get(round(float(t[k]), 6))
+        if got != count:
+            out.append((float(t[k]), int(count), got))
+    return out
 
 
 def _realtime_poller(rt_priority: int) -> str:

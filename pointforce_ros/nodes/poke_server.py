@@ -97,9 +97,9 @@ def _losses_within(arm, t_controller) -> list:
 
     Each is a :class:`~pointforce_ros.drivers.ur_arm.StreamLoss` whose first sample after the
     empty slots lies in the record; stored in the poke's ``meta['stream_losses']`` so that a
-    record says where it has no samples and why (``held_s`` over a slot: the poller was held
-    up). An arm without the accounting gives none; nor does one whose accounting fails (the
-    arm moved: the samples are stored whatever this says).
+    record says where it has no samples and how long the poller was held up there. An arm
+    without the accounting gives none; nor does one whose accounting fails (the arm moved:
+    the samples are stored whatever this says).
     """
     try:
         t = np.asarray(t_controller, dtype=float)

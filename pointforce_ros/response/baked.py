@@ -105,8 +105,8 @@ class BakedResponse:
             return self
         if not np.isfinite(depth) or depth <= 0 or not horizon > 0:
             return self
-        forces, slopes, std = _tangent_cap(self.depths, self.forces, self.slopes, self.std,
-                                           horizon * depth)
+        forces, slopes, std = tangent_cap(self.depths, self.forces, self.slopes, self.std,
+                                          horizon * depth)
         if std is not None and kappa:
             extra = extrapolation_std(forces, self.depths[None, :], depth, kappa)
             std = np.sqrt(std ** 2 + extra ** 2)
@@ -178,7 +178,7 @@ class BakedResponse:
         return out
 
 
-def _tangent_cap(depths, forces, slopes, std, at: float):
+def tangent_cap(depths, forces, slopes, std, at: float):
     """Return ``(forces, slopes, std)`` grown no faster than each row's tangent past ``at`` (m).
 
     ``H`` is the first grid depth at or beyond ``at`` (the second, if that is the first);

@@ -13,7 +13,7 @@ import pytest
 from pointforce_ros.drivers.ur_arm import (_realtime_poller, active_fault_message, ArmEvent,
                                            EVENT_CONNECTION_LOST, EVENT_FT_FROZEN,
                                            EVENT_PROTECTIVE_STOP, EVENT_STALL, missing_slots,
-                                           PushFault, UrArm)
+                                           PushFault, unreported_runs, UrArm)
 from pointforce_ros.errors import DeviceFault, InvalidInput, UnsafeCommand
 
 pytestmark = pytest.mark.e2e
@@ -56,25 +56,6 @@ def test_connect_failure_names_the_host():
     assert time.monotonic() - t0 < 2.5
 
 
-def unreported_gaps(arm, t):
-    """Runs of empty slots in ``t`` the stream did not report as such: each ``(controller time
-    after the run, empty slots, slots reported there)``.
-
-    Every run of slots without a sample must come back as a :class:`StreamLoss` of the same
-    size at the sample after it. (A slot the poller saw is always kept, so a run is always
-    one it never saw: its ``held_s`` says whether the poller or the stream paused; a burst of
-    samples from the controller side can overwrite a whole slot within a poll or two.)
-    """
-    t = np.asarray(t)
-    losses = {round(loss.t_controller, 6): loss for loss in arm.stream_losses()}
-    bad = []
-    for k, count in zip(*missing_slots(t)):
-        loss = losses.get(round(float(t[k]), 6))
-        if loss is None or loss.lost != count:
-            bad.append((float(t[k]), int(count), loss and loss.lost))
-    return bad
-
-
 def test_stream_is_250_hz_without_duplicates_or_unreported_gaps(cell):
     emu, arm = cell
     got = []
@@ -93,7 +74,7 @@ def test_stream_is_250_hz_without_duplicates_or_unreported_gaps(cell):
           f'{100 * starved:.1f} % of its periods')
     assert np.all(np.diff(t) > 0), 'duplicated or reordered controller timestamps'
     # every slot that passed unread is reported, at the sample after it
-    assert not unreported_gaps(arm, t)
+    assert not unreported_runs(t, arm.stream_losses())
     if starved > 0.05:
         # a fresh-clone run of the whole suite: 406 samples, the emulator's clock at 57 % of
         # the wall's, 235.5 Hz, a 24 ms gap: the test harness was starved, not the reader
@@ -130,7 +111,7 @@ def test_a_held_up_stream_worker_reports_the_slots_it_missed(cell):
     t = np.array([s.t_controller for s in got])
     after, count = missing_slots(t)
     assert count.max() >= 10, f'no 40 ms run of empty slots: {count}'
-    assert not unreported_gaps(arm, t)
+    assert not unreported_runs(t, arm.stream_losses())
     big = [loss for loss in arm.stream_losses() if loss.lost == count.max()]
     assert len(big) == 1 and big[0].held_s >= 0.07
     assert arm.lost_samples >= int(count.sum())

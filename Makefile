@@ -10,6 +10,7 @@ VPY := $(VENV)/bin/python
 PREFIX := $(abspath $(VENV))
 STAMP := $(VENV)/.stamps
 IFACE_SRC := $(shell find pointforce_interfaces -type f -not -path '*/build/*')
+VENDOR_SRC := $(shell find vendor -type f)
 PYTEST_ARGS ?=
 # Test processes: 2 gives the test files to two pytest-xdist workers whole (the default and
 # what CI runs: 26 -> 16 min on a 2-core machine, session 36); 0 runs the suite in this one
@@ -61,9 +62,29 @@ $(STAMP)/interfaces: $(IFACE_SRC) $(STAMP)/deps
 	$(VPY) -c 'from pointforce_interfaces.srv import ContactWrench; from pointforce_interfaces.action import Poke'
 	@touch $@
 
-interfaces: $(STAMP)/interfaces
+# tf2_msgs/TFMessage (for /tf and /tf_static): no PyPI wheel carries tf2_msgs, so vendor/tf2_msgs
+# defines it as upstream does (the same type hash) and is built only where `import tf2_msgs`
+# fails; a machine with ROS's own tf2_msgs keeps that one.
+$(STAMP)/tf2_msgs: $(VENDOR_SRC) $(STAMP)/deps
+	@if $(VPY) -c 'import tf2_msgs.msg' 2>/dev/null && [ ! -f build/tf2_msgs/install.log ]; then \
+	  echo '[setup] tf2_msgs found: not building vendor/tf2_msgs'; \
+	else \
+	  echo '[setup] building vendor/tf2_msgs (TFMessage) with cmake + rosidl'; \
+	  rm -rf build/tf2_msgs && mkdir -p build/tf2_msgs && \
+	  (cd build/tf2_msgs && cmake $(CURDIR)/vendor/tf2_msgs -DCMAKE_PREFIX_PATH=$(PREFIX) \
+	    -DCMAKE_INSTALL_PREFIX=$(PREFIX) -DPython3_EXECUTABLE=$(PREFIX)/bin/python \
+	    -DBUILD_TESTING=OFF > cmake.log 2>&1 || (cat cmake.log; exit 1)) && \
+	  ($(MAKE) -C build/tf2_msgs -j2 > build/tf2_msgs/make.log 2>&1 \
+	    || (tail -50 build/tf2_msgs/make.log; exit 1)) && \
+	  ($(MAKE) -C build/tf2_msgs install > build/tf2_msgs/install.log 2>&1 \
+	    || (tail -50 build/tf2_msgs/install.log; exit 1)) && \
+	  $(VPY) -c 'from tf2_msgs.msg import TFMessage'; \
+	fi
+	@touch $@
 
-$(STAMP)/install: setup.py setup.cfg package.xml $(wildcard config/*.yaml config/*/*.yaml) $(STAMP)/interfaces $(STAMP)/system
+interfaces: $(STAMP)/interfaces $(STAMP)/tf2_msgs
+
+$(STAMP)/install: setup.py setup.cfg package.xml $(wildcard config/*.yaml config/*/*.yaml) $(STAMP)/interfaces $(STAMP)/tf2_msgs $(STAMP)/system
 	@echo '[setup] installing pointforce_ros (editable)'
 	$(VPY) -m pip install --quiet --no-deps --no-build-isolation -e . 2>&1 | { grep -v '^WARNING: Location' || true; }
 	$(VPY) -c 'import pointforce_ros.bringup.cli'

@@ -8,8 +8,8 @@ import array
 import math
 
 import numpy as np
-from geometry_msgs.msg import (Point, Pose as PoseMsg, PoseStamped, Quaternion, Vector3,
-                               Wrench as WrenchMsg, WrenchStamped)
+from geometry_msgs.msg import (Point, Pose as PoseMsg, PoseStamped, Quaternion, Transform,
+                               TransformStamped, Vector3, Wrench as WrenchMsg, WrenchStamped)
 from shape_msgs.msg import Mesh as MeshMsg, MeshTriangle
 
 from pointforce_ros.errors import InvalidInput
@@ -75,6 +75,17 @@ def pose_stamped_to_msg(pose: Pose, stamp: float = 0.0) -> PoseStamped:
     """:class:`Pose` -> geometry_msgs/PoseStamped."""
     out = PoseStamped(pose=pose_to_msg(pose))
     out.header.frame_id = pose.frame
+    sec_to_stamp(stamp, out.header.stamp)
+    return out
+
+
+def transform_to_msg(matrix, parent: str, child: str, stamp: float = 0.0) -> TransformStamped:
+    """(4, 4) rigid transform ``parent <- child`` -> geometry_msgs/TransformStamped (for /tf)."""
+    pose = Pose.from_matrix(matrix)
+    x, y, z, w = (float(c) for c in pose.orientation)
+    out = TransformStamped(child_frame_id=child, transform=Transform(
+        translation=to_vector3(pose.position), rotation=Quaternion(x=x, y=y, z=z, w=w)))
+    out.header.frame_id = parent
     sec_to_stamp(stamp, out.header.stamp)
     return out
 

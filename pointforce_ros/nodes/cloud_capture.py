@@ -1,12 +1,15 @@
 """cloud_capture node: merge depth scans into the latched equilibrium surface ``~/surface``.
 
 Subscribes to a PointCloud2 topic (realsense-ros name by default; remap it), keeps the newest
-cloud, and on ``~/add_scan`` puts it in the merge set with the camera pose of that moment (there
-is no tf2 here: the pose comes from the ``camera_pose`` parameter or, if published, the
-``~/camera_pose`` topic, ``base`` <- optical frame). A cloud stamped in ``frame_id`` (``base``)
-is taken as it is; one in the camera's optical frame (``camera_frame``; empty: the first other
-frame a cloud comes in) or unstamped is moved with that pose; one in any other frame is refused
-(:class:`~pointforce_ros.nodes.common.CameraFrame`). ``~/capture`` builds the surface (crop,
+cloud, and on ``~/add_scan`` puts it in the merge set moved into ``frame_id`` (``base``)
+(:class:`~pointforce_ros.nodes.common.CameraFrame`): a cloud stamped in ``base`` as it is; one
+in a frame that ``/tf`` or ``/tf_static`` connects to ``base`` with that transform at the
+cloud's stamp (a real cell's camera mount; the tree is kept by
+:class:`~pointforce_ros.frames.TransformBuffer`, as no tf2 wheel exists); one in the camera's
+optical frame (``camera_frame``; empty: the first other frame a cloud comes in) or unstamped
+with the camera pose of that moment (the ``~/camera_pose`` topic, else the ``camera_pose``
+parameter, ``base`` <- optical frame), for a cell without tf; one in any other frame is
+refused with the reason. ``~/capture`` builds the surface (crop,
 voxel, outliers, outward normals: :mod:`pointforce_ros.surface.equilibrium`), publishes it
 latched, stores it, and clears the merge set. A bad cloud is refused with a message; the node
 keeps serving (every callback is a fault boundary: any exception, ``MemoryError`` included,
@@ -19,7 +22,6 @@ import time
 from collections import deque
 from pathlib import Path
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -31,9 +33,10 @@ from std_srvs.srv import Trigger
 from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import InvalidInput, PointforceError
+from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.model.files import save_surface
 from pointforce_ros.nodes.common import (CameraFrame, contained, declare, failure_reason, live,
-                                         publish_health, qos_watch, run)
+                                         publish_health, qos_watch, run, TfListener)
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
@@ -78,11 +81,17 @@ class CloudCaptureNode(Node):
                                        read_only=True))
         self.frame = declare(self, 'frame_id', 'base', 'Frame of the published surface',
                              read_only=True)
+        self.tf_wait = declare(self, 'tf_wait', 0.2, 'Seconds ~/add_scan waits for a /tf '
+                               'transform at the cloud\'s stamp still in flight',
+                               bounds=(0.0, 5.0), read_only=True)
+        self.tf = TransformBuffer()
         self.camera_frame = CameraFrame(self.frame, declare(
-            self, 'camera_frame', '', 'Optical frame of the camera the camera pose places: '
-            'clouds in it (or unstamped) are moved to base, clouds in frame_id taken as they '
-            'are; empty: the first other frame a cloud comes in. Any other frame is refused '
-            '(no tf)', read_only=True), say=self.get_logger().info)
+            self, 'camera_frame', '', 'Optical frame of the camera the camera pose places, for '
+            'a cell without tf: clouds in it (or unstamped) are moved to base with that pose, '
+            'clouds in frame_id taken as they are, clouds in a frame /tf or /tf_static connect '
+            'to frame_id moved with that transform; empty: the first other frame a cloud comes '
+            'in. Any other frame is refused', read_only=True), say=self.get_logger().info,
+            tf=self.tf)
         try:
             self.config = SurfaceConfig(roi_min=roi[:3], roi_max=roi[3:], voxel_size=voxel,
                                         orientation=orientation)
@@ -103,6 +112,7 @@ class CloudCaptureNode(Node):
         self.create_subscription(PoseStamped, '~/camera_pose',
                                  contained(self, 'camera_pose', self._on_pose), 10,
                                  event_callbacks=qos_watch(self, '~/camera_pose'))
+        self.tf_listener = TfListener(self, self.tf)
         group = MutuallyExclusiveCallbackGroup()
         self.create_service(Trigger, '~/add_scan', self._on_add, callback_group=group)
         self.create_service(Trigger, '~/capture', self._on_capture, callback_group=group)
@@ -142,6 +152,7 @@ class CloudCaptureNode(Node):
         values = {'scans_in_merge_set': len(self._scans),
                   'surface_points': 0 if surface is None else len(surface),
                   'camera_frame': self.camera_frame.camera or '',
+                  'tf_frames': len(self.tf.frames()),
                   'last_refusal': self._refusal}
         why = f' (last refusal: {self._refusal})' if self._refusal else ''
         if latest is None and surface is None:
@@ -183,12 +194,13 @@ class CloudCaptureNode(Node):
         if latest is None:
             raise PointforceError('no cloud received yet on the camera topic')
         msg, pose = latest[0], latest[1] or self.default_pose
-        in_base = self.camera_frame.classify(msg.header.frame_id, empty='camera') == 'base'
+        transform = self.camera_frame.to_base(msg.header.frame_id, stamp_to_sec(msg.header.stamp),
+                                              'camera', lambda: pose_to_matrix(pose),
+                                              wait=self.tf_wait)
         cloud = cloud_from_msg(msg, drop_nan=True)
         if len(cloud.points) == 0:
             raise PointforceError('the latest cloud has no valid (finite) point')
-        return Scan(points=cloud.points, colors=cloud.rgb,
-                    transform=np.eye(4) if in_base else pose_to_matrix(pose))
+        return Scan(points=cloud.points, colors=cloud.rgb, transform=transform)
 
     def _on_add(self, request, response):
         try:

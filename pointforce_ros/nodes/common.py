@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Callable, Dict, Optional, Sequence
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -20,9 +21,13 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from tf2_msgs.msg import TFMessage
 
+from msg_adapters.geometry import stamp_to_sec, vec
 from pointforce_ros.dds import use_package_dds_profile
 from pointforce_ros.errors import InvalidInput, PointforceError
+from pointforce_ros.frames import Extrapolation, TransformBuffer, TransformUnavailable
 
 
 def declare(node: Node, name: str, default, description: str, *,
@@ -326,25 +331,89 @@ def run(node_factory: Callable[[], Node], args=None, threads: int = 4) -> None:
         rclpy.try_shutdown()
 
 
-class CameraFrame:
-    """Which ``frame_id`` of a cloud a node takes as the camera's optical frame (no tf here).
+TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.VOLATILE)
+"""QoS of ``/tf`` (tf2_ros's listener: reliable, volatile, 100 deep)."""
 
-    A cloud stamped in the robot base frame ``base`` is used as it is; one in the camera's
-    optical frame is moved into ``base`` with the camera pose. ``pinned`` names that frame
-    (the ``camera_frame`` parameter); empty, the first frame other than ``base`` a cloud
-    arrives in is taken as the camera's, once, and said so (:attr:`adopted`). A cloud in any
-    other frame (a second camera, a frame that needs tf) is refused: moving it with this
-    camera's pose would place it wrong by that frame's offset, silently.
+TF_STATIC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""QoS of ``/tf_static`` (transient local: a node started later still gets the mounts)."""
+
+
+class TfListener:
+    """Feed a :class:`~pointforce_ros.frames.TransformBuffer` from ``/tf`` and ``/tf_static``.
+
+    tf2_ros's ``TransformListener`` does this on a real install; no wheel carries it. Each
+    ``geometry_msgs/TransformStamped`` of a ``tf2_msgs/TFMessage`` goes into the buffer; one it
+    refuses (NaN, a quaternion that is not unit, a loop) is counted, its reason kept in
+    :attr:`last_refusal` and logged (throttled), and the others of the message still go in.
+    The two subscriptions have a callback group of their own, so a callback that waits for a
+    transform (:meth:`TransformBuffer.wait_transform`) does not hold them up on a
+    multi-threaded executor.
     """
 
-    def __init__(self, base: str, pinned: str = '', say: Callable[[str], None] = None):
+    def __init__(self, node: Node, buffer: TransformBuffer, tf_topic: str = '/tf',
+                 static_topic: str = '/tf_static'):
+        """Subscribe ``node`` to the two topics (absolute by default, as tf2_ros does)."""
+        self.node, self.buffer = node, buffer
+        self.received = 0
+        """Transforms taken since the start."""
+        self.last_refusal = ''
+        group = MutuallyExclusiveCallbackGroup()
+        node.create_subscription(TFMessage, tf_topic,
+                                 contained(node, 'tf', lambda m: self._on(m, False)), TF_QOS,
+                                 callback_group=group)
+        node.create_subscription(TFMessage, static_topic,
+                                 contained(node, 'tf_static', lambda m: self._on(m, True)),
+                                 TF_STATIC_QOS, callback_group=group)
+
+    def _on(self, msg: TFMessage, static: bool) -> None:
+        for t in msg.transforms:
+            q = t.transform.rotation
+            try:
+                self.buffer.set_transform(t.header.frame_id, t.child_frame_id,
+                                          stamp_to_sec(t.header.stamp),
+                                          vec(t.transform.translation), [q.x, q.y, q.z, q.w],
+                                          static=static)
+                self.received += 1
+            except InvalidInput as exc:
+                self.last_refusal = str(exc)
+                self.node.get_logger().warn(f'ignoring a transform on '
+                                            f'{"/tf_static" if static else "/tf"}: {exc}',
+                                            throttle_duration_sec=5.0)
+
+
+class CameraFrame:
+    """How a node moves a cloud from its ``frame_id`` into the base frame.
+
+    In this order:
+
+    - a cloud stamped in the robot base frame ``base`` is used as it is;
+    - a cloud in a frame the tf tree (``/tf``, ``/tf_static``; :attr:`tf`) connects to ``base``
+      is moved with the transform at the cloud's stamp, as a real cell publishes its camera
+      mounts; a stamp the tree does not hold refuses the cloud, and so does a frame the tree
+      holds beside ``base`` without connecting the two (unless it is the pinned camera frame);
+      a tree without ``base`` (a camera driver's own optical mounts alone) is not used;
+    - a cloud in the camera's optical frame is moved with the camera pose (the nodes'
+      ``camera_pose`` topic or parameter, for a cell without tf). ``pinned`` names that frame
+      (the ``camera_frame`` parameter); empty, the first frame other than ``base`` a cloud
+      arrives in is taken as the camera's, once, and said so (:attr:`adopted`);
+    - a cloud in any other frame is refused: moving it with this camera's pose would place it
+      wrong by that frame's offset, silently.
+    """
+
+    def __init__(self, base: str, pinned: str = '', say: Callable[[str], None] = None,
+                 tf: Optional[TransformBuffer] = None):
         """Keep the base frame, the pinned camera frame ('' = the first one seen) and ``say``.
 
         ``say(line)`` is told once which frame was taken as the camera's (a node's logger).
+        ``tf``: the tree of ``/tf`` and ``/tf_static`` (:class:`TfListener` fills it), or
+        ``None`` for none.
         """
         self.base = str(base)
         self.pinned = str(pinned or '')
         self.say = say
+        self.tf = tf
         self._lock = threading.Lock()
         self.adopted = None
         """The frame taken as the camera's when none was pinned (``None`` until one came)."""
@@ -379,10 +448,41 @@ class CameraFrame:
                      'camera_frame to name it')
         if frame == camera:
             return 'camera'
+        known = self.tf.frames() if self.tf is not None else []
         raise InvalidInput(f'cloud in frame {frame!r}: neither the base frame {self.base!r} nor '
                            f'the camera frame {camera!r}' + ('' if self.pinned else
                                                              ' (the first one a cloud came in)')
-                           + '; no tf here: set camera_frame, or publish it in the base frame')
+                           + (f', and not in the tf tree ({len(known)} frames heard on /tf '
+                              'and /tf_static)' if self.tf is not None else '')
+                           + ': publish its transform on /tf or /tf_static, set camera_frame, '
+                           'or publish the cloud in the base frame')
+
+    def to_base(self, frame: str, stamp: float, empty: str,
+                camera: Callable[[], np.ndarray], wait: float = 0.0) -> np.ndarray:
+        """Return the (4, 4) transform ``base <- frame`` for a cloud stamped ``stamp`` (s).
+
+        ``empty`` as in :meth:`classify`; ``camera()`` gives the camera pose's matrix; ``wait``:
+        seconds to wait for a transform of the tf tree still in flight (a stamp of 0 takes
+        the latest).
+
+        Raises:
+            InvalidInput: the frame cannot be moved into base, with the reason.
+
+        """
+        frame = str(frame or '')
+        tf = self.tf
+        if (frame and frame != self.base and tf is not None and tf.knows(frame)
+                and tf.knows(self.base)):
+            try:
+                return tf.wait_transform(self.base, frame, float(stamp) or None, wait)
+            except Extrapolation:
+                raise       # connected, not at this stamp
+            except TransformUnavailable:
+                if frame != self.pinned:
+                    raise   # the tree holds both and does not connect them
+        # the camera pose: the tree has no base (a camera driver's own optical mounts alone),
+        # or the pinned camera frame is not connected to it
+        return np.eye(4) if self.classify(frame, empty) == 'base' else camera()
 
 
 DIAGNOSTICS_PERIOD = 1.0

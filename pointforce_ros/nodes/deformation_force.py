@@ -15,11 +15,14 @@ Thin wiring of the deformation wing (:mod:`pointforce_ros.deformation`, seed 001
   8 mm): mean magnitude error 16.0 % (worst 34 %) from the merged surface, 4.6 % (worst 10 %)
   from 4 rest frames (``test/nodes/test_deformation_force_node.py``).
 - **Deformed clouds**: ``cloud_topic`` (PointCloud2). A cloud whose ``frame_id`` is
-  ``frame_id`` (``base``) or empty is used as is; one in the camera's optical frame
-  (``camera_frame``; empty: the first other frame a cloud comes in) is moved into
-  ``base`` with the newest ``cloud_capture/camera_pose`` (PoseStamped, ``base`` <- optical
-  frame), else the ``camera_pose`` parameter, as cloud_capture does; a cloud in any other
-  frame is refused with the reason (no tf: :class:`~pointforce_ros.nodes.common.CameraFrame`).
+  ``frame_id`` (``base``) or empty is used as is; one in a frame that ``/tf`` or
+  ``/tf_static`` connects to ``base`` is moved with that transform at the cloud's stamp
+  (waiting up to ``tf_wait`` for one still in flight; a move of it forgets the rest frames);
+  one in the camera's optical frame (``camera_frame``; empty: the first other frame a cloud
+  comes in), for a cell without tf, is moved into ``base`` with the newest
+  ``cloud_capture/camera_pose`` (PoseStamped, ``base`` <- optical frame), else the
+  ``camera_pose`` parameter, as cloud_capture does; a cloud in any other frame is refused
+  with the reason (:class:`~pointforce_ros.nodes.common.CameraFrame`).
   Invalid (NaN) pixels are dropped, as realsense-ros marks them; a cloud with no finite point
   is refused.
 - **F/T**: ``poke_server/wrench`` (``tool0_controller``, the reaction on the tool) is rotated
@@ -104,10 +107,11 @@ from pointforce_ros.deformation.observe import rest_offsets, RestFrames
 from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, load_latest,
                                               save_model)
 from pointforce_ros.errors import InvalidInput, PointforceError
+from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
                                         version_of_path)
 from pointforce_ros.nodes.common import (CameraFrame, declare, failure_reason, live,
-                                         publish_health, report_folder, run)
+                                         publish_health, report_folder, run, TfListener)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
@@ -156,11 +160,16 @@ class DeformationForceNode(Node):
         self.frame = declare(self, 'frame_id', 'base',
                              'Robot base frame: clouds in it are not transformed, outputs are '
                              'in it', read_only=True)
+        self.tf_wait = declare(self, 'tf_wait', 0.1, 'Seconds a cloud waits for its /tf '
+                               'transform (at its stamp) still in flight', bounds=(0.0, 2.0),
+                               read_only=True)
+        self.tf = TransformBuffer()
         self.camera_frame = CameraFrame(self.frame, declare(
-            self, 'camera_frame', '', 'Optical frame of the camera the camera pose places: '
-            'clouds in it are moved to base; empty: the first frame other than frame_id a cloud '
-            'comes in. A cloud in any other frame is refused (no tf)', read_only=True),
-            say=self.get_logger().info)
+            self, 'camera_frame', '', 'Optical frame of the camera the camera pose places, for '
+            'a cell without tf: clouds in it are moved to base with that pose; empty: the first '
+            'frame other than frame_id a cloud comes in. Clouds in a frame /tf or /tf_static '
+            'connect to frame_id are moved with that transform; any other frame is refused',
+            read_only=True), say=self.get_logger().info, tf=self.tf)
         self.element_size = declare(self, 'element_size', 0.004,
                                     'Volume mesh element size in x-y, m (base)',
                                     bounds=(0.001, 0.05), read_only=True)
@@ -222,6 +231,7 @@ class DeformationForceNode(Node):
             raise InvalidInput(f'camera_pose: {exc}') from exc
         self._lock = threading.Lock()
         self._camera_pose = None
+        self._tf_camera = None      # (frame, (4, 4) base <- frame) of the last cloud moved by tf
         self._tcp = None            # (position (3,), rotation (3, 3)) in base
         self._ft = None             # force on the object, base, N
         self._contact = None        # contact point of the running poke, or None
@@ -253,6 +263,7 @@ class DeformationForceNode(Node):
         # the arm's and camera's streams on a wait loop of their own, one thread as before:
         # the executor spent about 0.8 ms of CPU per 250 Hz message (see ServiceLoop)
         self._stream_loop = ServiceLoop(self)
+        self.tf_listener = TfListener(self, self.tf)
         self.force_pub = self.create_publisher(WrenchStamped, '~/force', 10)
         self.consistency_pub = self.create_publisher(DiagnosticStatus, '~/ft_consistency', 10)
         self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,
@@ -530,12 +541,26 @@ class DeformationForceNode(Node):
         points = raw[np.all(np.isfinite(raw), axis=1)]
         if len(raw) and not len(points):
             raise InvalidInput(f'cloud: all {len(raw)} points are NaN or inf (no valid depth)')
-        if self.camera_frame.classify(msg.header.frame_id, empty='base') == 'camera':
-            with self._lock:
-                pose = self._camera_pose or self.default_pose
-            m = pose_to_matrix(pose)
-            points = points @ m[:3, :3].T + m[:3, 3]
-        return points
+        frame = msg.header.frame_id
+        m = self.camera_frame.to_base(frame, stamp_to_sec(msg.header.stamp), 'base',
+                                      self._camera_matrix, wait=self.tf_wait)
+        if frame and frame != self.frame and self.tf.knows(frame):
+            self._tf_camera_moved(frame, m)
+        return points @ m[:3, :3].T + m[:3, 3]
+
+    def _camera_matrix(self) -> np.ndarray:
+        with self._lock:
+            return pose_to_matrix(self._camera_pose or self.default_pose)
+
+    def _tf_camera_moved(self, frame: str, m: np.ndarray) -> None:
+        """Forget the rest frames when the tf pose of the clouds' frame moved (> 1 mm, 0.5 deg)."""
+        last, self._tf_camera = self._tf_camera, (frame, m)
+        if last is None or (last[0] == frame and np.linalg.norm(last[1][:3, 3] - m[:3, 3]) <= 1e-3
+                            and np.trace(last[1][:3, :3].T @ m[:3, :3]) >= 1.0 + 2.0 * np.cos(
+                                np.radians(0.5))):
+            return
+        self._rest_frames.clear()
+        self.get_logger().info(f'camera frame {frame!r} moved (tf): rest frames forgotten')
 
     def _on_cloud(self, msg: PointCloud2):
         try:

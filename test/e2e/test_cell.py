@@ -28,6 +28,10 @@ def test_capture_poke_learn_and_query_on_the_simulated_cell(tmp_path):
         surface = cell.capture_surface(views=2)
         top = surface.points[:, 2] > 0.035
         assert top.sum() > 100 and np.median(surface.normals[top, 2]) > 0.95
+        # session 41: the scans were placed through /tf (the camera's pose at each cloud's
+        # stamp), not by the camera pose topic: no frame was taken as the camera's by default
+        assert cell.capture_node.tf.knows('camera_depth_optical_frame')
+        assert cell.capture_node.camera_frame.camera is None
         idx = int(np.argmin(np.linalg.norm(surface.points - [0.5, 0.0, 0.04], axis=1)))
         for k, index in enumerate([idx, idx + 7]):
             goal = PokeGoal(point=surface.points[index], normal=surface.normals[index],

@@ -189,7 +189,7 @@ def test_five_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp
                                            '/poke_server/poke_record', '/cloud_capture/surface',
                                            '/stiffness_learner/model',
                                            '/poke_server/poke_landed',
-                                           '/cloud_capture/camera_pose')
+                                           '/cloud_capture/camera_pose', '/tf', '/tf_static')
                 for s in probe.get_subscriptions_info_by_topic(t)}
         return {('stiffness_learner', '/poke_server/tcp_pose'),
                 ('stiffness_learner', '/poke_server/wrench'),
@@ -202,7 +202,9 @@ def test_five_nodes_match_qos_and_the_learner_records_a_live_poke(ros_graph, tmp
                 ('deformation_force', '/poke_server/poke_landed'),
                 ('deformation_force', '/cloud_capture/surface'),
                 ('deformation_force', '/cloud_capture/camera_pose'),
-                ('deformation_force', '/stiffness_learner/model')} <= subs
+                ('deformation_force', '/stiffness_learner/model'),
+                ('cloud_capture', '/tf'), ('cloud_capture', '/tf_static'),
+                ('deformation_force', '/tf'), ('deformation_force', '/tf_static')} <= subs
     ros_graph.wait_for(matched, 15, 'the five nodes discovered')
     assert _incompatible_pairs(probe) == []
     # each node reports its health on /diagnostics under a name of its own (1 Hz)

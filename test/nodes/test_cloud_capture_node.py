@@ -9,13 +9,16 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2, PointField
+from scipy.spatial.transform import Rotation, Slerp
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
-from msg_adapters.geometry import pose_stamped_to_msg
+from msg_adapters.geometry import pose_stamped_to_msg, transform_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud, surface_from_msg
 from pointforce_ros.sim.camera import DepthCamera, look_at
 from pointforce_ros.model.files import load_surface
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode, LATCHED
+from pointforce_ros.nodes.common import TF_QOS, TF_STATIC_QOS
 from pointforce_ros.shapes import box
 from pointforce_ros.types import Mesh, Pose
 
@@ -33,24 +36,45 @@ def _call(graph, client, what):
     return graph.wait_future(client.call_async(Trigger.Request()), 30, what)
 
 
-def test_two_views_merge_into_a_latched_outward_surface(ros_graph, tmp_path):
+def _random_pose(rng, reach=0.3):
+    m = np.eye(4)
+    m[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    m[:3, 3] = rng.uniform(-reach, reach, 3)
+    return m
+
+
+@pytest.mark.parametrize('via', ['camera_pose', 'tf'])
+def test_two_views_merge_into_a_latched_outward_surface(ros_graph, tmp_path, via):
+    """``via``: the camera placed by the camera pose topic, or (session 41) by a wrist mount
+    on /tf_static and the arm's pose on /tf at each cloud's stamp, as a real cell does."""
     node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
         Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
         Parameter('roi', value=[0.4, -0.1, 0.01, 0.6, 0.1, 0.1])]))
     test_node = ros_graph.add(Node('camera_driver', context=ros_graph.context))
     cloud_pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
     pose_pub = test_node.create_publisher(PoseStamped, '/cloud_capture/camera_pose', 10)
+    tf_pub = test_node.create_publisher(TFMessage, '/tf', TF_QOS)
+    static_pub = test_node.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
+    mount = _random_pose(np.random.default_rng(5), 0.1)    # tool0 <- optical frame
+    static_pub.publish(TFMessage(transforms=[
+        transform_to_msg(mount, 'tool0', 'camera_depth_optical_frame')]))
     add = test_node.create_client(Trigger, '/cloud_capture/add_scan')
     capture = test_node.create_client(Trigger, '/cloud_capture/capture')
     camera = DepthCamera(noise_a=0.0003, seed=3)
     mesh = _block()
-    for eye in ([0.5, -0.25, 0.35], [0.5, 0.25, 0.35]):
+    for k, eye in enumerate(([0.5, -0.25, 0.35], [0.5, 0.25, 0.35])):
         pose = look_at(eye, [0.5, 0.0, 0.04])
         frame = camera.render(mesh, pose, organised=True)
-        pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose)))
-        ros_graph.wait_for(lambda: node._camera_pose is not None and np.allclose(
-            node._camera_pose.position, eye), 10, 'camera pose')
-        cloud_pub.publish(msg_from_cloud(frame.points, frame.rgb,
+        stamp = 100.0 + k
+        if via == 'tf':     # the arm carries the camera: base <- tool0 at the cloud's stamp
+            tf_pub.publish(TFMessage(transforms=[
+                transform_to_msg(pose @ np.linalg.inv(mount), 'base', 'tool0', stamp)]))
+            ros_graph.wait_for(lambda: node.tf_listener.received == 2 + k, 10, 'arm on /tf')
+        else:
+            pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose)))
+            ros_graph.wait_for(lambda: node._camera_pose is not None and np.allclose(
+                node._camera_pose.position, eye), 10, 'camera pose')
+        cloud_pub.publish(msg_from_cloud(frame.points, frame.rgb, stamp=stamp,
                                          frame_id='camera_depth_optical_frame'))
         ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
         assert _call(ros_graph, add, 'add_scan').success
@@ -73,6 +97,71 @@ def test_two_views_merge_into_a_latched_outward_surface(ros_graph, tmp_path):
     np.testing.assert_allclose(stored.points, surface.points, atol=1e-6)
     level, message, values = node.health()               # /diagnostics: captured
     assert level == DiagnosticStatus.OK and f'{len(surface)} points' in message
+
+
+def test_clouds_are_moved_through_the_tf_tree_at_their_own_stamp(ros_graph, tmp_path):
+    """Session 41: without tf a real cell's camera (on the arm's wrist through /tf_static, the
+    arm on /tf) could be placed only by a hand-published pose; now the tree is looked up at
+    each cloud's stamp, interpolated between the arm's samples, and refused with the reason
+    where it cannot be."""
+    rng = np.random.default_rng(11)
+    test_node = ros_graph.add(Node('robot_state', context=ros_graph.context))
+    tf_pub = test_node.create_publisher(TFMessage, '/tf', TF_QOS)
+    static_pub = test_node.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
+    link, optical = _random_pose(rng, 0.1), _random_pose(rng, 0.05)
+    static_pub.publish(TFMessage(transforms=[                      # before the node starts
+        transform_to_msg(link, 'tool0', 'camera_link'),
+        transform_to_msg(optical, 'camera_link', 'camera_depth_optical_frame')]))
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 's.npz'))]))
+    ros_graph.wait_for(lambda: node.tf.knows('camera_depth_optical_frame'), 10,
+                       'the static mounts, published before the node (transient local)')
+    cloud_pub = test_node.create_publisher(PointCloud2, '/camera/camera/depth/color/points', 10)
+    add = test_node.create_client(Trigger, '/cloud_capture/add_scan')
+    arm = [_random_pose(rng) for _ in range(3)]                    # base <- tool0
+    bad = transform_to_msg(arm[0], 'base', 'tool0', 10.2)
+    bad.transform.translation.x = float('nan')
+    tf_pub.publish(TFMessage(transforms=[transform_to_msg(arm[0], 'base', 'tool0', 10.0),
+                                         bad]))
+    tf_pub.publish(TFMessage(transforms=[transform_to_msg(arm[1], 'base', 'tool0', 10.5)]))
+    ros_graph.wait_for(lambda: node.tf_listener.received == 4, 10, 'the arm on /tf')
+    assert 'non-finite' in node.tf_listener.last_refusal      # and the others were taken
+    # a camera pose published by hand does not override the tree for a frame it holds
+    node._new_camera_pose([0.5, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])()
+    points = rng.uniform(0.2, 0.3, (100, 3))
+
+    def latest(stamp, frame='camera_depth_optical_frame'):
+        node._latest = None
+        cloud_pub.publish(msg_from_cloud(points, frame_id=frame, stamp=stamp))
+        ros_graph.wait_for(lambda: node._latest is not None, 10, f'cloud at {stamp}')
+
+    def expected(a, b, s):
+        rot = Slerp([0.0, 1.0], Rotation.from_matrix([a[:3, :3], b[:3, :3]]))([s]).as_matrix()
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = rot[0], (1 - s) * a[:3, 3] + s * b[:3, 3]
+        return m @ link @ optical
+
+    latest(10.25)
+    np.testing.assert_allclose(node._scan_from_latest().transform,
+                               expected(arm[0], arm[1], 0.5), atol=1e-9)
+    latest(10.75)                     # after the arm's newest sample: refused until it comes
+    refused = _call(ros_graph, add, 'add_scan before its transform')
+    assert not refused.success and 'not arrived yet' in refused.message, refused.message
+    tf_pub.publish(TFMessage(transforms=[transform_to_msg(arm[2], 'base', 'tool0', 11.0)]))
+    ros_graph.wait_for(lambda: node.tf_listener.received == 5, 10, 'the arm at 11 s')
+    assert _call(ros_graph, add, 'add_scan after its transform').success
+    np.testing.assert_allclose(node._scans[-1].transform, expected(arm[1], arm[2], 0.5),
+                               atol=1e-9)
+    # a camera of another tree (not connected to base) is refused, naming both roots
+    tf_pub.publish(TFMessage(transforms=[
+        transform_to_msg(arm[0], 'world', 'camera2_optical', 11.0)]))
+    ros_graph.wait_for(lambda: node.tf.knows('camera2_optical'), 10, 'a second tree')
+    latest(11.0, 'camera2_optical')
+    refused = _call(ros_graph, add, 'add_scan of a cloud in another tree')
+    assert not refused.success and 'not connected' in refused.message, refused.message
+    assert "'world'" in refused.message and "'base'" in refused.message
+    assert len(node._scans) == 1
+    assert int(node.health()[2]['tf_frames']) == 6
 
 
 def test_bad_or_missing_cloud_is_refused_and_node_keeps_serving(ros_graph, tmp_path):

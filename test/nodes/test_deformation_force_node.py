@@ -24,14 +24,16 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
-from msg_adapters.geometry import to_point
+from msg_adapters.geometry import to_point, transform_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud
 from pointforce_ros.bringup.camera_check import render_view
 from pointforce_ros.deformation.identify import Poke
 from pointforce_ros.deformation.store import load_latest, model_versions
 from pointforce_ros.model.files import ContactModel, QUARANTINE, save_model
 from pointforce_ros.nodes import deformation_force
+from pointforce_ros.nodes.common import TF_STATIC_QOS
 from pointforce_ros.nodes.deformation_force import DeformationForceNode, LATCHED, STREAM
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.errors import InvalidInput
@@ -395,6 +397,39 @@ def test_a_cloud_in_a_frame_that_is_neither_base_nor_the_cameras_is_refused(cell
     cell.send_cloud(points, frame='camera_depth_optical_frame')
     assert isinstance(node._cloud, tuple) and len(node._cloud[0]) == len(points)
     assert 'no deformation model yet' in node.health()[1]
+
+
+def test_a_cloud_is_moved_by_the_tf_tree_and_a_camera_moved_on_it_forgets_its_rest_frames(
+        cell):
+    """Session 41: with no tf, a camera placed on /tf_static (a real cell's hand-eye mount) was
+    refused or placed by the camera pose parameter; a re-mounted camera kept rest frames
+    taken from its old viewpoint."""
+    node = cell.node
+    mounts = cell.graph.add(Node('camera_mount', context=cell.graph.context))
+    static_pub = mounts.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
+    first = pose_to_matrix(node.default_pose)
+    first[:3, 3] += [0.05, -0.02, 0.01]     # not the camera pose parameter's
+    second = first.copy()
+    second[:3, 3] += [0.0, 0.03, 0.0]
+    points = np.random.default_rng(9).uniform(-0.05, 0.05, (200, 3)) + [0.0, 0.0, 0.3]
+
+    def mount(m):
+        static_pub.publish(TFMessage(transforms=[transform_to_msg(m, 'base', 'wrist_optical')]))
+        cell.graph.wait_for(lambda: node.tf.knows('wrist_optical') and np.allclose(
+            node.tf.lookup('base', 'wrist_optical'), m, atol=1e-9), 10.0, 'camera mount')
+
+    mount(first)
+    for k in range(2):                      # two rest frames from the first mount
+        cell.send_cloud(points + 1e-4 * k, frame='wrist_optical')
+        np.testing.assert_allclose(node._cloud[0], (points + 1e-4 * k) @ first[:3, :3].T
+                                   + first[:3, 3], atol=1e-6)
+    assert node._rest_frames.pending == 2
+    assert node.camera_frame.camera is None     # the tree placed it: nothing adopted
+    mount(second)                               # re-mounted: those frames are of another view
+    cell.send_cloud(points, frame='wrist_optical')
+    np.testing.assert_allclose(node._cloud[0], points @ second[:3, :3].T + second[:3, 3],
+                               atol=1e-6)
+    assert node._rest_frames.pending == 1
 
 
 def test_held_observations_are_bounded_by_the_bytes_of_their_clouds(cell, monkeypatch):

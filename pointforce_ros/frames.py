@@ -1,0 +1,330 @@
+"""The frame tree that ``/tf`` and ``/tf_static`` carry, looked up by time, without tf2.
+
+No PyPI wheel carries tf2 or tf2_ros, so the nodes keep their own buffer of the transforms a
+real cell publishes (the robot's ``robot_state_publisher``, a hand-eye calibration's static
+camera mount, a camera driver's optical frames) and look a cloud's ``frame_id`` up in it at the
+cloud's stamp, as ``tf2_ros.Buffer.lookup_transform`` would. This module is the pure part (no
+rclpy); :class:`pointforce_ros.nodes.common.TfListener` feeds it from the two topics.
+
+What it keeps, as tf2's ``BufferCore`` does:
+
+- each frame has one parent; a transform ``parent <- child`` is either static (one value for
+  all time) or dynamic (a history over the last :data:`CACHE_SECONDS` of its own stamps);
+- a lookup at time ``t`` walks both frames up to their common ancestor and composes the edges,
+  each dynamic edge interpolated at ``t`` (linear in translation, spherical in rotation);
+  ``t`` ``None`` (tf2's time zero) takes the latest time every dynamic edge on the path has;
+- a time outside an edge's history is refused (tf2's ``ExtrapolationException``), past the
+  ``tolerance`` seconds the caller allows.
+
+What it refuses, with the reason: a non-finite or non-unit transform, an empty frame name, a
+frame made its own parent or an ancestor of its parent (a loop), more than :data:`MAX_FRAMES`
+frames. A child that is given a new parent takes it (its history is restarted), as a
+re-mounted camera would. Thread-safe: the listener writes from one thread while nodes look up
+from others; :meth:`TransformBuffer.wait_transform` waits for a transform still in flight.
+"""
+
+import bisect
+import math
+import threading
+import time
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.rotations import quaternion_to_matrix
+
+CACHE_SECONDS = 10.0
+"""How long a dynamic edge's history reaches back from its newest stamp (tf2's default)."""
+
+MAX_SAMPLES = 20_000
+"""Most samples one dynamic edge holds, whatever their stamps (a bound on memory against a
+publisher with stamps that never advance: 2 kHz for the whole cache)."""
+
+MAX_FRAMES = 10_000
+"""Most frames the buffer holds; a transform that would add one more is refused."""
+
+MAX_TOTAL_SAMPLES = 200_000
+"""Most samples all dynamic edges hold together (about 70 MB; a UR's seven links at 500 Hz
+hold 35 000); a transform that would add one more is refused."""
+
+UNIT_TOLERANCE = 1e-3
+"""Largest departure of a quaternion's norm from 1 that is accepted (then normalised)."""
+
+
+class TransformUnavailable(InvalidInput):
+    """A lookup cannot be answered: an unknown frame, frames not connected, a time not held."""
+
+
+class Extrapolation(TransformUnavailable):
+    """The time asked for lies outside what one edge holds; ``future`` says on which side."""
+
+    def __init__(self, message: str, future: bool):
+        """Keep the message and whether the time asked for is past the newest sample."""
+        super().__init__(message)
+        self.future = future
+
+
+def _frame_name(name, what: str) -> str:
+    name = str(name or '').strip()
+    if name.startswith('/'):    # tf2 refuses a leading slash; ROS 1 bags carry them
+        name = name[1:]
+    if not name:
+        raise InvalidInput(f'{what}: empty frame name')
+    return name
+
+
+def _checked(position, quaternion) -> Tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(position, dtype=np.float64).reshape(-1)
+    q = np.asarray(quaternion, dtype=np.float64).reshape(-1)
+    if p.shape != (3,) or q.shape != (4,):
+        raise InvalidInput(f'transform: translation (3,) and rotation (4,) needed, got '
+                           f'{p.shape} and {q.shape}')
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise InvalidInput(f'transform: non-finite values {p.tolist()} {q.tolist()}')
+    norm = math.sqrt(float(q @ q))
+    if abs(norm - 1.0) > UNIT_TOLERANCE:
+        raise InvalidInput(f'transform: rotation quaternion of norm {norm:.4g}, not unit')
+    return p, q / norm
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
+    dot = float(q0 @ q1)
+    if dot < 0.0:           # the shorter way round
+        q1, dot = -q1, -dot
+    if dot > 0.9995:        # nearly equal: linear, normalised
+        q = q0 + s * (q1 - q0)
+        return q / np.linalg.norm(q)
+    angle = math.acos(min(dot, 1.0))
+    return (math.sin((1.0 - s) * angle) * q0 + math.sin(s * angle) * q1) / math.sin(angle)
+
+
+def _matrix(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = quaternion_to_matrix(q)
+    m[:3, 3] = p
+    return m
+
+
+class _Edge:
+    """``parent <- child``: one static value, or a history sorted by stamp."""
+
+    __slots__ = ('parent', 'static', 'times', 'values')
+
+    def __init__(self, parent: str, static: bool):
+        self.parent = parent
+        self.static = static
+        self.times: List[float] = []
+        self.values: List[Tuple[np.ndarray, np.ndarray]] = []
+
+    def add(self, t: float, p: np.ndarray, q: np.ndarray) -> int:
+        """Hold one sample; return the change in the number of samples held."""
+        before = len(self.times)
+        if self.static:
+            self.times, self.values = [t], [(p, q)]
+            return len(self.times) - before
+        i = bisect.bisect_left(self.times, t)
+        if i < len(self.times) and self.times[i] == t:
+            self.values[i] = (p, q)     # the same stamp again: the newer value
+        else:
+            self.times.insert(i, t)
+            self.values.insert(i, (p, q))
+        cut = bisect.bisect_left(self.times, self.times[-1] - CACHE_SECONDS)
+        cut = max(cut, len(self.times) - MAX_SAMPLES)
+        if cut > 0:
+            del self.times[:cut], self.values[:cut]
+        return len(self.times) - before
+
+    def at(self, t: float, tolerance: float, child: str) -> np.ndarray:
+        if self.static:
+            return _matrix(*self.values[0])
+        times = self.times
+        if t < times[0] - tolerance or t > times[-1] + tolerance:
+            future = t > times[-1]
+            raise Extrapolation(
+                f'{self.parent!r} <- {child!r} is known for stamps {times[0]:.6f} to '
+                f'{times[-1]:.6f} s ({len(times)} samples), asked for {t:.6f} s: '
+                + ('the transform has not arrived yet' if future else
+                   f'older than the {CACHE_SECONDS:g} s kept'), future)
+        i = bisect.bisect_left(times, t)
+        if i == 0:
+            return _matrix(*self.values[0])
+        if i == len(times):
+            return _matrix(*self.values[-1])
+        t0, t1 = times[i - 1], times[i]
+        (p0, q0), (p1, q1) = self.values[i - 1], self.values[i]
+        s = (t - t0) / (t1 - t0)
+        return _matrix(p0 + s * (p1 - p0), _slerp(q0, q1, s))
+
+
+class TransformBuffer:
+    """The frame tree of ``/tf`` and ``/tf_static`` (see the module docstring)."""
+
+    def __init__(self, tolerance: float = 0.0):
+        """Keep an empty tree; ``tolerance``: seconds a lookup may lie past an edge's history.
+
+        The transform at the nearest end is used within it (0, tf2's rule, by default).
+        """
+        if not (math.isfinite(tolerance) and tolerance >= 0.0):
+            raise InvalidInput(f'TransformBuffer: tolerance {tolerance!r} must be >= 0 s')
+        self.tolerance = float(tolerance)
+        self._edges: Dict[str, _Edge] = {}
+        self._frames = set()
+        self._samples = 0
+        self._changed = threading.Condition()
+        self.refused = 0
+        """Transforms :meth:`set_transform` refused since the start."""
+
+    # ------------------------------------------------------------------ writing
+    def set_transform(self, parent: str, child: str, stamp: float, position, quaternion,
+                      static: bool = False) -> None:
+        """Hold ``parent <- child`` at ``stamp`` (seconds); ``static``: for all time.
+
+        Raises:
+            InvalidInput: a bad value or name, a loop, or a tree of :data:`MAX_FRAMES` frames.
+
+        """
+        try:
+            parent = _frame_name(parent, 'transform parent')
+            child = _frame_name(child, 'transform child')
+            if parent == child:
+                raise InvalidInput(f'transform: {child!r} made its own parent')
+            stamp = float(stamp)
+            if not math.isfinite(stamp):
+                raise InvalidInput(f'transform {parent!r} <- {child!r}: stamp {stamp!r}')
+            p, q = _checked(position, quaternion)
+            with self._changed:
+                new = {parent, child} - self._frames
+                if len(self._frames) + len(new) > MAX_FRAMES:
+                    raise InvalidInput(f'transform {parent!r} <- {child!r}: the buffer holds '
+                                       f'{len(self._frames)} frames, at most {MAX_FRAMES}')
+                if child in self._ancestors(parent):
+                    raise InvalidInput(f'transform {parent!r} <- {child!r}: {child!r} is '
+                                       f'already above {parent!r} (a loop)')
+                if self._samples >= MAX_TOTAL_SAMPLES:
+                    raise InvalidInput(f'transform {parent!r} <- {child!r}: the buffer holds '
+                                       f'{self._samples} samples, at most {MAX_TOTAL_SAMPLES}')
+                edge = self._edges.get(child)
+                if edge is None or edge.parent != parent or edge.static != bool(static):
+                    if edge is not None:
+                        self._samples -= len(edge.times)
+                    edge = self._edges[child] = _Edge(parent, bool(static))
+                self._samples += edge.add(stamp, p, q)
+                self._frames |= new
+                self._changed.notify_all()
+        except InvalidInput:
+            self.refused += 1
+            raise
+
+    def clear(self) -> None:
+        """Forget every transform (a jump back in time, as tf2's listener does on one)."""
+        with self._changed:
+            self._edges.clear()
+            self._frames.clear()
+            self._samples = 0
+
+    # ------------------------------------------------------------------ reading
+    def frames(self) -> List[str]:
+        """Return the names of every frame the tree holds, sorted."""
+        with self._changed:
+            return sorted(self._frames)
+
+    def knows(self, frame: str) -> bool:
+        """Return whether any transform named ``frame`` (as parent or child)."""
+        try:
+            frame = _frame_name(frame, 'frame')
+        except InvalidInput:
+            return False
+        with self._changed:
+            return frame in self._frames
+
+    def lookup(self, target: str, source: str, stamp: Optional[float] = None) -> np.ndarray:
+        """Return the (4, 4) transform ``target <- source`` at ``stamp`` (``None``: latest).
+
+        Raises:
+            TransformUnavailable: a frame unknown, the two not connected, or (its subclass
+                :class:`Extrapolation`) ``stamp`` outside an edge's history.
+
+        """
+        target = _frame_name(target, 'lookup target')
+        source = _frame_name(source, 'lookup source')
+        with self._changed:
+            return self._lookup(target, source, stamp)
+
+    def wait_transform(self, target: str, source: str, stamp: Optional[float],
+                       timeout: float) -> np.ndarray:
+        """Like :meth:`lookup`, but wait up to ``timeout`` s for a transform not yet arrived.
+
+        Only a time past an edge's newest sample, or a frame not yet heard of, is waited for;
+        anything else is refused at once.
+        """
+        target = _frame_name(target, 'lookup target')
+        source = _frame_name(source, 'lookup source')
+        deadline = time.monotonic() + max(0.0, float(timeout))
+        with self._changed:
+            while True:
+                try:
+                    return self._lookup(target, source, stamp)
+                except Extrapolation as exc:
+                    if not exc.future:
+                        raise
+                    last = exc
+                except TransformUnavailable as exc:
+                    if target in self._frames and source in self._frames:
+                        raise       # both known, not connected
+                    last = exc
+                left = deadline - time.monotonic()
+                if left <= 0.0:
+                    raise last
+                self._changed.wait(left)
+
+    # ------------------------------------------------------------------ internals
+    def _ancestors(self, frame: str) -> List[str]:
+        chain, seen = [frame], {frame}
+        while frame in self._edges:
+            frame = self._edges[frame].parent
+            if frame in seen:   # cannot happen: set_transform refuses loops
+                break
+            chain.append(frame)
+            seen.add(frame)
+        return chain
+
+    def _lookup(self, target: str, source: str, stamp: Optional[float]) -> np.ndarray:
+        for frame in (target, source):
+            if frame not in self._frames:
+                known = sorted(self._frames)
+                shown = ', '.join(repr(f) for f in known[:8])
+                shown += ' ...' if len(known) > 8 else ''
+                heard = f'known: {shown}' if known else 'nothing heard on /tf or /tf_static yet'
+                raise TransformUnavailable(f'frame {frame!r} is not in the tf tree ({heard})')
+        if target == source:
+            return np.eye(4)
+        up_source, up_target = self._ancestors(source), self._ancestors(target)
+        common = next((f for f in up_source if f in set(up_target)), None)
+        if common is None:
+            raise TransformUnavailable(
+                f'frames {target!r} and {source!r} are not connected (their roots are '
+                f'{up_target[-1]!r} and {up_source[-1]!r})')
+        path_source = up_source[:up_source.index(common)]
+        path_target = up_target[:up_target.index(common)]
+        if stamp is None:   # the latest time every dynamic edge on the path holds
+            ends = [self._edges[f].times[-1] for f in path_source + path_target
+                    if not self._edges[f].static]
+            stamp = min(ends) if ends else 0.0
+        stamp = float(stamp)
+        common_from_source = np.eye(4)
+        for frame in path_source:       # child up to the common ancestor
+            common_from_source = (self._edges[frame].at(stamp, self.tolerance, frame)
+                                  @ common_from_source)
+        common_from_target = np.eye(4)
+        for frame in path_target:
+            common_from_target = (self._edges[frame].at(stamp, self.tolerance, frame)
+                                  @ common_from_target)
+        return _rigid_inverse(common_from_target) @ common_from_source
+
+
+def _rigid_inverse(m: np.ndarray) -> np.ndarray:
+    inv = np.eye(4)
+    inv[:3, :3] = m[:3, :3].T
+    inv[:3, 3] = -m[:3, :3].T @ m[:3, 3]
+    return inv

@@ -1,0 +1,162 @@
+"""The tf buffer without tf2: composition, interpolation, refusals and waiting."""
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pointforce_ros import frames
+from pointforce_ros.errors import InvalidInput
+from pointforce_ros.frames import Extrapolation, TransformBuffer, TransformUnavailable
+
+
+def _random_transform(rng):
+    m = np.eye(4)
+    m[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    m[:3, 3] = rng.uniform(-1.0, 1.0, 3)
+    return m
+
+
+def _set(buf, parent, child, m, stamp=0.0, static=True):
+    q = Rotation.from_matrix(m[:3, :3]).as_quat()
+    buf.set_transform(parent, child, stamp, m[:3, 3], q, static=static)
+
+
+def test_chain_and_branches_compose_like_matrices():
+    rng = np.random.default_rng(3)
+    mount, cam, other = (_random_transform(rng) for _ in range(3))
+    buf = TransformBuffer()
+    _set(buf, 'base', 'mount', mount)
+    _set(buf, 'mount', 'camera_optical', cam)
+    _set(buf, '/base', 'tool0', other)     # a ROS 1 style leading slash is dropped
+    np.testing.assert_allclose(buf.lookup('base', 'camera_optical'), mount @ cam, atol=1e-12)
+    np.testing.assert_allclose(buf.lookup('camera_optical', 'base'),
+                               np.linalg.inv(mount @ cam), atol=1e-12)
+    # across branches: tool0 <- camera through their common ancestor
+    np.testing.assert_allclose(buf.lookup('tool0', 'camera_optical'),
+                               np.linalg.inv(other) @ mount @ cam, atol=1e-12)
+    np.testing.assert_allclose(buf.lookup('mount', 'mount'), np.eye(4))
+    assert buf.frames() == ['base', 'camera_optical', 'mount', 'tool0']
+
+
+def test_dynamic_edge_interpolates_and_refuses_outside_its_history():
+    buf = TransformBuffer()
+    buf.set_transform('base', 'tool0', 10.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+    quarter = Rotation.from_euler('z', 90, degrees=True).as_quat()
+    buf.set_transform('base', 'tool0', 11.0, [0.2, 0.0, -0.4], quarter)
+    mid = buf.lookup('base', 'tool0', 10.5)
+    np.testing.assert_allclose(mid[:3, 3], [0.1, 0.0, -0.2], atol=1e-12)
+    angle = Rotation.from_matrix(mid[:3, :3]).as_euler('xyz', degrees=True)
+    np.testing.assert_allclose(angle, [0.0, 0.0, 45.0], atol=1e-9)
+    with pytest.raises(Extrapolation, match='not arrived yet') as late:
+        buf.lookup('base', 'tool0', 11.01)
+    assert late.value.future
+    with pytest.raises(Extrapolation) as early:
+        buf.lookup('base', 'tool0', 9.99)
+    assert not early.value.future
+    # a tolerance takes the nearest end
+    loose = TransformBuffer(tolerance=0.02)
+    loose.set_transform('base', 'tool0', 11.0, [0.2, 0.0, -0.4], quarter)
+    np.testing.assert_allclose(loose.lookup('base', 'tool0', 11.015)[:3, 3], [0.2, 0.0, -0.4])
+
+
+def test_latest_lookup_takes_the_latest_time_every_edge_holds():
+    buf = TransformBuffer()
+    for t in (0.0, 1.0, 2.0, 3.0):
+        buf.set_transform('base', 'arm', t, [t, 0.0, 0.0], [0, 0, 0, 1])
+    for t in (0.0, 1.0):
+        buf.set_transform('arm', 'camera', t, [0.0, t, 0.0], [0, 0, 0, 1])
+    # the camera edge ends at 1 s: the arm is taken at 1 s too, not at its own newest 3 s
+    np.testing.assert_allclose(buf.lookup('base', 'camera')[:3, 3], [1.0, 1.0, 0.0])
+
+
+def test_cache_keeps_its_window_only():
+    buf = TransformBuffer()
+    for t in np.arange(0.0, frames.CACHE_SECONDS + 5.0, 0.5):
+        buf.set_transform('base', 'tool0', float(t), [float(t), 0, 0], [0, 0, 0, 1])
+    with pytest.raises(Extrapolation, match='older than'):
+        buf.lookup('base', 'tool0', 1.0)
+    np.testing.assert_allclose(buf.lookup('base', 'tool0', 10.25)[:3, 3], [10.25, 0, 0])
+
+
+@pytest.mark.parametrize('args, reason', [
+    (('base', 'cam', 0.0, [np.nan, 0, 0], [0, 0, 0, 1]), 'non-finite'),
+    (('base', 'cam', 0.0, [0, 0, 0], [0, 0, 0, 2.0]), 'not unit'),
+    (('base', 'cam', 0.0, [0, 0, 0], [0, 0, 0]), r'\(4,\)'),
+    (('', 'cam', 0.0, [0, 0, 0], [0, 0, 0, 1]), 'empty frame'),
+    (('cam', 'cam', 0.0, [0, 0, 0], [0, 0, 0, 1]), 'its own parent'),
+    (('base', 'cam', math.inf, [0, 0, 0], [0, 0, 0, 1]), 'stamp'),
+])
+def test_bad_transforms_are_refused_with_the_reason(args, reason):
+    buf = TransformBuffer()
+    with pytest.raises(InvalidInput, match=reason):
+        buf.set_transform(*args)
+    assert buf.refused == 1 and buf.frames() == []
+
+
+def test_a_loop_is_refused_and_a_new_parent_replaces_the_old():
+    buf = TransformBuffer()
+    _set(buf, 'base', 'mount', np.eye(4))
+    _set(buf, 'mount', 'cam', np.eye(4))
+    with pytest.raises(InvalidInput, match='a loop'):
+        _set(buf, 'cam', 'base', np.eye(4))
+    moved = np.eye(4)
+    moved[:3, 3] = [0.0, 0.0, 0.3]
+    _set(buf, 'tool0', 'cam', moved)        # the camera re-mounted on the tool
+    with pytest.raises(TransformUnavailable, match='not connected'):
+        buf.lookup('base', 'cam')
+    np.testing.assert_allclose(buf.lookup('tool0', 'cam'), moved)
+
+
+def test_unknown_frames_are_named(monkeypatch):
+    buf = TransformBuffer()
+    with pytest.raises(TransformUnavailable, match='nothing heard'):
+        buf.lookup('base', 'cam')
+    _set(buf, 'base', 'cam', np.eye(4))
+    with pytest.raises(TransformUnavailable, match="'second_cam' is not in the tf tree"):
+        buf.lookup('base', 'second_cam')
+    monkeypatch.setattr(frames, 'MAX_FRAMES', 3)
+    _set(buf, 'base', 'a', np.eye(4))
+    with pytest.raises(InvalidInput, match='at most 3'):
+        _set(buf, 'base', 'b', np.eye(4))
+
+
+def test_total_samples_are_bounded(monkeypatch):
+    monkeypatch.setattr(frames, 'MAX_TOTAL_SAMPLES', 5)
+    buf = TransformBuffer()
+    for t in range(5):
+        buf.set_transform('base', 'tool0', float(t), [0, 0, 0], [0, 0, 0, 1])
+    with pytest.raises(InvalidInput, match='5 samples'):
+        buf.set_transform('base', 'tool0', 5.0, [0, 0, 0], [0, 0, 0, 1])
+    buf.clear()
+    assert buf.frames() == []
+    buf.set_transform('base', 'tool0', 6.0, [0, 0, 0.1], [0, 0, 0, 1])
+    np.testing.assert_allclose(buf.lookup('base', 'tool0')[:3, 3], [0, 0, 0.1])
+
+
+def test_wait_transform_waits_for_a_transform_in_flight_only():
+    buf = TransformBuffer()
+    buf.set_transform('base', 'cam', 1.0, [0, 0, 0], [0, 0, 0, 1])
+
+    def late():
+        time.sleep(0.05)
+        buf.set_transform('base', 'cam', 2.0, [0, 0, 0.5], [0, 0, 0, 1])
+
+    thread = threading.Thread(target=late)
+    thread.start()
+    got = buf.wait_transform('base', 'cam', 2.0, timeout=10.0)
+    thread.join()
+    np.testing.assert_allclose(got[:3, 3], [0, 0, 0.5])
+    # a time already dropped, or two known frames not connected, is refused without waiting
+    _set(buf, 'world', 'map', np.eye(4))
+    start = time.monotonic()
+    with pytest.raises(Extrapolation):
+        buf.wait_transform('base', 'cam', 0.5, timeout=10.0)
+    with pytest.raises(TransformUnavailable, match='not connected'):
+        buf.wait_transform('base', 'map', None, timeout=10.0)
+    assert time.monotonic() - start < 5.0
+    with pytest.raises(Extrapolation, match='not arrived'):
+        buf.wait_transform('base', 'cam', 3.0, timeout=0.05)

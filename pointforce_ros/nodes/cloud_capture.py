@@ -35,8 +35,9 @@ from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.model.files import save_surface
-from pointforce_ros.nodes.common import (CameraFrame, contained, declare, failure_reason, live,
-                                         publish_health, qos_watch, run, TfListener)
+from pointforce_ros.nodes.common import (CameraFrame, contained, declare, failure_reason,
+                                         frame_to_base, live, publish_health, qos_watch, run,
+                                         TfListener)
 from pointforce_ros.surface.equilibrium import build_equilibrium_surface, Scan, SurfaceConfig
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.types import Pose
@@ -181,6 +182,9 @@ class CloudCaptureNode(Node):
     def _on_pose(self, msg: PoseStamped):
         try:
             pose = pose_stamped_from_msg(msg)
+            if pose.frame != self.frame:     # through the tf tree, or refused (was taken as base)
+                m = frame_to_base(self.tf, self.frame, pose.frame, stamp_to_sec(msg.header.stamp))
+                pose = Pose.from_matrix(m @ pose_to_matrix(pose), frame=self.frame)
         except PointforceError as exc:
             self.get_logger().warn(f'ignoring camera pose: {exc}', throttle_duration_sec=5.0)
             return

@@ -383,6 +383,25 @@ class TfListener:
                                             throttle_duration_sec=5.0)
 
 
+def frame_to_base(tf: Optional[TransformBuffer], base: str, frame: str,
+                  stamp: float) -> np.ndarray:
+    """Return the (4, 4) transform ``base <- frame`` for a message stamped ``stamp`` (s).
+
+    ``frame`` empty or ``base``: the identity; any other: the tf tree's at ``stamp`` (0: the
+    latest), without waiting (for pose streams).
+
+    Raises:
+        InvalidInput: no tree, or the tree cannot give it (the reason).
+
+    """
+    frame = str(frame or '')
+    if not frame or frame == base:
+        return np.eye(4)
+    if tf is None:
+        raise InvalidInput(f'frame {frame!r} is not {base!r}, and there is no tf tree')
+    return tf.lookup(base, frame, float(stamp) or None)
+
+
 class CameraFrame:
     """How a node moves a cloud from its ``frame_id`` into the base frame.
 

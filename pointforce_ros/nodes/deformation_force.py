@@ -81,6 +81,7 @@ import time
 from collections import Counter, OrderedDict
 from dataclasses import replace
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -110,8 +111,8 @@ from pointforce_ros.errors import InvalidInput, PointforceError
 from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
                                         version_of_path)
-from pointforce_ros.nodes.common import (CameraFrame, declare, failure_reason, live,
-                                         publish_health, report_folder, run, TfListener)
+from pointforce_ros.nodes.common import (CameraFrame, declare, failure_reason, frame_to_base,
+                                         live, publish_health, report_folder, run, TfListener)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.rotations import pose_to_matrix, quaternion_to_matrix
 from pointforce_ros.types import Pose
@@ -441,24 +442,23 @@ class DeformationForceNode(Node):
             self.get_logger().error(f'ignoring rest surface: {_reason(exc)}')
 
     # ------------------------------------------------------------------ streams
-    def _foreign_frame(self, msg, what: str) -> bool:
-        """Warn and return True when ``msg`` is stamped in a frame other than ``frame_id``.
+    def _to_base(self, msg) -> Optional[np.ndarray]:
+        """``None`` for a pose stamped in ``frame_id`` (or unstamped), else ``base <- frame``.
 
-        No tf here: a pose in another frame (``map``, a typo) cannot be moved into base, and
-        taking it as base moved every cloud or contact by that frame's offset.
+        A pose in another frame is moved through the tf tree at its stamp; one the tree cannot
+        place (``map`` with no tf, a typo) raises InvalidInput: taking it as base moved every
+        cloud or contact by that frame's offset.
         """
         frame = msg.header.frame_id
         if not frame or frame == self.frame:
-            return False
-        self.get_logger().warn(f'ignoring {what} in frame {frame!r}: only {self.frame!r} is '
-                               f'known (no tf)', throttle_duration_sec=5.0)
-        return True
+            return None
+        return frame_to_base(self.tf, self.frame, frame, stamp_to_sec(msg.header.stamp))
 
     def _on_camera(self, msg: PoseStamped):
-        if self._foreign_frame(msg, 'camera pose'):
-            return
         try:
-            pose = pose_stamped_from_msg(msg)
+            pose, m = pose_stamped_from_msg(msg), self._to_base(msg)
+            if m is not None:
+                pose = Pose.from_matrix(m @ pose_to_matrix(pose), frame=self.frame)
         except PointforceError as exc:
             self.get_logger().warn(f'ignoring camera pose: {exc}', throttle_duration_sec=5.0)
             return
@@ -472,14 +472,15 @@ class DeformationForceNode(Node):
             self.get_logger().info('camera pose moved: rest frames forgotten')
 
     def _on_tcp(self, msg: PoseStamped):
-        if self._foreign_frame(msg, 'TCP pose'):
-            return
         q = msg.pose.orientation
         position = vec(msg.pose.position)
         try:
             if not np.all(np.isfinite(position)):
                 raise InvalidInput(f'non-finite position {position.tolist()}')
             rot = quaternion_to_matrix([q.x, q.y, q.z, q.w])
+            m = self._to_base(msg)
+            if m is not None:
+                position, rot = m[:3, :3] @ position + m[:3, 3], m[:3, :3] @ rot
         except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
             self.get_logger().warn(f'ignoring TCP pose: {exc}', throttle_duration_sec=5.0)
             return

@@ -17,6 +17,7 @@ from msg_adapters.geometry import pose_stamped_to_msg, transform_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud, surface_from_msg
 from pointforce_ros.sim.camera import DepthCamera, look_at
 from pointforce_ros.model.files import load_surface
+from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode, LATCHED
 from pointforce_ros.nodes.common import TF_QOS, TF_STATIC_QOS
 from pointforce_ros.shapes import box
@@ -197,6 +198,23 @@ def test_a_cloud_is_paired_with_the_camera_pose_of_its_own_stamp(ros_graph, tmp_
                                      stamp=10.0, frame_id='camera_depth_optical_frame'))
     ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
     np.testing.assert_allclose(node._scan_from_latest().transform, pose_a, atol=1e-9)
+
+
+def test_a_camera_pose_in_another_frame_is_moved_through_tf_or_ignored(ros_graph, tmp_path):
+    """Session 41: a camera pose stamped in 'map' was taken as a pose in base."""
+    node = ros_graph.add(CloudCaptureNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('surface_file', value=str(tmp_path / 's.npz'))]))
+    pose = look_at([0.5, -0.3, 0.3], [0.5, 0.0, 0.0])
+    in_map = pose_stamped_to_msg(Pose.from_matrix(pose, frame='map'), stamp=5.0)
+    node._on_pose(in_map)                                  # no tf: ignored
+    assert node._camera_pose is None and not node._pose_history
+    base_from_map = _random_pose(np.random.default_rng(12))
+    node.tf.set_transform('base', 'map', 0.0, base_from_map[:3, 3],
+                          Rotation.from_matrix(base_from_map[:3, :3]).as_quat(), static=True)
+    node._on_pose(in_map)
+    np.testing.assert_allclose(pose_to_matrix(node._camera_pose), base_from_map @ pose,
+                               atol=1e-9)
+    assert node._camera_pose.frame == 'base' and len(node._pose_history) == 1
 
 
 @pytest.mark.parametrize('pinned', ['', 'camera_color_optical_frame'])

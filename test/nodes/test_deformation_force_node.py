@@ -367,6 +367,16 @@ def test_poses_in_an_unknown_frame_or_with_nan_are_ignored(cell):
     np.testing.assert_allclose(node._camera_pose.position, [0.4, 0.0, 0.5])
     node._on_tcp(pose('base', [0.5, 0.01, 0.04]))
     np.testing.assert_allclose(node._tcp[0], [0.5, 0.01, 0.04])
+    # session 41: a frame the tf tree places is moved through it (base <- map: 0.1 m along x,
+    # a quarter turn about z)
+    node.tf.set_transform('base', 'map', 0.0, [0.1, 0.0, 0.0],
+                          [0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)], static=True)
+    node._on_tcp(pose('map', [0.01, -0.4, 0.04]))
+    np.testing.assert_allclose(node._tcp[0], [0.5, 0.01, 0.04], atol=1e-12)
+    np.testing.assert_allclose(node._tcp[1], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+    node._on_camera(pose('map', [0.0, -0.3, 0.5]))
+    np.testing.assert_allclose(node._camera_pose.position, [0.4, 0.0, 0.5], atol=1e-12)
+    assert node._camera_pose.frame == 'base'
 
 
 def test_a_cloud_in_a_frame_that_is_neither_base_nor_the_cameras_is_refused(cell):

@@ -19,7 +19,8 @@ What it keeps, as tf2's ``BufferCore`` does:
 What it refuses, with the reason: a non-finite or non-unit transform, an empty frame name, a
 frame made its own parent or an ancestor of its parent (a loop), more than :data:`MAX_FRAMES`
 frames. A child that is given a new parent takes it (its history is restarted), as a
-re-mounted camera would. Thread-safe: the listener writes from one thread while nodes look up
+re-mounted camera would; a dynamic sample older than everything its edge keeps restarts that
+edge's history too (its publisher went back in time: a bag replayed, a simulator restarted). Thread-safe: the listener writes from one thread while nodes look up
 from others; :meth:`TransformBuffer.wait_transform` waits for a transform still in flight.
 """
 
@@ -123,6 +124,11 @@ class _Edge:
         if self.static:
             self.times, self.values = [t], [(p, q)]
             return len(self.times) - before
+        if self.times and t < self.times[-1] - CACHE_SECONDS:
+            # older than all the edge keeps: its publisher went back in time (a bag replayed,
+            # a simulator restarted); tf2's listener clears its buffer on such a jump
+            self.times, self.values = [t], [(p, q)]
+            return 1 - before
         i = bisect.bisect_left(self.times, t)
         if i < len(self.times) and self.times[i] == t:
             self.values[i] = (p, q)     # the same stamp again: the newer value

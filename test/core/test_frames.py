@@ -82,6 +82,21 @@ def test_cache_keeps_its_window_only():
     np.testing.assert_allclose(buf.lookup('base', 'tool0', 10.25)[:3, 3], [10.25, 0, 0])
 
 
+def test_a_publisher_gone_back_in_time_restarts_its_edge():
+    buf = TransformBuffer()
+    for t in (1000.0, 1000.5):                      # a live cell
+        buf.set_transform('base', 'tool0', t, [t, 0, 0], [0, 0, 0, 1])
+    buf.set_transform('base', 'tool0', 20.0, [20.0, 0, 0], [0, 0, 0, 1])   # a bag replayed
+    buf.set_transform('base', 'tool0', 20.5, [20.5, 0, 0], [0, 0, 0, 1])
+    np.testing.assert_allclose(buf.lookup('base', 'tool0', 20.25)[:3, 3], [20.25, 0, 0])
+    np.testing.assert_allclose(buf.lookup('base', 'tool0')[:3, 3], [20.5, 0, 0])
+    with pytest.raises(Extrapolation):
+        buf.lookup('base', 'tool0', 1000.0)
+    # a sample late within the window is still put in its place
+    buf.set_transform('base', 'tool0', 19.0, [19.0, 0, 0], [0, 0, 0, 1])
+    np.testing.assert_allclose(buf.lookup('base', 'tool0', 19.5)[:3, 3], [19.5, 0, 0])
+
+
 @pytest.mark.parametrize('args, reason', [
     (('base', 'cam', 0.0, [np.nan, 0, 0], [0, 0, 0, 1]), 'non-finite'),
     (('base', 'cam', 0.0, [0, 0, 0], [0, 0, 0, 2.0]), 'not unit'),

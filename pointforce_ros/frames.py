@@ -45,6 +45,10 @@ publisher with stamps that never advance: 2 kHz for the whole cache)."""
 MAX_FRAMES = 10_000
 """Most frames the buffer holds; a transform that would add one more is refused."""
 
+MAX_DEPTH = 1000
+"""Most edges from a frame up to its root (tf2's ``MAX_GRAPH_DEPTH``): bounds each lookup and
+each loop check, which a hostile chain of thousands of frames made quadratic."""
+
 MAX_TOTAL_SAMPLES = 200_000
 """Most samples all dynamic edges hold together (about 70 MB; a UR's seven links at 500 Hz
 hold 35 000); a transform that would add one more is refused."""
@@ -204,13 +208,19 @@ class TransformBuffer:
                 if len(self._frames) + len(new) > MAX_FRAMES:
                     raise InvalidInput(f'transform {parent!r} <- {child!r}: the buffer holds '
                                        f'{len(self._frames)} frames, at most {MAX_FRAMES}')
-                if child in self._ancestors(parent):
-                    raise InvalidInput(f'transform {parent!r} <- {child!r}: {child!r} is '
-                                       f'already above {parent!r} (a loop)')
+                edge = self._edges.get(child)
+                if edge is None or edge.parent != parent:   # a new edge: check the tree
+                    above = self._ancestors(parent)
+                    if child in above:
+                        raise InvalidInput(f'transform {parent!r} <- {child!r}: {child!r} is '
+                                           f'already above {parent!r} (a loop)')
+                    below = self._height(child) if child in self._frames else 0
+                    if len(above) + below > MAX_DEPTH:
+                        raise InvalidInput(f'transform {parent!r} <- {child!r}: a chain of '
+                                           f'more than {MAX_DEPTH} frames')
                 if self._samples >= MAX_TOTAL_SAMPLES:
                     raise InvalidInput(f'transform {parent!r} <- {child!r}: the buffer holds '
                                        f'{self._samples} samples, at most {MAX_TOTAL_SAMPLES}')
-                edge = self._edges.get(child)
                 if edge is None or edge.parent != parent or edge.static != bool(static):
                     if edge is not None:
                         self._samples -= len(edge.times)
@@ -294,6 +304,17 @@ class TransformBuffer:
             chain.append(frame)
             seen.add(frame)
         return chain
+
+    def _height(self, frame: str) -> int:
+        """Edges of the longest chain below ``frame`` (0 for a leaf or a new frame)."""
+        children: Dict[str, List[str]] = {}
+        for child, edge in self._edges.items():
+            children.setdefault(edge.parent, []).append(child)
+        height, level = 0, children.get(frame, [])
+        while level and height <= MAX_DEPTH:
+            height += 1
+            level = [c for f in level for c in children.get(f, [])]
+        return height
 
     def _lookup(self, target: str, source: str, stamp: Optional[float]) -> np.ndarray:
         for frame in (target, source):

@@ -139,6 +139,24 @@ def test_unknown_frames_are_named(monkeypatch):
         _set(buf, 'base', 'b', np.eye(4))
 
 
+def test_chains_are_bounded_and_a_hostile_tree_stays_cheap():
+    buf = TransformBuffer()
+    eye = ([0, 0, 0], [0, 0, 0, 1])
+    for k in range(frames.MAX_DEPTH):           # base <- f1 <- ... <- f1000
+        buf.set_transform('base' if k == 0 else f'f{k}', f'f{k + 1}', 0.0, *eye, static=True)
+    with pytest.raises(InvalidInput, match='a chain of more than 1000'):
+        buf.set_transform(f'f{frames.MAX_DEPTH}', 'deeper', 0.0, *eye, static=True)
+    with pytest.raises(InvalidInput, match='a chain of more than 1000'):    # from the top too
+        buf.set_transform('world', 'base', 0.0, *eye, static=True)
+    np.testing.assert_allclose(buf.lookup('base', f'f{frames.MAX_DEPTH}'), np.eye(4))
+    # 5000 leaves under one parent, then 5000 updates of them: each insert is a bounded walk
+    for k in range(5000):
+        buf.set_transform('f500', f'leaf{k}', 1.0, *eye)
+    for k in range(5000):
+        buf.set_transform('f500', f'leaf{k}', 2.0, *eye)
+    assert len(buf.frames()) == 1 + frames.MAX_DEPTH + 5000
+
+
 def test_total_samples_are_bounded(monkeypatch):
     monkeypatch.setattr(frames, 'MAX_TOTAL_SAMPLES', 5)
     buf = TransformBuffer()

@@ -17,11 +17,13 @@ What it keeps, as tf2's ``BufferCore`` does:
   ``tolerance`` seconds the caller allows.
 
 What it refuses, with the reason: a non-finite or non-unit transform, an empty frame name, a
-frame made its own parent or an ancestor of its parent (a loop), more than :data:`MAX_FRAMES`
-frames. A child that is given a new parent takes it (its history is restarted), as a
-re-mounted camera would; a dynamic sample older than everything its edge keeps restarts that
-edge's history too (its publisher went back in time: a bag replayed, a simulator restarted). Thread-safe: the listener writes from one thread while nodes look up
-from others; :meth:`TransformBuffer.wait_transform` waits for a transform still in flight.
+frame made its own parent or an ancestor of its parent (a loop), a chain deeper than
+:data:`MAX_DEPTH`, more than :data:`MAX_FRAMES` frames or :data:`MAX_TOTAL_SAMPLES` samples. A
+child that is given a new parent takes it (its history is restarted), as a re-mounted camera
+would; a dynamic sample older than everything its edge keeps restarts that edge's history too
+(its publisher went back in time: a bag replayed, a simulator restarted). Thread-safe: the
+listener writes from one thread while nodes look up from others;
+:meth:`TransformBuffer.wait_transform` waits for a transform still in flight.
 """
 
 import bisect

@@ -8,7 +8,7 @@ Response writers take core results duck-typed: a single result has ``wrench``,
 ``contact_count`` (B,) and ``max_displacement`` (B,).
 """
 
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import numpy as np
 from geometry_msgs.msg import Vector3, Wrench as WrenchMsg
@@ -19,7 +19,8 @@ from std_msgs.msg import Header
 from msg_adapters.geometry import (mesh_from_flat, mesh_from_msg, pose_from_msg, to_point,
                                    to_vector3, unit_vector, vec)
 from pointforce_ros.errors import InvalidInput
-from pointforce_ros.types import ContactQuery, Mesh, PokeGoal
+from pointforce_ros.rotations import pose_to_matrix
+from pointforce_ros.types import ContactQuery, Mesh, Pose, PokeGoal
 
 
 MODEL_FRAME = 'base'
@@ -54,18 +55,28 @@ def request_mesh(req):
     return mesh_from_msg(req.mesh)
 
 
-def contact_query_from_request(req: ContactWrench.Request) -> ContactQuery:
-    """Convert a ContactWrench request to a :class:`ContactQuery` with one pose.
+def contact_query_from_request(req: ContactWrench.Request,
+                               base_from_frame: Optional[np.ndarray] = None) -> ContactQuery:
+    """Convert a ContactWrench request to a :class:`ContactQuery` with one pose, in ``base``.
+
+    ``base_from_frame``: the (4, 4) transform ``base <- header.frame_id`` (the node looks it
+    up in the tf tree); ``None`` accepts only ``base`` (or an empty frame_id).
 
     Raises:
-        InvalidInput: a frame other than ``base``, empty/NaN/degenerate mesh, bad pose,
-            approach not unit, NaN centre.
+        InvalidInput: a frame other than ``base`` without its transform, empty/NaN/degenerate
+            mesh, bad pose, approach not unit, NaN centre.
 
     """
-    check_frame(req.header)
-    return ContactQuery(mesh=request_mesh(req), poses=(pose_from_msg(req.pose),),
-                        approach=unit_vector(req.approach, 'approach'),
-                        torque_centre=vec(req.torque_centre),
+    pose, approach = pose_from_msg(req.pose), unit_vector(req.approach, 'approach')
+    centre = vec(req.torque_centre)
+    if base_from_frame is None:
+        check_frame(req.header)
+    else:
+        m = np.asarray(base_from_frame, dtype=np.float64)
+        pose = Pose.from_matrix(m @ pose_to_matrix(pose))
+        approach, centre = m[:3, :3] @ approach, m[:3, :3] @ centre + m[:3, 3]
+    return ContactQuery(mesh=request_mesh(req), poses=(pose,), approach=approach,
+                        torque_centre=centre,
                         return_displacements=bool(req.return_displacements))
 
 
@@ -115,34 +126,85 @@ class BatchArrays(NamedTuple):
     torque_centre: np.ndarray  # (3,)
 
 
-def batch_arrays_from_request(req: ContactWrenchBatch.Request) -> BatchArrays:
+def batch_arrays_from_request(req: ContactWrenchBatch.Request,
+                              base_from_frame: Optional[np.ndarray] = None) -> BatchArrays:
     """Convert a ContactWrenchBatch request to arrays without a :class:`Pose` per pose.
 
     The batch service's form (10 000 poses convert in about 20 ms, a tenth of the Pose path).
+    ``base_from_frame`` as in :func:`contact_query_from_request`: every pose, the approach and
+    the torque centre are moved into ``base`` (a quaternion keeps its norm, so one that is not
+    unit is still refused, naming its row).
 
     Raises:
-        InvalidInput: a frame other than ``base``, no poses, a bad mesh, approach not unit, NaN
-            centre.
+        InvalidInput: a frame other than ``base`` without its transform, no poses, a bad mesh,
+            approach not unit, NaN centre.
 
     """
-    check_frame(req.header)
+    if base_from_frame is None:
+        check_frame(req.header)
     if len(req.poses) == 0:
         raise InvalidInput('poses: the batch is empty')
     centre = vec(req.torque_centre)
     if not np.all(np.isfinite(centre)):
         raise InvalidInput('torque_centre: non-finite value(s) (NaN or inf)')
-    return BatchArrays(mesh=request_mesh(req), poses=pose_rows_from_msgs(req.poses),
-                       approach=unit_vector(req.approach, 'approach'), torque_centre=centre)
+    rows, approach = pose_rows_from_msgs(req.poses), unit_vector(req.approach, 'approach')
+    if base_from_frame is not None:
+        m = np.asarray(base_from_frame, dtype=np.float64)
+        rows = np.column_stack([rows[:, :3] @ m[:3, :3].T + m[:3, 3],
+                                quaternion_product(Pose.from_matrix(m).orientation,
+                                                   rows[:, 3:])])
+        approach, centre = m[:3, :3] @ approach, m[:3, :3] @ centre + m[:3, 3]
+    return BatchArrays(mesh=request_mesh(req), poses=rows, approach=approach,
+                       torque_centre=centre)
+
+
+def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products ``a b`` of (4,) ``a`` and (B, 4) ``b``, x y z w, not normalised."""
+    ax, ay, az, aw = (float(v) for v in a)
+    bx, by, bz, bw = (np.asarray(b, dtype=np.float64)[:, k] for k in range(4))
+    return np.column_stack([aw * bx + ax * bw + ay * bz - az * by,
+                            aw * by - ax * bz + ay * bw + az * bx,
+                            aw * bz + ax * by - ay * bx + az * bw,
+                            aw * bw - ax * bx - ay * by - az * bz])
+
+
+def rows_in_frame(rows, rotation: Optional[np.ndarray]) -> np.ndarray:
+    """(B, 6) wrench rows ``[f, tau]`` rotated by ``rotation`` (frame <- base); None: as is."""
+    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 6)
+    if rotation is None:
+        return rows
+    r = np.asarray(rotation, dtype=np.float64)
+    return np.hstack([rows[:, :3] @ r.T, rows[:, 3:] @ r.T])
+
+
+def std_rows_in_frame(rows, rotation: Optional[np.ndarray]) -> np.ndarray:
+    """(B, 6) standard deviations of ``[f, tau]`` in the rotated frame; None: as is.
+
+    ``rotation``: frame <- base. The components are taken as independent (only their spreads
+    are known).
+    """
+    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 6)
+    if rotation is None:
+        return rows
+    r2 = np.asarray(rotation, dtype=np.float64) ** 2
+    return np.sqrt(np.hstack([rows[:, :3] ** 2 @ r2.T, rows[:, 3:] ** 2 @ r2.T]))
 
 
 def fill_contact_response(resp: ContactWrench.Response, result, model_version: int,
-                          with_displacements: bool) -> ContactWrench.Response:
-    """Write a core contact result into a ContactWrench response (success=True)."""
+                          with_displacements: bool,
+                          rotation: Optional[np.ndarray] = None) -> ContactWrench.Response:
+    """Write a core contact result into a ContactWrench response (success=True).
+
+    ``rotation`` (3, 3), frame <- base: the wrench is given in the request's frame.
+    """
     resp.success = True
     resp.message = ''
     force, torque = resp.wrench.force, resp.wrench.torque   # in place: no message built
-    force.x, force.y, force.z = (float(c) for c in result.wrench.force)
-    torque.x, torque.y, torque.z = (float(c) for c in result.wrench.torque)
+    f, tau = result.wrench.force, result.wrench.torque
+    if rotation is not None:
+        f, tau = rotation @ f, rotation @ tau
+    force.x, force.y, force.z = (float(c) for c in f)
+    torque.x, torque.y, torque.z = (float(c) for c in tau)
     resp.contact_count = int(result.contact_count)
     resp.max_displacement = float(result.max_displacement)
     resp.model_version = int(model_version)
@@ -152,13 +214,14 @@ def fill_contact_response(resp: ContactWrench.Response, result, model_version: i
     return resp
 
 
-def fill_batch_response(resp: ContactWrenchBatch.Response, batch,
-                        model_version: int) -> ContactWrenchBatch.Response:
+def fill_batch_response(resp: ContactWrenchBatch.Response, batch, model_version: int,
+                        rotation: Optional[np.ndarray] = None) -> ContactWrenchBatch.Response:
     """Write a batch result into a ContactWrenchBatch response (success=True).
 
-    ``batch`` has ``wrenches`` (B, 6), ``contact_count`` (B,) and ``max_displacement`` (B,).
+    ``batch`` has ``wrenches`` (B, 6), ``contact_count`` (B,) and ``max_displacement`` (B,);
+    ``rotation`` as in :func:`fill_contact_response`.
     """
-    wrenches = np.asarray(batch.wrenches, dtype=np.float64).reshape(-1, 6).tolist()
+    wrenches = rows_in_frame(batch.wrenches, rotation).tolist()
     resp.success = True
     resp.message = ''
     resp.wrenches = [WrenchMsg(force=Vector3(x=fx, y=fy, z=fz), torque=Vector3(x=tx, y=ty, z=tz))
@@ -169,13 +232,14 @@ def fill_batch_response(resp: ContactWrenchBatch.Response, batch,
     return resp
 
 
-def fill_wrench_std(resp, std) -> None:
+def fill_wrench_std(resp, std, rotation: Optional[np.ndarray] = None) -> None:
     """Write standard deviations (6,) or (B, 6) into a ContactWrench / batch response.
 
     A single response gets ``wrench_std`` and ``has_wrench_std = True``; a batch response gets
-    one ``wrench_stds`` entry per pose.
+    one ``wrench_stds`` entry per pose. ``rotation`` as in :func:`fill_contact_response`
+    (:func:`std_rows_in_frame`).
     """
-    rows = np.asarray(std, dtype=np.float64).reshape(-1, 6).tolist()
+    rows = std_rows_in_frame(std, rotation).tolist()
     msgs = [WrenchMsg(force=Vector3(x=fx, y=fy, z=fz), torque=Vector3(x=tx, y=ty, z=tz))
             for fx, fy, fz, tx, ty, tz in rows]
     if hasattr(resp, 'wrench_stds'):
@@ -192,25 +256,31 @@ def fail(resp, message: str):
     return resp
 
 
-def poke_goal_from_msg(goal: Poke.Goal) -> PokeGoal:
-    """Convert a Poke goal message to a :class:`PokeGoal`.
+def poke_goal_from_msg(goal: Poke.Goal,
+                       base_from_frame: Optional[np.ndarray] = None) -> PokeGoal:
+    """Convert a Poke goal message to a :class:`PokeGoal` in ``base``.
 
     The normal must be unit length unless ``surface_index`` selects a surface point;
-    ``surface_index`` is -1 (none) or an index >= 0, nothing else.
+    ``surface_index`` is -1 (none) or an index >= 0, nothing else. ``base_from_frame`` as in
+    :func:`contact_query_from_request` (the point and normal are moved into ``base``).
 
     Raises:
-        InvalidInput: a ``header.frame_id`` other than ``base`` (empty: ``base``), NaN fields,
-            a non-unit normal, or ``surface_index`` below -1.
+        InvalidInput: a ``header.frame_id`` other than ``base`` (empty: ``base``) without its
+            transform, NaN fields, a non-unit normal, or ``surface_index`` below -1.
 
     """
-    check_frame(goal.header)
+    if base_from_frame is None:
+        check_frame(goal.header)
     if goal.surface_index < -1:
         raise InvalidInput(f'surface_index {goal.surface_index}: must be -1 (use point and '
                            'normal) or a surface point index >= 0')
-    normal = vec(goal.normal)
+    normal, point = vec(goal.normal), vec(goal.point)
     if goal.surface_index < 0:
         normal = unit_vector(goal.normal, 'normal')
-    return PokeGoal(point=vec(goal.point), normal=normal, surface_index=goal.surface_index,
+    if base_from_frame is not None:
+        m = np.asarray(base_from_frame, dtype=np.float64)
+        point, normal = m[:3, :3] @ point + m[:3, 3], m[:3, :3] @ normal
+    return PokeGoal(point=point, normal=normal, surface_index=goal.surface_index,
                     force_limit=goal.force_limit, depth_limit=goal.depth_limit,
                     speed=goal.speed, standoff=goal.standoff)
 

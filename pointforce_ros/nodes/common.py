@@ -349,23 +349,32 @@ class TfListener:
     :attr:`last_refusal` and logged (throttled), and the others of the message still go in.
     The two subscriptions have a callback group of their own, so a callback that waits for a
     transform (:meth:`TransformBuffer.wait_transform`) does not hold them up on a
-    multi-threaded executor.
+    multi-threaded executor; or, with ``loop`` (a node's
+    :class:`~pointforce_ros.nodes.service_loop.ServiceLoop`, not started yet), they are taken
+    on that loop's thread, off the executor (a real cell's ``/tf`` runs at the arm's rate:
+    500 Hz from a UR driver).
     """
 
     def __init__(self, node: Node, buffer: TransformBuffer, tf_topic: str = '/tf',
-                 static_topic: str = '/tf_static'):
-        """Subscribe ``node`` to the two topics (absolute by default, as tf2_ros does)."""
+                 static_topic: str = '/tf_static', loop=None):
+        """Subscribe ``node`` to the two topics (absolute by default, as tf2_ros does).
+
+        An empty name subscribes to none.
+        """
         self.node, self.buffer = node, buffer
         self.received = 0
         """Transforms taken since the start."""
         self.last_refusal = ''
         group = MutuallyExclusiveCallbackGroup()
-        node.create_subscription(TFMessage, tf_topic,
-                                 contained(node, 'tf', lambda m: self._on(m, False)), TF_QOS,
-                                 callback_group=group)
-        node.create_subscription(TFMessage, static_topic,
-                                 contained(node, 'tf_static', lambda m: self._on(m, True)),
-                                 TF_STATIC_QOS, callback_group=group)
+        for topic, static, qos in ((tf_topic, False, TF_QOS),
+                                   (static_topic, True, TF_STATIC_QOS)):
+            if not topic:
+                continue
+            callback = contained(node, topic, lambda m, s=static: self._on(m, s))
+            if loop is None:
+                node.create_subscription(TFMessage, topic, callback, qos, callback_group=group)
+            else:
+                loop.add_subscription(TFMessage, topic, callback, qos)
 
     def _on(self, msg: TFMessage, static: bool) -> None:
         for t in msg.transforms:
@@ -400,6 +409,29 @@ def frame_to_base(tf: Optional[TransformBuffer], base: str, frame: str,
     if tf is None:
         raise InvalidInput(f'frame {frame!r} is not {base!r}, and there is no tf tree')
     return tf.lookup(base, frame, float(stamp) or None)
+
+
+def request_to_base(tf: TransformBuffer, base: str, header, dynamic: bool
+                    ) -> Optional[np.ndarray]:
+    """``None`` for a request stamped in ``base`` (or unstamped), else ``base <- frame_id``.
+
+    A request in another frame is placed through the tf tree at its stamp (0: the latest):
+    ``/tf_static``, and ``/tf`` too when the node listens to it (``dynamic``).
+
+    Raises:
+        InvalidInput: the tree cannot place the frame (the reason, about the request).
+
+    """
+    frame = header.frame_id
+    if frame in ('', base):
+        return None
+    try:
+        return frame_to_base(tf, base, frame, stamp_to_sec(header.stamp))
+    except InvalidInput as exc:
+        raise InvalidInput(f'header.frame_id {frame!r}: {exc}; publish its transform to '
+                           f'{base!r} on /tf_static' + ('' if dynamic else
+                                                        ' (or set tf_dynamic for /tf)')
+                           + f', or send the request in {base!r}') from None
 
 
 class CameraFrame:

@@ -46,11 +46,13 @@ from visualization_msgs.msg import MarkerArray
 from msg_adapters.contact_markers import contact_markers
 from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_from_request,
                                      fail, fill_batch_response, fill_contact_response,
-                                     fill_wrench_std)
+                                     fill_wrench_std, MODEL_FRAME)
 from pointforce_ros.errors import PointforceError
+from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import (build_node, declare, init_or_exit, live,
-                                         publish_health, report_folder)
+                                         publish_health, report_folder, request_to_base,
+                                         TfListener)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
 from pointforce_ros.response.blas import limit_blas_for_process
@@ -151,6 +153,14 @@ class ContactWrenchNode(Node):
                            'its next request up to 2x slower; a planner that sends bursts of '
                            'queries gets them faster for this much CPU per burst, ms',
                            bounds=(0.0, 100.0))
+        tf_dynamic = declare(self, 'tf_dynamic', False,
+                             'Also listen on /tf (transforms that move), not only /tf_static, '
+                             'for requests stamped in a frame other than base: costs CPU at '
+                             'the rate /tf is published (500 Hz from a UR driver)',
+                             read_only=True)
+        self.tf = TransformBuffer()
+        self.tf_listener = TfListener(self, self.tf, tf_topic='/tf' if tf_dynamic else '')
+        self.tf_listener_dynamic = tf_dynamic
         self.server = WrenchServer(spacing=spacing, series_compliance=series,
                                    hold_time=hold_time, limits=limits)
         self.requests_served = 0
@@ -329,15 +339,19 @@ class ContactWrenchNode(Node):
         start = time.perf_counter()
         deadline = time.monotonic() + self.server.limits.max_seconds   # answer and spread
         try:
-            query = contact_query_from_request(request)
+            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic)
+            rotation = None if m is None else m[:3, :3].T      # the request's frame <- base
+            query = contact_query_from_request(request, m)
             result, version = self.server.answer(query)
-            fill_contact_response(response, result, version, query.return_displacements)
+            fill_contact_response(response, result, version, query.return_displacements,
+                                  rotation)
             response.message = self.server.depth_note(result)
             if self.uncertainty and not request.skip_uncertainty:
                 pose = query.poses[0]
                 self._add_uncertainty(response, query.mesh,
                                       np.concatenate([pose.position, pose.orientation])[None],
-                                      query.approach, query.torque_centre, version, deadline)
+                                      query.approach, query.torque_centre, version, deadline,
+                                      rotation)
             self.requests_served += 1
             self._last = (result, version)      # one reference store; the timer draws it
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
@@ -352,28 +366,30 @@ class ContactWrenchNode(Node):
                 self.requests_failed += 1
                 return fail(response, f'poses: {len(request.poses)} exceeds max_batch '
                                       f'{self.max_batch}')
-            query = batch_arrays_from_request(request)
+            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic)
+            rotation = None if m is None else m[:3, :3].T
+            query = batch_arrays_from_request(request, m)
             batch, version = self.server.answer_rows(*query)
-            fill_batch_response(response, batch, version)
+            fill_batch_response(response, batch, version, rotation)
             response.message = self.server.depth_note(batch)
             if self.uncertainty and not request.skip_uncertainty:
-                self._add_uncertainty(response, *query, version, deadline)
+                self._add_uncertainty(response, *query, version, deadline, rotation)
             self.requests_served += 1
         except Exception as exc:  # noqa: BLE001 - a service never raises into rclpy
             self._refuse(response, 'contact_wrench_batch', exc)
         return response
 
     def _add_uncertainty(self, response, mesh, rows, approach, torque_centre, version,
-                         deadline):
+                         deadline, rotation=None):
         """Fill the answer's standard deviations; a failure keeps the answer, says why.
 
         ``deadline`` (``time.monotonic()``) is the request's: the answer and its spread share
-        one ``max_request_seconds``.
+        one ``max_request_seconds``. ``rotation``: the request's frame <- base, or None.
         """
         try:
             fill_wrench_std(response, self.server.uncertainty(mesh, rows, approach,
                                                               torque_centre, version,
-                                                              deadline))
+                                                              deadline), rotation)
         except Exception as exc:  # noqa: BLE001 - the wrench stands without its spread
             reason = str(exc) if isinstance(exc, PointforceError) else (
                 'not enough memory' if isinstance(exc, MemoryError)

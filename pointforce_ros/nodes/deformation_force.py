@@ -264,7 +264,7 @@ class DeformationForceNode(Node):
         # the arm's and camera's streams on a wait loop of their own, one thread as before:
         # the executor spent about 0.8 ms of CPU per 250 Hz message (see ServiceLoop)
         self._stream_loop = ServiceLoop(self)
-        self.tf_listener = TfListener(self, self.tf)
+        self.tf_listener = TfListener(self, self.tf, loop=self._stream_loop)
         self.force_pub = self.create_publisher(WrenchStamped, '~/force', 10)
         self.consistency_pub = self.create_publisher(DiagnosticStatus, '~/ft_consistency', 10)
         self.create_subscription(PointCloud2, 'cloud_capture/surface', self._on_surface,

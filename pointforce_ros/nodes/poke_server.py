@@ -8,7 +8,8 @@ receive interface streams TCP pose and wrench at 250 Hz, de-duplicated on contro
 ``~/tcp_pose`` (``base``) and ``~/wrench`` (``tool0_controller``) and into the poke record.
 Feedback names the phase (``PHASE_*`` of Poke.action): one message as each of approach, tare,
 push, hold and retract begins, and ``feedback_rate`` messages per second during the push. A goal
-whose ``header.frame_id`` is not ``base`` (empty: ``base``) is rejected with the reason.
+stamped in another frame than ``base`` (empty: ``base``) is moved into ``base`` through the tf
+tree (``/tf_static``; ``/tf`` too with ``tf_dynamic``), or rejected with the reason.
 Cancel stops the arm (asynchronous moveL + stopL) and retracts. A protective stop, a lost
 connection or a stalled F/T stream aborts with a message, after retracting where possible.
 Every poke, completed, canceled or aborted, is written to the poke store (rosbag2 MCAP) before
@@ -38,11 +39,13 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from msg_adapters.geometry import sec_to_stamp
-from msg_adapters.interfaces import (poke_feedback_msg, poke_goal_from_msg, poke_result_msg)
+from msg_adapters.interfaces import (MODEL_FRAME, poke_feedback_msg, poke_goal_from_msg,
+                                     poke_result_msg)
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.errors import DeviceFault, PointforceError
+from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.nodes.common import (declare, destroy_waitables, live, publish_health,
-                                         run)
+                                         request_to_base, run, TfListener)
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.rotations import rotvec_aligning_z, rotvec_matrix_and_quaternion
@@ -182,6 +185,12 @@ class PokeServerNode(Node):
         self.samples_refused = 0
         self.last_rejection = ''   # why the last goal was rejected (also logged)
         self.surface = None
+        self.tf_dynamic = declare(self, 'tf_dynamic', False,
+                                  'Also listen on /tf (transforms that move), not only '
+                                  '/tf_static, for goals stamped in a frame other than base',
+                                  read_only=True)
+        self.tf = TransformBuffer()
+        self.tf_listener = TfListener(self, self.tf, tf_topic='/tf' if self.tf_dynamic else '')
         group = ReentrantCallbackGroup()
         self.wrench_pub = self.create_publisher(WrenchStamped, '~/wrench', STREAM)
         self.pose_pub = self.create_publisher(PoseStamped, '~/tcp_pose', STREAM)
@@ -359,7 +368,7 @@ class PokeServerNode(Node):
                 self.get_logger().error(f'the last accepted poke goal did not start within '
                                         f'{self.START_TIMEOUT:g} s; taking its lock back')
             try:
-                check_goal(poke_goal_from_msg(goal_msg), self.limits, self.surface)
+                check_goal(self._goal(goal_msg), self.limits, self.surface)
             except Exception as exc:  # noqa: BLE001 - every bad goal is rejected with a reason
                 self._busy.release()
                 reason = str(exc) if isinstance(exc, PointforceError) else (
@@ -391,9 +400,14 @@ class PokeServerNode(Node):
             self._executing = False
             self._busy.release()   # taken by _on_goal when this goal was accepted
 
+    def _goal(self, goal_msg):
+        """Return the goal in base: one stamped in another frame is placed through tf."""
+        return poke_goal_from_msg(goal_msg, request_to_base(self.tf, MODEL_FRAME,
+                                                            goal_msg.header, self.tf_dynamic))
+
     def _run_poke(self, goal_handle):
         try:
-            goal = poke_goal_from_msg(goal_handle.request)
+            goal = self._goal(goal_handle.request)
             point, normal = check_goal(goal, self.limits, self.surface)
             arm = self._connect()
         except PointforceError as exc:

@@ -18,11 +18,14 @@ from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from scipy.spatial.transform import Rotation
+from tf2_msgs.msg import TFMessage
 
+from msg_adapters.geometry import transform_to_msg
 from msg_adapters.interfaces import poke_goal_to_msg
 from pointforce_ros.drivers.ur_arm import ArmSample, PushResult
 from pointforce_ros.errors import DataError
-from pointforce_ros.nodes.common import destroy_node
+from pointforce_ros.nodes.common import destroy_node, TF_STATIC_QOS
 from pointforce_ros.nodes.poke_server import PokeServerNode, REQUESTS, stream_messages
 from pointforce_ros.pokes.store import load_recovery, PokeStore
 from pointforce_ros.rotations import quaternion_to_matrix, rotvec_to_matrix
@@ -72,6 +75,7 @@ class ScriptedArm(IdleArm):
     def push_until(self, standoff, direction, *, force_limit, travel_limit, speed,
                    approach_speed, retract_speed, cancel, max_force, max_travel, phase=None):
         self.pushes += 1
+        self.last_push = (np.array(standoff, float), np.array(direction, float))
         deadline = time.monotonic() + self.duration
         while time.monotonic() < deadline:
             if cancel():
@@ -290,6 +294,31 @@ def test_samples_a_record_refuses_are_kept_raw_and_the_message_says_where(script
         assert len(z['t_controller']) == arm.samples and z['t_controller'][50] == z[
             't_controller'][10]
         assert 'strictly increasing' in json.loads(bytes(z['header']).decode())['error']
+
+
+def test_a_goal_in_a_frame_tf_places_pokes_the_same_point_in_base(scripted):
+    """Session 41: a planner's goal in ``world`` was rejected; with ``world <- base`` on
+    /tf_static the point and normal are moved into ``base``."""
+    graph, server, client, arms, _ = scripted
+    world_from_base = np.eye(4)
+    world_from_base[:3, :3] = Rotation.random(random_state=3).as_matrix()
+    world_from_base[:3, 3] = [2.0, -1.0, 0.8]
+    probe = graph.add(Node('world_publisher', context=graph.context))
+    probe.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS).publish(
+        TFMessage(transforms=[transform_to_msg(world_from_base, 'world', 'base')]))
+    graph.wait_for(lambda: server.tf.knows('world'), 10, 'world <- base on /tf_static')
+    point, normal = np.array([0.5, 0.0, 0.04]), np.array([0.0, 0.6, 0.8])
+    goal = poke_goal_to_msg(PokeGoal(point=world_from_base[:3, :3] @ point
+                                     + world_from_base[:3, 3],
+                                     normal=world_from_base[:3, :3] @ normal, force_limit=3.0,
+                                     depth_limit=0.008, speed=0.005, standoff=0.008))
+    goal.header.frame_id = 'world'
+    handle = graph.wait_future(client.send_goal_async(goal), 20, 'goal response')
+    assert handle.accepted, server.last_rejection
+    assert graph.wait_future(handle.get_result_async(), 30, 'result').status == 4
+    standoff, direction = arms[0].last_push
+    np.testing.assert_allclose(standoff[:3], point + 0.008 * normal, atol=1e-9)
+    np.testing.assert_allclose(direction, -normal, atol=1e-9)
 
 
 @pytest.mark.parametrize('frame, accepted', [('', True), ('base', True), ('tool0', False),

@@ -1,10 +1,12 @@
 """Stamped contact requests, the flat mesh form and the Poke constants (issue 21).
 
 A planner's frame mistake used to be silent: the request carried a bare Pose with ``base``
-implied. Now the request carries a header; a frame the model is not in is refused with a reason.
+implied. Now the request carries a header; a frame the tf tree cannot place in the model's
+frame is refused with a reason, and one it can (session 41) is answered in that frame.
 """
 
 import array
+import dataclasses
 
 import numpy as np
 import pytest
@@ -13,12 +15,16 @@ from pointforce_interfaces.action import Poke
 from pointforce_interfaces.srv import ContactWrench, ContactWrenchBatch
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from scipy.spatial.transform import Rotation
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
-from msg_adapters.geometry import mesh_to_flat, mesh_to_msg, pose_to_msg, to_point
+from msg_adapters.geometry import (mesh_to_flat, mesh_to_msg, pose_to_msg, to_point,
+                                   transform_to_msg, vec)
 from pointforce_ros.bringup.bench_ros import round_trip
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
+from pointforce_ros.nodes.common import TF_STATIC_QOS
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.types import Pose
@@ -54,6 +60,76 @@ def test_a_request_in_another_frame_is_refused_with_the_reason(ros_graph, tmp_pa
             assert not resp.success
             assert 'header.frame_id' in resp.message and repr(frame) in resp.message
             assert "'base'" in resp.message
+
+
+def _wrench_rows(wrenches):
+    return np.array([np.concatenate([vec(w.force), vec(w.torque)]) for w in wrenches])
+
+
+@pytest.mark.parametrize('turn', ['quarter', 'any'])
+def test_a_request_in_a_frame_tf_places_is_answered_in_that_frame(ros_graph, tmp_path, turn):
+    """Session 41: a planner's query in ``world`` (MoveIt's planning frame) was refused; with
+    ``world <- base`` on /tf_static it is moved into ``base`` and answered in ``world``."""
+    base = patch_contact_model(spacing=0.003)   # with a spread, so wrench_std is answered
+    save_model(dataclasses.replace(base, meta={**base.meta, 'shape_cov': [[0.04, 0.5],
+                                                                          [0.5, 400.0]],
+                                               'relative_std': 0.05, 'lateral_std': 0.02}),
+               tmp_path / 'models')
+    node = ros_graph.add(ContactWrenchNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('model_dir', value=str(tmp_path / 'models'))]))
+    probe = ros_graph.add(Node('world_probe', context=ros_graph.context))
+    world_from_base = np.eye(4)
+    world_from_base[:3, :3] = (Rotation.from_euler('z', 90, degrees=True) if turn == 'quarter'
+                               else Rotation.random(random_state=7)).as_matrix()
+    world_from_base[:3, 3] = [1.2, -0.4, 0.75]
+    probe.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS).publish(
+        TFMessage(transforms=[transform_to_msg(world_from_base, 'world', 'base')]))
+    ros_graph.wait_for(lambda: node.tf.knows('world'), 10, 'world <- base on /tf_static')
+    single = probe.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    batch = probe.create_client(ContactWrenchBatch, '/contact_wrench/contact_wrench_batch')
+    assert single.wait_for_service(timeout_sec=30.0) and batch.wait_for_service(timeout_sec=30.0)
+    rot = world_from_base[:3, :3]
+    poses = [np.eye(4), np.eye(4)]
+    # off the surface grid's symmetries: there a sample point sits on a cell boundary, and the
+    # 1e-16 round-off of a frame change moves the answer by up to 1 % (0.503, 0.002, 0.057
+    # with a 10 degree tilt: 1.9273 N, 1.9116 N 1e-15 m away)
+    poses[0][:3, 3], poses[1][:3, 3] = [0.5007, 0.0011, 0.0583], [0.5031, 0.0023, 0.0571]
+    poses[1][:3, :3] = Rotation.from_euler('x', 10, degrees=True).as_matrix()
+    approach, centre = np.array([0.0, 0.0, -1.0]), np.array([0.5, 0.0, 0.06])
+
+    def ask(frame, m):
+        common = dict(header=Header(frame_id=frame), mesh=mesh_to_msg(icosphere(0.02, 1)),
+                      approach=Vector3(**dict(zip('xyz', (m[:3, :3] @ approach).tolist()))),
+                      torque_centre=to_point(m[:3, :3] @ centre + m[:3, 3]))
+        msgs = [pose_to_msg(Pose.from_matrix(m @ p)) for p in poses]
+        _, one = round_trip(single, ContactWrench.Request(pose=msgs[1], **common), 20, frame)
+        _, many = round_trip(batch, ContactWrenchBatch.Request(poses=msgs, **common), 20,
+                             frame)
+        assert one.success and many.success, (one.message, many.message)
+        return one, many
+
+    in_base, in_world = ask('base', np.eye(4)), ask('world', world_from_base)
+    assert in_base[0].wrench.force.z > 0.1 and in_base[0].has_wrench_std
+    for base_rows, world_rows in ((_wrench_rows([in_base[0].wrench]),
+                                   _wrench_rows([in_world[0].wrench])),
+                                  (_wrench_rows(in_base[1].wrenches),
+                                   _wrench_rows(in_world[1].wrenches))):
+        np.testing.assert_allclose(world_rows[:, :3], base_rows[:, :3] @ rot.T, atol=1e-6)
+        np.testing.assert_allclose(world_rows[:, 3:], base_rows[:, 3:] @ rot.T, atol=1e-7)
+    assert in_world[0].contact_count == in_base[0].contact_count
+    if turn == 'quarter':       # the spread of x in base is the spread of y in world
+        std_b = _wrench_rows([in_base[0].wrench_std])
+        std_w = _wrench_rows([in_world[0].wrench_std])
+        np.testing.assert_allclose(std_w[0, [1, 0, 2]], std_b[0, :3], rtol=1e-6, atol=1e-9)
+    # a frame the tree does not hold is still refused, naming what to do
+    _, refused = round_trip(single, ContactWrench.Request(
+        header=Header(frame_id='tool0'), pose=pose_to_msg(Pose(position=[0.5, 0.0, 0.058])),
+        mesh=mesh_to_msg(icosphere(0.02, 1)), approach=Vector3(x=0.0, y=0.0, z=-1.0)), 20, 't')
+    assert not refused.success and "'tool0'" in refused.message
+    assert 'tf_dynamic' in refused.message and 'world' in refused.message
+    # the batch's second pose is the single query's
+    np.testing.assert_allclose(_wrench_rows(in_world[1].wrenches)[1],
+                               _wrench_rows([in_world[0].wrench])[0], atol=1e-6)
 
 
 def test_poke_outcomes_and_phases_are_interface_constants():

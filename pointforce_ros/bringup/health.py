@@ -4,9 +4,13 @@ There is no rqt_robot_monitor or ros2cli in this environment; this listens to ``
 (``diagnostic_msgs/DiagnosticArray``, each node's report once a second:
 :func:`pointforce_ros.nodes.common.publish_health`) for ``wait`` seconds in the ROS graph of
 this environment (``ROS_DOMAIN_ID``), keeps each status name's newest report, and prints one
-line per name: level, name, message (``--json``: one object with the values too). The exit
-code says the worst level heard: 0 every report OK, 1 a WARN, 2 an ERROR or a stale report,
-3 no report at all (no node of the cell running in this domain).
+line per name: level, name, message (``--json``: one object with the values too). When
+``wait`` ends with nothing heard, or with a ``/diagnostics`` publisher discovered that has not
+reported yet, it listens up to :data:`LATE_GRACE` seconds more: a new DDS participant here
+sometimes discovers the nodes only 1.7 s after it starts, or later (seen in session 41 beside
+a participant that had just left), and a 2.5 s wait then heard nothing. The exit code says the worst level heard: 0 every
+report OK, 1 a WARN, 2 an ERROR or a stale report, 3 no report at all (no node of the cell
+running in this domain).
 """
 
 import json
@@ -22,6 +26,9 @@ from pointforce_ros.errors import InvalidInput
 LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 EXIT_NONE = 3
 """Exit code when no report was heard."""
+
+LATE_GRACE = 3.0
+"""Seconds past ``wait`` spent waiting for a discovered publisher's first report."""
 
 
 def collect(launcher, wait: float) -> Dict[str, dict]:
@@ -41,8 +48,17 @@ def collect(launcher, wait: float) -> Dict[str, dict]:
                                       stamp=stamp)
     node = launcher.add(Node('pointforce_health', context=launcher.context))
     node.create_subscription(DiagnosticArray, '/diagnostics', on_report, 50)
-    time.sleep(wait)
-    return dict(heard)
+    start = time.monotonic()
+    while True:
+        time.sleep(0.05)
+        elapsed = time.monotonic() - start
+        if elapsed < wait:
+            continue
+        publishers = {info.node_name for info in
+                      node.get_publishers_info_by_topic('/diagnostics')}
+        reported = {name.split(':', 1)[0] for name in list(heard)}
+        if (heard and publishers <= reported) or elapsed >= wait + LATE_GRACE:
+            return dict(heard)
 
 
 def run_health(wait: float = 3.0, json_out: bool = False) -> int:

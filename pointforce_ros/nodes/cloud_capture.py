@@ -154,6 +154,7 @@ class CloudCaptureNode(Node):
                   'surface_points': 0 if surface is None else len(surface),
                   'camera_frame': self.camera_frame.camera or '',
                   'tf_frames': len(self.tf.frames()),
+                  'tf_refused': self.tf.refused,
                   'last_refusal': self._refusal}
         why = f' (last refusal: {self._refusal})' if self._refusal else ''
         if latest is None and surface is None:

@@ -420,7 +420,8 @@ class DeformationForceNode(Node):
         values = {'clouds_received': received, 'clouds_since_last': received - before,
                   'observations_held': held,
                   'model_version': -1 if model is None else model.version,
-                  'rest_mesh_nodes': 0 if rest is None else rest[0].n_nodes}
+                  'rest_mesh_nodes': 0 if rest is None else rest[0].n_nodes,
+                  'tf_frames': len(self.tf.frames()), 'tf_refused': self.tf.refused}
         if model is not None:
             young = np.atleast_1d(np.asarray(model.young, dtype=float))
             values.update(young_pa=f'{np.median(young):.4g}', poisson=f'{model.poisson:.3f}')

@@ -16,6 +16,7 @@ from tf2_msgs.msg import TFMessage
 from msg_adapters.geometry import pose_stamped_to_msg, transform_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud, surface_from_msg
 from pointforce_ros.sim.camera import DepthCamera, look_at
+from pointforce_ros import frames
 from pointforce_ros.model.files import load_surface
 from pointforce_ros.rotations import pose_to_matrix
 from pointforce_ros.nodes.cloud_capture import CloudCaptureNode, LATCHED
@@ -162,7 +163,19 @@ def test_clouds_are_moved_through_the_tf_tree_at_their_own_stamp(ros_graph, tmp_
     assert not refused.success and 'not connected' in refused.message, refused.message
     assert "'world'" in refused.message and "'base'" in refused.message
     assert len(node._scans) == 1
-    assert int(node.health()[2]['tf_frames']) == 6
+    values = node.health()[2]
+    assert int(values['tf_frames']) == 6 and int(values['tf_refused']) == 1
+    # a hostile flood: 12 000 new frames in one message, then NaN; the tree stops at its
+    # bound, says why, and the node goes on placing clouds
+    flood = [transform_to_msg(arm[0], 'base', f'junk{k}', 11.0) for k in range(12_000)]
+    tf_pub.publish(TFMessage(transforms=flood))
+    ros_graph.wait_for(lambda: node.tf.refused > 1, 30, 'the flood refused past the bound')
+    ros_graph.wait_for(lambda: node.tf_listener.received + node.tf.refused >= 12_006, 30,
+                       'the whole flood taken')
+    assert len(node.tf.frames()) == frames.MAX_FRAMES
+    assert 'frames, at most' in node.tf_listener.last_refusal
+    latest(10.25)
+    assert _call(ros_graph, add, 'add_scan after the flood').success
 
 
 def test_bad_or_missing_cloud_is_refused_and_node_keeps_serving(ros_graph, tmp_path):

@@ -8,9 +8,9 @@ line per name: level, name, message (``--json``: one object with the values too)
 ``wait`` ends with nothing heard, or with a ``/diagnostics`` publisher discovered that has not
 reported yet, it listens up to :data:`LATE_GRACE` seconds more: a new DDS participant here
 sometimes discovers the nodes only 1.7 s after it starts, or later (seen in session 41 beside
-a participant that had just left), and a 2.5 s wait then heard nothing. The exit code says the worst level heard: 0 every
-report OK, 1 a WARN, 2 an ERROR or a stale report, 3 no report at all (no node of the cell
-running in this domain).
+a participant that had just left), and a 2.5 s wait then heard nothing. The exit code says
+the worst level heard: 0 every report OK, 1 a WARN, 2 an ERROR or a stale report, 3 no
+report at all (no node of the cell running in this domain).
 """
 
 import json

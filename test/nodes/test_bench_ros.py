@@ -109,12 +109,15 @@ def test_bench_ros_reports_round_trips_beside_core_and_trigger():
     assert out['single_rtt_direct_client_p50_ms'] > 0.8 * out['core_query_p50_ms']
     assert out['single_rtt_after_idle_p50_ms'] > 0.8 * out['core_query_p50_ms']
     assert out['single_rtt_p99_ms'] >= out['single_rtt_p50_ms']
-    # the service's own account of the DirectClient series: each stage is a part of the trip.
-    # Medians do not add up: the stages' medians summed can pass the trips' median when the
-    # client's own share is small (a fresh clone, session 41: 0.7387 against 0.7384 ms), so
-    # the sum is held to the trip within 10 % (a stage timed twice would double it)
+    # the service's own account of the DirectClient lane: each stage is a part of the trip.
+    # The lane's timing window holds both of its series, the bursts and the calls after idle
+    # (slower on a VM), and medians do not add up: the stages' medians summed passed the
+    # bursts' median in two fresh clones of session 41 (0.7387 against 0.7384 ms, 1.025
+    # against 0.917 ms). So the sum is held to the slower series' median within 10 % (a
+    # stage timed twice would double it)
     stages = [out[f'service_{stage}_p50_ms'] for stage in ('take', 'callback', 'send')]
-    assert min(stages) > 0 and sum(stages) < 1.1 * out['single_rtt_direct_client_p50_ms']
+    slower = max(out['single_rtt_direct_client_p50_ms'], out['single_rtt_after_idle_p50_ms'])
+    assert min(stages) > 0 and sum(stages) < 1.1 * slower
     assert out['service_callback_p50_ms'] > max(out['service_take_p50_ms'],
                                                 out['service_send_p50_ms'])
     # no such bound for the batch: the service solves a batch's chunks on its worker threads,

@@ -55,7 +55,10 @@ def test_the_quick_fault_bench_counts_what_it_injected(tmp_path):
     assert held['held_mid_push'] and held['stored'] and held['outcome'] == 'force_limit', held
     # the 60 ms the worker was stopped: about 15 slots missed, every run of them reported
     assert held['slots_missed'] >= 10 and held['runs_unreported'] == 0, held
-    assert held['longest_held_ms'] >= 55, held
+    # not asserted: how long the poller was held (longest_held_ms). A fresh clone of session
+    # 41 read 0.6 ms: after SIGCONT ur_rtde's receive thread drains the buffered packets, the
+    # poller keeps the first (the next slot: no loss, its held time reset), and the other 14
+    # come in a burst between two polls on time
     bag = faults['corrupt_newest_bag']
     assert not bag['id_reused'] and bag['pokes_lost'] == 0 and bag['next_id'] > bag['corrupted']
     pokes = report['pokes']

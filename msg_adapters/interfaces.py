@@ -19,7 +19,7 @@ from std_msgs.msg import Header
 from msg_adapters.geometry import (mesh_from_flat, mesh_from_msg, pose_from_msg, to_point,
                                    to_vector3, unit_vector, vec)
 from pointforce_ros.errors import InvalidInput
-from pointforce_ros.rotations import pose_to_matrix
+from pointforce_ros.rotations import pose_to_matrix, quaternion_product
 from pointforce_ros.types import ContactQuery, Mesh, Pose, PokeGoal
 
 
@@ -156,16 +156,6 @@ def batch_arrays_from_request(req: ContactWrenchBatch.Request,
         approach, centre = m[:3, :3] @ approach, m[:3, :3] @ centre + m[:3, 3]
     return BatchArrays(mesh=request_mesh(req), poses=rows, approach=approach,
                        torque_centre=centre)
-
-
-def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products ``a b`` of (4,) ``a`` and (B, 4) ``b``, x y z w, not normalised."""
-    ax, ay, az, aw = (float(v) for v in a)
-    bx, by, bz, bw = (np.asarray(b, dtype=np.float64)[:, k] for k in range(4))
-    return np.column_stack([aw * bx + ax * bw + ay * bz - az * by,
-                            aw * by - ax * bz + ay * bw + az * bx,
-                            aw * bz + ax * by - ay * bx + az * bw,
-                            aw * bw - ax * bx - ay * by - az * bz])
 
 
 def rows_in_frame(rows, rotation: Optional[np.ndarray]) -> np.ndarray:

@@ -329,7 +329,8 @@ class TransformBuffer:
         if target == source:
             return np.eye(4)
         up_source, up_target = self._ancestors(source), self._ancestors(target)
-        common = next((f for f in up_source if f in set(up_target)), None)
+        above_target = set(up_target)
+        common = next((f for f in up_source if f in above_target), None)
         if common is None:
             raise TransformUnavailable(
                 f'frames {target!r} and {source!r} are not connected (their roots are '

@@ -91,6 +91,16 @@ def quaternion_to_matrix(q) -> np.ndarray:
                      [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)]])
 
 
+def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products ``a b`` of (4,) ``a`` and (B, 4) ``b``, x y z w, not normalised."""
+    ax, ay, az, aw = (float(v) for v in a)
+    bx, by, bz, bw = (np.asarray(b, dtype=np.float64)[:, k] for k in range(4))
+    return np.column_stack([aw * bx + ax * bw + ay * bz - az * by,
+                            aw * by - ax * bz + ay * bw + az * bx,
+                            aw * bz + ax * by - ay * bx + az * bw,
+                            aw * bw - ax * bx - ay * by - az * bz])
+
+
 def quaternion_to_rotvec(q) -> np.ndarray:
     """(..., 4) quaternions (x, y, z, w) -> (..., 3) rotation vectors, angle in [0, pi]."""
     flat, lead = _flat(q, 1)

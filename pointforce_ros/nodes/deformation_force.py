@@ -131,6 +131,12 @@ MAX_IDENTIFY_POKES = 16
 site; a request naming one observation 1000 times would have run for minutes."""
 
 
+def _moved(a: Pose, b: Pose) -> bool:
+    """Return whether a camera moved from ``a`` to ``b``: over 1 mm, or about 0.5 degrees."""
+    return bool(np.linalg.norm(b.position - a.position) > 1e-3
+                or abs(float(np.dot(b.orientation, a.orientation))) < 0.99999)
+
+
 def _reason(exc: Exception) -> str:
     """Return one line on why a request failed, whatever ``exc`` was."""
     return failure_reason(exc, 'the mesh or the cloud is too large for this machine (raise '
@@ -232,7 +238,7 @@ class DeformationForceNode(Node):
             raise InvalidInput(f'camera_pose: {exc}') from exc
         self._lock = threading.Lock()
         self._camera_pose = None
-        self._tf_camera = None      # (frame, (4, 4) base <- frame) of the last cloud moved by tf
+        self._tf_camera = None      # (frame, Pose in base) of the last cloud moved by tf
         self._tcp = None            # (position (3,), rotation (3, 3)) in base
         self._ft = None             # force on the object, base, N
         self._contact = None        # contact point of the running poke, or None
@@ -464,9 +470,7 @@ class DeformationForceNode(Node):
             self.get_logger().warn(f'ignoring camera pose: {exc}', throttle_duration_sec=5.0)
             return
         with self._lock:
-            moved = self._camera_pose is not None and (
-                np.linalg.norm(pose.position - self._camera_pose.position) > 1e-3
-                or abs(float(np.dot(pose.orientation, self._camera_pose.orientation))) < 0.99999)
+            moved = self._camera_pose is not None and _moved(self._camera_pose, pose)
             self._camera_pose = pose
         if moved:   # the rest frames were of another viewpoint
             self._rest_frames.clear()
@@ -544,9 +548,11 @@ class DeformationForceNode(Node):
         if len(raw) and not len(points):
             raise InvalidInput(f'cloud: all {len(raw)} points are NaN or inf (no valid depth)')
         frame = msg.header.frame_id
+        if not frame or frame == self.frame:        # in base already (unstamped: base too)
+            return points
         m = self.camera_frame.to_base(frame, stamp_to_sec(msg.header.stamp), 'base',
                                       self._camera_matrix, wait=self.tf_wait)
-        if frame and frame != self.frame and self.tf.knows(frame):
+        if self.tf.knows(frame):
             self._tf_camera_moved(frame, m)
         return points @ m[:3, :3].T + m[:3, 3]
 
@@ -555,11 +561,10 @@ class DeformationForceNode(Node):
             return pose_to_matrix(self._camera_pose or self.default_pose)
 
     def _tf_camera_moved(self, frame: str, m: np.ndarray) -> None:
-        """Forget the rest frames when the tf pose of the clouds' frame moved (> 1 mm, 0.5 deg)."""
-        last, self._tf_camera = self._tf_camera, (frame, m)
-        if last is None or (last[0] == frame and np.linalg.norm(last[1][:3, 3] - m[:3, 3]) <= 1e-3
-                            and np.trace(last[1][:3, :3].T @ m[:3, :3]) >= 1.0 + 2.0 * np.cos(
-                                np.radians(0.5))):
+        """Forget the rest frames when the tf pose of the clouds' frame moved (:func:`_moved`)."""
+        pose = Pose.from_matrix(m)
+        last, self._tf_camera = self._tf_camera, (frame, pose)
+        if last is None or (last[0] == frame and not _moved(last[1], pose)):
             return
         self._rest_frames.clear()
         self.get_logger().info(f'camera frame {frame!r} moved (tf): rest frames forgotten')

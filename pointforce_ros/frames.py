@@ -27,10 +27,11 @@ listener writes from one thread while nodes look up from others;
 """
 
 import bisect
+import collections
 import math
 import threading
 import time
-from typing import Dict, List, Optional, Tuple
+from typing import Deque, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -82,8 +83,9 @@ def _frame_name(name, what: str) -> str:
 
 
 def _checked(position, quaternion) -> Tuple[np.ndarray, np.ndarray]:
-    p = np.asarray(position, dtype=np.float64).reshape(-1)
-    q = np.asarray(quaternion, dtype=np.float64).reshape(-1)
+    # copies: the caller's arrays, changed later, must not change the samples held
+    p = np.array(position, dtype=np.float64).reshape(-1)
+    q = np.array(quaternion, dtype=np.float64).reshape(-1)
     if p.shape != (3,) or q.shape != (4,):
         raise InvalidInput(f'transform: translation (3,) and rotation (4,) needed, got '
                            f'{p.shape} and {q.shape}')
@@ -351,6 +353,64 @@ class TransformBuffer:
             common_from_target = (self._edges[frame].at(stamp, self.tolerance, frame)
                                   @ common_from_target)
         return _rigid_inverse(common_from_target) @ common_from_source
+
+
+HOLD_SECONDS = 0.5
+"""How far (s of stamps) :class:`AwaitingTransform` holds a sample back for its transform."""
+
+HOLD_SAMPLES = 1024
+"""Most samples :class:`AwaitingTransform` holds (2 s of a 500 Hz stream)."""
+
+
+class AwaitingTransform:
+    """Stamped samples held back until the tree can place them (tf2_ros' message filter).
+
+    A pose stream stamped in a frame that ``/tf`` places (a TCP pose in ``world``) runs ahead
+    of ``/tf`` when that is the slower: looked up at once, its newest samples were refused as
+    extrapolation into the future. Here such a sample waits, in arrival order, and every later
+    :meth:`offer` tries the waiting ones first. A sample is refused (with the reason) when its
+    lookup fails for any other cause, or when :data:`HOLD_SECONDS` of newer stamps or
+    :data:`HOLD_SAMPLES` samples are waiting behind it. One thread offers (not thread-safe).
+    """
+
+    def __init__(self, seconds: float = HOLD_SECONDS, size: int = HOLD_SAMPLES):
+        """Hold at most ``seconds`` of stamps and ``size`` samples."""
+        self.seconds, self.size = float(seconds), int(size)
+        self._held: Deque[Tuple[float, object]] = collections.deque()
+        self.held_back = 0
+        """Samples that had to wait (all time)."""
+
+    def __len__(self) -> int:
+        """Return how many samples wait now."""
+        return len(self._held)
+
+    def offer(self, stamp: float, item, place) -> Tuple[list, list]:
+        """Add one sample; return ``(placed, refused)`` in arrival order.
+
+        ``place(item)`` gives the placed value or raises; :class:`Extrapolation` into the
+        future keeps the item (and those after it) waiting. ``placed``: the values of the
+        samples placed now; ``refused``: ``(item, reason)`` of those given up.
+        """
+        self._held.append((float(stamp), item))
+        placed, refused = [], []
+        while self._held:
+            t, waiting = self._held[0]
+            try:
+                placed.append(place(waiting))
+            except Extrapolation as exc:
+                if not exc.future:
+                    refused.append((waiting, str(exc)))
+                elif (self._held[-1][0] - t > self.seconds or len(self._held) > self.size):
+                    refused.append((waiting, f'{exc}; no transform came while '
+                                    f'{len(self._held) - 1} newer sample(s) waited'))
+                else:
+                    break
+            except Exception as exc:  # noqa: BLE001 - any failure refuses this sample only
+                refused.append((waiting, str(exc)))
+            self._held.popleft()
+        if self._held and self._held[-1][1] is item:
+            self.held_back += 1
+        return placed, refused
 
 
 def _rigid_inverse(m: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
+from typing import Tuple
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -33,7 +34,7 @@ from std_srvs.srv import Trigger
 from msg_adapters.geometry import pose_stamped_from_msg, stamp_to_sec
 from msg_adapters.pointcloud2 import cloud_from_msg, surface_to_msg
 from pointforce_ros.errors import InvalidInput, PointforceError
-from pointforce_ros.frames import TransformBuffer
+from pointforce_ros.frames import AwaitingTransform, TransformBuffer
 from pointforce_ros.model.files import save_surface
 from pointforce_ros.nodes.common import (CameraFrame, contained, declare, failure_reason,
                                          frame_to_base, live, publish_health, qos_watch, run,
@@ -104,6 +105,7 @@ class CloudCaptureNode(Node):
         self._latest = None
         self._camera_pose = None
         self._pose_history = deque(maxlen=50)
+        self._pose_waiting = AwaitingTransform()   # camera poses whose /tf has not come yet
         self._scans = []
         self.max_merge_points = MAX_MERGE_POINTS
         self.surface = None
@@ -166,6 +168,7 @@ class CloudCaptureNode(Node):
                   'camera_frame': self.camera_frame.camera or '',
                   'tf_frames': len(self.tf.frames()),
                   'tf_refused': self.tf.refused,
+                  'poses_held_for_tf': self._pose_waiting.held_back,
                   'last_refusal': self._refusal}
         why = f' (last refusal: {self._refusal})' if self._refusal else ''
         if latest is None and surface is None:
@@ -193,16 +196,24 @@ class CloudCaptureNode(Node):
 
     def _on_pose(self, msg: PoseStamped):
         try:
-            pose = pose_stamped_from_msg(msg)
-            if pose.frame != self.frame:     # through the tf tree, or refused (was taken as base)
-                m = frame_to_base(self.tf, self.frame, pose.frame, stamp_to_sec(msg.header.stamp))
-                pose = Pose.from_matrix(m @ pose_to_matrix(pose), frame=self.frame)
-        except PointforceError as exc:
-            self.get_logger().warn(f'ignoring camera pose: {exc}', throttle_duration_sec=5.0)
-            return
+            stamp = stamp_to_sec(msg.header.stamp)
+            placed, refused = self._pose_waiting.offer(stamp, msg, self._pose_in_base)
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            placed, refused = [], [(msg, failure_reason(exc, 'a smaller pose'))]
+        for _, reason in refused:
+            self.get_logger().warn(f'ignoring camera pose: {reason}', throttle_duration_sec=5.0)
         with self._lock:
-            self._camera_pose = pose
-            self._pose_history.append((stamp_to_sec(msg.header.stamp), pose))
+            for stamp, pose in placed:
+                self._camera_pose = pose
+                self._pose_history.append((stamp, pose))
+
+    def _pose_in_base(self, msg: PoseStamped) -> Tuple[float, Pose]:
+        """``(stamp, pose in base)``: through the tf tree, or refused (was taken as base)."""
+        pose, stamp = pose_stamped_from_msg(msg), stamp_to_sec(msg.header.stamp)
+        if pose.frame != self.frame:
+            m = frame_to_base(self.tf, self.frame, pose.frame, stamp)
+            pose = Pose.from_matrix(m @ pose_to_matrix(pose), frame=self.frame)
+        return stamp, pose
 
     def _scan_from_latest(self) -> Scan:
         with self._lock:

@@ -81,7 +81,7 @@ import time
 from collections import Counter, OrderedDict
 from dataclasses import replace
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Tuple
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -108,7 +108,7 @@ from pointforce_ros.deformation.observe import rest_offsets, RestFrames
 from pointforce_ros.deformation.store import (DeformationModel, ft_consistency, load_latest,
                                               save_model)
 from pointforce_ros.errors import InvalidInput, PointforceError
-from pointforce_ros.frames import TransformBuffer
+from pointforce_ros.frames import AwaitingTransform, TransformBuffer
 from pointforce_ros.model.files import (load_latest_model, load_model, load_surface,
                                         version_of_path)
 from pointforce_ros.nodes.common import (CameraFrame, declare, failure_reason, frame_to_base,
@@ -240,6 +240,7 @@ class DeformationForceNode(Node):
         self._camera_pose = None
         self._tf_camera = None      # (frame, Pose in base) of the last cloud moved by tf
         self._tcp = None            # (position (3,), rotation (3, 3)) in base
+        self._tcp_waiting = AwaitingTransform()   # TCP poses whose /tf has not come yet
         self._ft = None             # force on the object, base, N
         self._contact = None        # contact point of the running poke, or None
         self._candidate = None      # (|F|, Poke) deepest state of the running poke
@@ -427,7 +428,8 @@ class DeformationForceNode(Node):
                   'observations_held': held,
                   'model_version': -1 if model is None else model.version,
                   'rest_mesh_nodes': 0 if rest is None else rest[0].n_nodes,
-                  'tf_frames': len(self.tf.frames()), 'tf_refused': self.tf.refused}
+                  'tf_frames': len(self.tf.frames()), 'tf_refused': self.tf.refused,
+                  'tcp_poses_held_for_tf': self._tcp_waiting.held_back}
         if model is not None:
             young = np.atleast_1d(np.asarray(model.young, dtype=float))
             values.update(young_pa=f'{np.median(young):.4g}', poisson=f'{model.poisson:.3f}')
@@ -477,20 +479,28 @@ class DeformationForceNode(Node):
             self.get_logger().info('camera pose moved: rest frames forgotten')
 
     def _on_tcp(self, msg: PoseStamped):
+        try:
+            placed, refused = self._tcp_waiting.offer(stamp_to_sec(msg.header.stamp), msg,
+                                                      self._tcp_in_base)
+        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
+            placed, refused = [], [(msg, failure_reason(exc, 'a smaller pose'))]
+        for _, reason in refused:
+            self.get_logger().warn(f'ignoring TCP pose: {reason}', throttle_duration_sec=5.0)
+        if placed:
+            with self._lock:
+                self._tcp = placed[-1]
+
+    def _tcp_in_base(self, msg: PoseStamped) -> Tuple[np.ndarray, np.ndarray]:
+        """``(position, rotation)`` of a TCP pose in ``base``, or InvalidInput/Extrapolation."""
         q = msg.pose.orientation
         position = vec(msg.pose.position)
-        try:
-            if not np.all(np.isfinite(position)):
-                raise InvalidInput(f'non-finite position {position.tolist()}')
-            rot = quaternion_to_matrix([q.x, q.y, q.z, q.w])
-            m = self._to_base(msg)
-            if m is not None:
-                position, rot = m[:3, :3] @ position + m[:3, 3], m[:3, :3] @ rot
-        except Exception as exc:  # noqa: BLE001 - a callback must not end the executor
-            self.get_logger().warn(f'ignoring TCP pose: {exc}', throttle_duration_sec=5.0)
-            return
-        with self._lock:
-            self._tcp = (position, rot)
+        if not np.all(np.isfinite(position)):
+            raise InvalidInput(f'non-finite position {position.tolist()}')
+        rot = quaternion_to_matrix([q.x, q.y, q.z, q.w])
+        m = self._to_base(msg)
+        if m is not None:
+            position, rot = m[:3, :3] @ position + m[:3, 3], m[:3, :3] @ rot
+        return position, rot
 
     def _on_wrench(self, msg: WrenchStamped):
         with self._lock:

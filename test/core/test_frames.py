@@ -193,3 +193,54 @@ def test_wait_transform_waits_for_a_transform_in_flight_only():
     assert time.monotonic() - start < 5.0
     with pytest.raises(Extrapolation, match='not arrived'):
         buf.wait_transform('base', 'cam', 3.0, timeout=0.05)
+
+
+def test_samples_ahead_of_tf_wait_for_it_in_order_and_are_given_up_with_a_reason():
+    """Session 42: a pose stream in a frame /tf places ran ahead of a slower /tf, and its
+    newest samples were refused as extrapolation instead of waiting for the transform."""
+    buf = TransformBuffer()
+    world = np.eye(4)
+    world[:3, 3] = [1.0, 0.0, 0.0]
+    _set(buf, 'base', 'world', world, stamp=0.0, static=False)
+
+    def place(stamp):
+        return stamp, buf.lookup('base', 'world', stamp)[0, 3]
+
+    waiting = frames.AwaitingTransform(seconds=0.3)
+    assert waiting.offer(0.0, 0.0, place) == ([(0.0, 1.0)], [])
+    for t in (0.1, 0.2):                    # tf's newest sample is at 0: these wait
+        assert waiting.offer(t, t, place) == ([], [])
+    assert len(waiting) == 2 and waiting.held_back == 2
+    world[:3, 3] = [2.0, 0.0, 0.0]         # the buffer holds a copy (it held the caller's
+    _set(buf, 'base', 'world', world, stamp=0.2, static=False)   # array before session 42)
+    placed, refused = waiting.offer(0.25, 0.25, place)      # both placed, in order, at their
+    np.testing.assert_allclose(placed, [(0.1, 1.5), (0.2, 2.0)])  # own stamps; 0.25 waits
+    assert refused == [] and len(waiting) == 1
+    placed, refused = [], []
+    for t in (0.3, 0.4, 0.5, 0.6):          # no tf for over 0.3 s of newer stamps: given up
+        out = waiting.offer(t, t, place)
+        placed, refused = placed + out[0], refused + out[1]
+    assert placed == [] and [r[0] for r in refused] == [0.25]
+    assert 'no transform came while 4 newer sample(s) waited' in refused[0][1]
+    # one too old for the edge's history waits behind the held ones (arrival order) ...
+    assert waiting.offer(-5.0, -5.0, place) == ([], [])
+
+    def bad(_):
+        raise InvalidInput('non-finite position')
+
+    fresh = frames.AwaitingTransform()     # ... and one that cannot be placed is refused at once
+    assert fresh.offer(1.0, 'x', bad) == ([], [('x', 'non-finite position')])
+    assert len(fresh) == 0
+    past = frames.AwaitingTransform()
+    placed, refused = past.offer(-5.0, -5.0, place)
+    assert placed == [] and refused[0][0] == -5.0 and len(past) == 0
+
+
+def test_held_samples_are_bounded_in_number():
+    buf = TransformBuffer()
+    _set(buf, 'base', 'world', np.eye(4), stamp=0.0, static=False)
+    waiting = frames.AwaitingTransform(seconds=100.0, size=5)
+    refused = []
+    for k in range(1, 9):
+        refused += waiting.offer(k * 1e-3, k, lambda t: buf.lookup('base', 'world', t * 1e-3))[1]
+    assert len(waiting) == 5 and [r[0] for r in refused] == [1, 2, 3]

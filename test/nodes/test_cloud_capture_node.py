@@ -228,6 +228,16 @@ def test_a_camera_pose_in_another_frame_is_moved_through_tf_or_ignored(ros_graph
     np.testing.assert_allclose(pose_to_matrix(node._camera_pose), base_from_map @ pose,
                                atol=1e-9)
     assert node._camera_pose.frame == 'base' and len(node._pose_history) == 1
+    # session 42: a pose newer than a dynamic frame's newest /tf sample waits for it (it
+    # was refused as extrapolation), then takes the transform of its own stamp
+    node.tf.set_transform('base', 'odom', 5.0, [0.0, 0.0, 0.0], [0, 0, 0, 1], static=False)
+    node._on_pose(pose_stamped_to_msg(Pose.from_matrix(pose, frame='odom'), stamp=5.5))
+    assert len(node._pose_history) == 1 and len(node._pose_waiting) == 1
+    node.tf.set_transform('base', 'odom', 6.0, [0.2, 0.0, 0.0], [0, 0, 0, 1], static=False)
+    node._on_pose(pose_stamped_to_msg(Pose.from_matrix(pose, frame='odom'), stamp=6.5))
+    assert [t for t, _ in node._pose_history] == [5.0, 5.5] and len(node._pose_waiting) == 1
+    np.testing.assert_allclose(node._camera_pose.position, pose[:3, 3] + [0.1, 0.0, 0.0],
+                               atol=1e-12)
 
 
 @pytest.mark.parametrize('pinned', ['', 'camera_color_optical_frame'])

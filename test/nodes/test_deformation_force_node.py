@@ -26,14 +26,14 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from msg_adapters.geometry import to_point, transform_to_msg
+from msg_adapters.geometry import sec_to_stamp, to_point, transform_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud
 from pointforce_ros.bringup.camera_check import render_view
 from pointforce_ros.deformation.identify import Poke
 from pointforce_ros.deformation.store import load_latest, model_versions
 from pointforce_ros.model.files import ContactModel, QUARANTINE, save_model
 from pointforce_ros.nodes import deformation_force
-from pointforce_ros.nodes.common import TF_STATIC_QOS
+from pointforce_ros.nodes.common import TF_QOS, TF_STATIC_QOS
 from pointforce_ros.nodes.deformation_force import DeformationForceNode, LATCHED, STREAM
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.errors import InvalidInput
@@ -440,6 +440,48 @@ def test_a_cloud_is_moved_by_the_tf_tree_and_a_camera_moved_on_it_forgets_its_re
     np.testing.assert_allclose(node._cloud[0], points @ second[:3, :3].T + second[:3, 3],
                                atol=1e-6)
     assert node._rest_frames.pending == 1
+
+
+def test_a_tcp_stream_ahead_of_a_slower_tf_waits_for_it(cell):
+    """Session 42: a TCP pose stamped in a frame /tf places (``world``, the arm's driver
+    publishing at 500 Hz while /tf comes at 10) was refused as extrapolation into the future
+    whenever it was newer than /tf's newest sample; now it waits for that sample."""
+    node = cell.node
+    arm = cell.graph.add(Node('world_publisher', context=cell.graph.context))
+    tf_pub = arm.create_publisher(TFMessage, '/tf', TF_QOS)
+    msg = PoseStamped()
+    msg.header.frame_id = 'world'
+    msg.pose.orientation.w = 1.0
+
+    def world_at(stamp, x):
+        m = np.eye(4)
+        m[:3, 3] = [x, 0.0, 0.0]
+        tf_pub.publish(TFMessage(transforms=[transform_to_msg(m, 'base', 'world', stamp)]))
+        cell.graph.wait_for(lambda: node.tf.knows('world') and np.isclose(
+            node.tf.lookup('base', 'world')[0, 3], x), 10.0, '/tf sample')
+
+    def tcp_at(stamp, y):
+        sec_to_stamp(stamp, msg.header.stamp)
+        msg.pose.position = to_point([0.0, y, 0.04])
+
+        def state():
+            return node._tcp_waiting.held_back, len(node._tcp_waiting), id(node._tcp)
+
+        before = state()
+        cell.tcp_pub.publish(msg)
+        cell.graph.wait_for(lambda: state() != before, 10.0, 'TCP pose taken')
+
+    world_at(100.0, 0.5)
+    tcp_at(100.0, 0.01)
+    np.testing.assert_allclose(node._tcp[0], [0.5, 0.01, 0.04], atol=1e-12)
+    tcp_at(100.05, 0.02)                    # newer than /tf: waits (it was refused)
+    tcp_at(100.08, 0.03)
+    np.testing.assert_allclose(node._tcp[0], [0.5, 0.01, 0.04], atol=1e-12)
+    assert len(node._tcp_waiting) == 2
+    world_at(100.1, 0.6)                    # /tf catches up: the next TCP sample places them
+    tcp_at(100.12, 0.04)
+    np.testing.assert_allclose(node._tcp[0], [0.58, 0.03, 0.04], atol=1e-9)  # at its stamp
+    assert len(node._tcp_waiting) == 1      # 100.12 waits for /tf in its turn
 
 
 def test_held_observations_are_bounded_by_the_bytes_of_their_clouds(cell, monkeypatch):

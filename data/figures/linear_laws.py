@@ -1,0 +1,171 @@
+#!/usr/bin/env python3
+"""Figure 1's point pokes with each held-out poke's law a ridge regression on features (a study).
+
+The same draws as ``figure1_oracles.py`` and ``python -m pointforce_ros.lab.figures
+--learning-only --sizes 5 10`` (seed 0, 10 random training subsets per size of the committed
+30-poke fixtures, sizes in order; every held-out poke scored on its measured contact samples;
+median RMSE over the draws, newtons, and the ratio to ET). Each training poke's power law
+``(d0, log F, p)`` is fitted to its own curve (as ours does); a held-out poke gets the law a
+ridge regression of those parameters on a few standardised features predicts. The ridge
+weight is chosen per draw from 1e-3, 0.1, 1 and 10 by leave-one-poke-out force RMSE over the
+training pokes (no held-out data). Columns:
+
+- ``const``: no feature (the training laws' mean parameters);
+- ``z``: the surface height;
+- ``rgb``: the colour;
+- ``z_rgb``: both;
+- ``z_lap``: the height on every parameter, and on the onset also the surface's local
+  curvature (the Laplacian of a quadric fitted to the cloud within 8 mm of the poke);
+- ``z_own_onset``: an oracle, ``z``'s law with the held-out poke's own fitted onset (what a
+  perfect onset would leave).
+
+Session 42 (record ``linear_laws.log``): no column reaches 0.9x ET on every object. On the
+dome, where the training laws follow the height almost exactly (correlation of ``log F`` and
+``p`` with it -0.98 and 0.98 over the 30 pokes), ``z`` scores 1.09 of ET at 5 and at 10 pokes
+(ours 1.77 and 1.23); what is left there is the onset, which the height explains less well
+(-0.93): ``z_own_onset``, with a perfect onset, still scores 0.92 at both sizes. On
+thin_layer ``z_rgb`` scores 0.79 at 5 pokes but 1.24 at 10, ``rgb`` 0.88 and 1.42. On plush
+no column beats ours; on lamb at 10 every column (1.20-1.33) beats ours' 1.45, none reaches ET.
+
+Usage: python data/figures/linear_laws.py [--objects dome thin_layer] [--sizes 5 10]
+(about 30 s per object on one core; set OPENBLAS_NUM_THREADS=1).
+"""
+
+import argparse
+import time
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pointforce_ros.lab.baseline import EtBaseline
+from pointforce_ros.lab.figures import load_poke_fixture
+from pointforce_ros.response.common import curve_features
+from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.scoring import CONTACT_MARGIN
+
+OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
+Z, RGB, LAP = [2], [3, 4, 5], [9]
+VARIANTS = {'const': ([], []), 'z': (Z, Z), 'rgb': (RGB, RGB), 'z_rgb': (Z + RGB, Z + RGB),
+            'z_lap': (Z + LAP, Z)}
+"""Name: (feature columns for the onset, for ``log F`` and ``p``)."""
+COLUMNS = ('et', 'ours', *VARIANTS, 'z_own_onset')
+RIDGES = (1e-3, 0.1, 1.0, 10.0)
+CURVATURE_RADIUS = 0.008
+
+
+def curvature(points: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """(n,) Laplacian of a quadric ``z(x, y)`` fitted to the cloud round each poked point."""
+    tree = cKDTree(points[:, :2])
+    out = np.zeros(len(at))
+    for i, p in enumerate(at):
+        q = points[tree.query_ball_point(p[:2], CURVATURE_RADIUS)]
+        dx, dy = q[:, 0] - p[0], q[:, 1] - p[1]
+        a = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=1)
+        coef = np.linalg.lstsq(a, q[:, 2], rcond=None)[0]
+        out[i] = 2.0 * (coef[3] + coef[5])
+    return out
+
+
+def ridge(x, y, weight):
+    """``predict(rows)`` of a ridge regression of ``y`` on standardised ``x`` (free intercept)."""
+    mu, sd = x.mean(axis=0), x.std(axis=0) + 1e-12
+    a = np.hstack([np.ones((len(x), 1)), (x - mu) / sd])
+    reg = weight * np.eye(a.shape[1])
+    reg[0, 0] = 0.0
+    coef = np.linalg.solve(a.T @ a + reg, a.T @ y)
+    return lambda rows: np.hstack([np.ones((len(rows), 1)), (rows - mu) / sd]) @ coef
+
+
+class LinearLaw:
+    """Law parameters of a new poke from a ridge regression on its features."""
+
+    def __init__(self, model, cols):
+        self.model, self.cols = model, cols
+
+    def fit(self, feats, laws, curves):
+        """Choose the ridge weight by leave-one-poke-out force RMSE, then fit on all pokes."""
+        scores = [self._loo(feats, laws, curves, w) for w in RIDGES]
+        self.weight = RIDGES[int(np.argmin(scores))]
+        self.parts = self._fit(feats, laws, self.weight)
+        return self
+
+    def _fit(self, feats, laws, weight):
+        return [ridge(feats[:, c], laws[:, k], weight) for c, k in zip(self.cols, (
+            slice(0, 1), slice(1, None)))]
+
+    def law(self, feats):
+        """(n, 3) predicted ``(d0, log F, p)``."""
+        return np.hstack([part(feats[:, c]) for part, c in zip(self.parts, self.cols)])
+
+    def force(self, law, d):
+        """The power law's force at depths ``d``."""
+        return self.model.force_from_params(np.repeat(law[None], len(d), axis=0), d)
+
+    def _loo(self, feats, laws, curves, weight):
+        errs = []
+        for i in range(len(laws)):
+            keep = np.arange(len(laws)) != i
+            self.parts = self._fit(feats[keep], laws[keep], weight)
+            d, f = contact_samples(curves[i])
+            errs.append(self.force(self.law(feats[i:i + 1])[0], d) - f)
+        return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
+
+
+def contact_samples(curve):
+    """Figure 1's scored samples of one poke: from the margin before its onset on."""
+    keep = curve.d >= curve.onset_d - CONTACT_MARGIN
+    return curve.d[keep], curve.f[keep]
+
+
+def draw_errors(train, test, data, model):
+    """``{column: RMSE}`` of one draw (``train``, ``test``: indices into the 30 pokes)."""
+    surface, curves, feats, laws = data
+    et = EtBaseline().fit([curves[i] for i in train], surface)
+    ours = ContactGpModel().fit([curves[i] for i in train], surface)
+    linear = {k: LinearLaw(model, cols).fit(feats[train], laws[train],
+                                            [curves[i] for i in train])
+              for k, cols in VARIANTS.items()}
+    out = {k: [] for k in COLUMNS}
+    for i in test:
+        d, f = contact_samples(curves[i])
+        rows = np.repeat(feats[i][None, :9], len(d), axis=0)
+        out['et'].append(et.predict(rows, d) - f)
+        out['ours'].append(ours.predict(rows, d) - f)
+        for k, lin in linear.items():
+            out[k].append(lin.force(lin.law(feats[i:i + 1])[0], d) - f)
+        law = linear['z'].law(feats[i:i + 1])[0]
+        law[0] = laws[i][0]
+        out['z_own_onset'].append(linear['z'].force(law, d) - f)
+    return {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in out.items()}
+
+
+def main(argv=None):
+    """Print one line per object and size: each column's median RMSE and its ratio to ET."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--objects', nargs='+', default=list(OBJECTS))
+    parser.add_argument('--sizes', nargs='+', type=int, default=[5, 10])
+    args = parser.parse_args(argv)
+    columns = COLUMNS
+    print('object pokes | ' + ' | '.join(columns))
+    for name in args.objects:
+        start = time.monotonic()
+        surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
+        model = ContactGpModel(law='power')
+        bend = curvature(surface.points, np.stack([c.point for c in curves]))
+        feats = np.hstack([curve_features(curves, surface), bend[:, None]])
+        laws = np.array([model.fit_curve(c, 'power')[0] for c in curves])
+        rng = np.random.default_rng(0)              # the figure's draws: sizes in order
+        for size in args.sizes:
+            rows = []
+            for _ in range(10):
+                train = rng.choice(len(curves), size=size, replace=False)
+                test = np.setdiff1d(np.arange(len(curves)), train)
+                rows.append(draw_errors(train, test, (surface, curves, feats, laws), model))
+            med = {k: float(np.median([r[k] for r in rows])) for k in columns}
+            print(f'{name} {size} | ' + ' | '.join(f'{med[k]:.3f} ({med[k] / med["et"]:.2f})'
+                                                   for k in columns)
+                  + f'   [{time.monotonic() - start:.0f} s]', flush=True)
+
+
+if __name__ == '__main__':
+    main()

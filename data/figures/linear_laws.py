@@ -16,16 +16,21 @@ training pokes (no held-out data). Columns:
 - ``z_rgb``: both;
 - ``z_lap``: the height on every parameter, and on the onset also the surface's local
   curvature (the Laplacian of a quadric fitted to the cloud within 8 mm of the poke);
-- ``z_own_onset``: an oracle, ``z``'s law with the held-out poke's own fitted onset (what a
-  perfect onset would leave).
+- ``z2``: the height and its square (about the surface's median height);
+- ``z_own_onset``, ``z2_own_onset``: oracles, ``z``'s and ``z2``'s laws with the held-out
+  poke's own fitted onset (what a perfect onset would leave).
+
+Then, per object, what the onset left by ``z2`` (over all 30 pokes) correlates with: the
+local curvature, and the nearest other poke's left-over onset.
 
 Session 42 (record ``linear_laws.log``): no column reaches 0.9x ET on every object. On the
 dome, where the training laws follow the height almost exactly (correlation of ``log F`` and
-``p`` with it -0.98 and 0.98 over the 30 pokes), ``z`` scores 1.09 of ET at 5 and at 10 pokes
-(ours 1.77 and 1.23); what is left there is the onset, which the height explains less well
-(-0.93): ``z_own_onset``, with a perfect onset, still scores 0.92 at both sizes. On
-thin_layer ``z_rgb`` scores 0.79 at 5 pokes but 1.24 at 10, ``rgb`` 0.88 and 1.42. On plush
-no column beats ours; on lamb at 10 every column (1.20-1.33) beats ours' 1.45, none reaches ET.
+``p`` with it -0.98 and 0.98 over the 30 pokes), ``z2`` scores 1.04 and 1.08 of ET at 5 and 10
+pokes (ours 1.77 and 1.23); with a perfect onset (``z2_own_onset``) 0.82 at both. What is
+left there is the onset: after ``z2`` its spread is 0.19 mm (of 0.52), correlated with the
+local curvature (-0.67) and with the nearest poke's (0.59). On thin_layer ``z_rgb`` scores
+0.79 at 5 pokes but 1.24 at 10, ``rgb`` 0.88 and 1.42. On plush no column beats ours; on
+lamb at 10 every column (1.20-1.33) beats ours' 1.45, none reaches ET.
 
 Usage: python data/figures/linear_laws.py [--objects dome thin_layer] [--sizes 5 10]
 (about 30 s per object on one core; set OPENBLAS_NUM_THREADS=1).
@@ -44,11 +49,12 @@ from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.response.scoring import CONTACT_MARGIN
 
 OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
-Z, RGB, LAP = [2], [3, 4, 5], [9]
-VARIANTS = {'const': ([], []), 'z': (Z, Z), 'rgb': (RGB, RGB), 'z_rgb': (Z + RGB, Z + RGB),
+Z, RGB, LAP, Z2 = [2], [3, 4, 5], [9], [10]
+VARIANTS = {'const': ([], []), 'z': (Z, Z), 'z2': (Z + Z2, Z + Z2), 'rgb': (RGB, RGB),
+            'z_rgb': (Z + RGB, Z + RGB),
             'z_lap': (Z + LAP, Z)}
 """Name: (feature columns for the onset, for ``log F`` and ``p``)."""
-COLUMNS = ('et', 'ours', *VARIANTS, 'z_own_onset')
+COLUMNS = ('et', 'ours', *VARIANTS, 'z_own_onset', 'z2_own_onset')
 RIDGES = (1e-3, 0.1, 1.0, 10.0)
 CURVATURE_RADIUS = 0.008
 
@@ -133,10 +139,23 @@ def draw_errors(train, test, data, model):
         out['ours'].append(ours.predict(rows, d) - f)
         for k, lin in linear.items():
             out[k].append(lin.force(lin.law(feats[i:i + 1])[0], d) - f)
-        law = linear['z'].law(feats[i:i + 1])[0]
-        law[0] = laws[i][0]
-        out['z_own_onset'].append(linear['z'].force(law, d) - f)
+        for k in ('z', 'z2'):
+            law = linear[k].law(feats[i:i + 1])[0]
+            law[0] = laws[i][0]
+            out[f'{k}_own_onset'].append(linear[k].force(law, d) - f)
     return {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in out.items()}
+
+
+def onset_left(feats, laws, name):
+    """One line: the onset ``z2`` leaves over all pokes, and what it correlates with."""
+    a = np.hstack([np.ones((len(laws), 1)), feats[:, Z + Z2]])
+    left = laws[:, 0] - a @ np.linalg.lstsq(a, laws[:, 0], rcond=None)[0]
+    gap, near = cKDTree(feats[:, :2]).query(feats[:, :2], k=2)
+    return (f'  {name} onset left by z2: std {left.std() * 1e3:.3f} mm (of '
+            f'{laws[:, 0].std() * 1e3:.3f}); correlation with the curvature '
+            f'{np.corrcoef(left, feats[:, 9])[0, 1]:.2f}, with the nearest poke\'s '
+            f'{np.corrcoef(left, left[near[:, 1]])[0, 1]:.2f} (median '
+            f'{np.median(gap[:, 1]) * 1e3:.1f} mm away)')
 
 
 def main(argv=None):
@@ -152,7 +171,9 @@ def main(argv=None):
         surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
         model = ContactGpModel(law='power')
         bend = curvature(surface.points, np.stack([c.point for c in curves]))
-        feats = np.hstack([curve_features(curves, surface), bend[:, None]])
+        height = surface.points[:, 2]
+        square = (np.stack([c.point[2] for c in curves]) - np.median(height)) ** 2
+        feats = np.hstack([curve_features(curves, surface), bend[:, None], square[:, None]])
         laws = np.array([model.fit_curve(c, 'power')[0] for c in curves])
         rng = np.random.default_rng(0)              # the figure's draws: sizes in order
         for size in args.sizes:
@@ -165,6 +186,7 @@ def main(argv=None):
             print(f'{name} {size} | ' + ' | '.join(f'{med[k]:.3f} ({med[k] / med["et"]:.2f})'
                                                    for k in columns)
                   + f'   [{time.monotonic() - start:.0f} s]', flush=True)
+        print(onset_left(feats, laws, name), flush=True)
 
 
 if __name__ == '__main__':

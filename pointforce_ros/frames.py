@@ -369,8 +369,9 @@ class AwaitingTransform:
     of ``/tf`` when that is the slower: looked up at once, its newest samples were refused as
     extrapolation into the future. Here such a sample waits, in arrival order, and every later
     :meth:`offer` tries the waiting ones first. A sample is refused (with the reason) when its
-    lookup fails for any other cause, or when :data:`HOLD_SECONDS` of newer stamps or
-    :data:`HOLD_SAMPLES` samples are waiting behind it. One thread offers (not thread-safe).
+    lookup fails for any other cause, when :data:`HOLD_SECONDS` of newer stamps or
+    :data:`HOLD_SAMPLES` samples are waiting behind it, or when the stream goes back in time
+    (a replayed bag). One thread offers (not thread-safe).
     """
 
     def __init__(self, seconds: float = HOLD_SECONDS, size: int = HOLD_SAMPLES):
@@ -391,8 +392,14 @@ class AwaitingTransform:
         future keeps the item (and those after it) waiting. ``placed``: the values of the
         samples placed now; ``refused``: ``(item, reason)`` of those given up.
         """
-        self._held.append((float(stamp), item))
         placed, refused = [], []
+        if self._held and float(stamp) < self._held[-1][0]:
+            # the stream went back in time (a bag replayed, a simulator restarted): what
+            # waits is of the old timeline, and would hold the new one up behind it
+            refused = [(waiting, 'the stream went back in time while it waited for its '
+                        'transform') for _, waiting in self._held]
+            self._held.clear()
+        self._held.append((float(stamp), item))
         while self._held:
             t, waiting = self._held[0]
             try:

@@ -218,9 +218,13 @@ class CloudCaptureNode(Node):
     def _scan_from_latest(self) -> Scan:
         with self._lock:
             latest = self._latest
+            if latest is not None:      # a pose of the cloud's instant placed since it came
+                stamp = stamp_to_sec(latest[0].header.stamp)  # (one that waited for /tf)
+                same = next((p for t, p in reversed(self._pose_history)
+                             if abs(t - stamp) < 1e-3), None)
         if latest is None:
             raise PointforceError('no cloud received yet on the camera topic')
-        msg, pose = latest[0], latest[1] or self.default_pose
+        msg, pose = latest[0], same or latest[1] or self.default_pose
         transform = self.camera_frame.to_base(msg.header.frame_id, stamp_to_sec(msg.header.stamp),
                                               'camera', lambda: pose_to_matrix(pose),
                                               wait=self.tf_wait)

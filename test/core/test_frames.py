@@ -222,13 +222,16 @@ def test_samples_ahead_of_tf_wait_for_it_in_order_and_are_given_up_with_a_reason
         placed, refused = placed + out[0], refused + out[1]
     assert placed == [] and [r[0] for r in refused] == [0.25]
     assert 'no transform came while 4 newer sample(s) waited' in refused[0][1]
-    # one too old for the edge's history waits behind the held ones (arrival order) ...
-    assert waiting.offer(-5.0, -5.0, place) == ([], [])
+    # a stream gone back in time (a bag replayed) gives up what waits: it would hold the new
+    # timeline up behind it
+    placed, refused = waiting.offer(0.0, 0.0, place)
+    assert placed == [(0.0, 1.0)] and [r[0] for r in refused] == [0.3, 0.4, 0.5, 0.6]
+    assert 'went back in time' in refused[0][1] and len(waiting) == 0
 
     def bad(_):
         raise InvalidInput('non-finite position')
 
-    fresh = frames.AwaitingTransform()     # ... and one that cannot be placed is refused at once
+    fresh = frames.AwaitingTransform()     # one that cannot be placed is refused at once
     assert fresh.offer(1.0, 'x', bad) == ([], [('x', 'non-finite position')])
     assert len(fresh) == 0
     past = frames.AwaitingTransform()

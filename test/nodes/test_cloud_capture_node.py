@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from msg_adapters.geometry import pose_stamped_to_msg, transform_to_msg
+from msg_adapters.geometry import pose_stamped_to_msg, stamp_to_sec, transform_to_msg
 from msg_adapters.pointcloud2 import msg_from_cloud, surface_from_msg
 from pointforce_ros.sim.camera import DepthCamera, look_at
 from pointforce_ros import frames
@@ -211,6 +211,21 @@ def test_a_cloud_is_paired_with_the_camera_pose_of_its_own_stamp(ros_graph, tmp_
                                      stamp=10.0, frame_id='camera_depth_optical_frame'))
     ros_graph.wait_for(lambda: node._latest is not None, 10, 'cloud')
     np.testing.assert_allclose(node._scan_from_latest().transform, pose_a, atol=1e-9)
+    # session 42: a pose in a frame /tf has not reached yet waits; a cloud of its instant that
+    # came meanwhile is paired with it once it is placed (it took the newest pose, b)
+    node.tf.set_transform('base', 'odom', 11.0, [0.0, 0.0, 0.0], [0, 0, 0, 1], static=False)
+    pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose_a, frame='odom'), stamp=12.0))
+    ros_graph.wait_for(lambda: len(node._pose_waiting) == 1, 10, 'pose held for /tf')
+    cloud_pub.publish(msg_from_cloud(np.random.default_rng(2).uniform(0.2, 0.3, (100, 3)),
+                                     stamp=12.0, frame_id='camera_depth_optical_frame'))
+    ros_graph.wait_for(lambda: stamp_to_sec(node._latest[0].header.stamp) == 12.0, 10, 'cloud')
+    np.testing.assert_allclose(node._scan_from_latest().transform, pose_b, atol=1e-9)
+    node.tf.set_transform('base', 'odom', 13.0, [0.2, 0.0, 0.0], [0, 0, 0, 1], static=False)
+    pose_pub.publish(pose_stamped_to_msg(Pose.from_matrix(pose_b, frame='odom'), stamp=13.5))
+    ros_graph.wait_for(lambda: len(node._pose_history) == 3, 10, 'held pose placed')
+    shifted = pose_a.copy()
+    shifted[:3, 3] += [0.1, 0.0, 0.0]       # base <- odom at 12.0: halfway from 0 to 0.2 m
+    np.testing.assert_allclose(node._scan_from_latest().transform, shifted, atol=1e-9)
 
 
 def test_a_camera_pose_in_another_frame_is_moved_through_tf_or_ignored(ros_graph, tmp_path):

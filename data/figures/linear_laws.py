@@ -17,6 +17,9 @@ training pokes (no held-out data). Columns:
 - ``z_lap``: the height on every parameter, and on the onset also the surface's local
   curvature (the Laplacian of a quadric fitted to the cloud within 8 mm of the poke);
 - ``z2``: the height and its square (about the surface's median height);
+- ``z_clamped``: ``z``'s law kept within the training pokes' range as ours keeps its
+  predictions (``response/ours.py``, point 4: the onset within the detected onsets +-
+  ``ONSET_MARGIN``, ``log F`` within +- ``LOG_FORCE_MARGIN``, ``p`` within);
 - ``z_own_onset``, ``z2_own_onset``: oracles, ``z``'s and ``z2``'s laws with the held-out
   poke's own fitted onset (what a perfect onset would leave).
 
@@ -45,7 +48,7 @@ from scipy.spatial import cKDTree
 from pointforce_ros.lab.baseline import EtBaseline
 from pointforce_ros.lab.figures import load_poke_fixture
 from pointforce_ros.response.common import curve_features
-from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.ours import ContactGpModel, LOG_FORCE_MARGIN, ONSET_MARGIN
 from pointforce_ros.response.scoring import CONTACT_MARGIN
 
 OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
@@ -54,7 +57,7 @@ VARIANTS = {'const': ([], []), 'z': (Z, Z), 'z2': (Z + Z2, Z + Z2), 'rgb': (RGB,
             'z_rgb': (Z + RGB, Z + RGB),
             'z_lap': (Z + LAP, Z)}
 """Name: (feature columns for the onset, for ``log F`` and ``p``)."""
-COLUMNS = ('et', 'ours', *VARIANTS, 'z_own_onset', 'z2_own_onset')
+COLUMNS = ('et', 'ours', *VARIANTS, 'z_clamped', 'z_own_onset', 'z2_own_onset')
 RIDGES = (1e-3, 0.1, 1.0, 10.0)
 CURVATURE_RADIUS = 0.008
 
@@ -131,6 +134,11 @@ def draw_errors(train, test, data, model):
     linear = {k: LinearLaw(model, cols).fit(feats[train], laws[train],
                                             [curves[i] for i in train])
               for k, cols in VARIANTS.items()}
+    onsets = np.array([curves[i].onset_d for i in train])
+    clamp = (np.array([onsets.min() - ONSET_MARGIN, laws[train, 1].min() - LOG_FORCE_MARGIN,
+                       laws[train, 2].min()]),
+             np.array([onsets.max() + ONSET_MARGIN, laws[train, 1].max() + LOG_FORCE_MARGIN,
+                       laws[train, 2].max()]))
     out = {k: [] for k in COLUMNS}
     for i in test:
         d, f = contact_samples(curves[i])
@@ -139,6 +147,8 @@ def draw_errors(train, test, data, model):
         out['ours'].append(ours.predict(rows, d) - f)
         for k, lin in linear.items():
             out[k].append(lin.force(lin.law(feats[i:i + 1])[0], d) - f)
+        law = linear['z'].law(feats[i:i + 1])[0]
+        out['z_clamped'].append(linear['z'].force(np.clip(law, *clamp), d) - f)
         for k in ('z', 'z2'):
             law = linear[k].law(feats[i:i + 1])[0]
             law[0] = laws[i][0]

@@ -20,6 +20,8 @@ training pokes (no held-out data). Columns:
 - ``z_clamped``: ``z``'s law kept within the training pokes' range as ours keeps its
   predictions (``response/ours.py``, point 4: the onset within the detected onsets +-
   ``ONSET_MARGIN``, ``log F`` within +- ``LOG_FORCE_MARGIN``, ``p`` within);
+- ``pick``: per draw, ours or one of the columns above but ``z_lap``, whichever has the lowest
+  leave-one-poke-out force RMSE over the training pokes (ours': its ``law_scores``);
 - ``z_own_onset``, ``z2_own_onset``: oracles, ``z``'s and ``z2``'s laws with the held-out
   poke's own fitted onset (what a perfect onset would leave).
 
@@ -33,7 +35,10 @@ pokes (ours 1.77 and 1.23); with a perfect onset (``z2_own_onset``) 0.82 at both
 left there is the onset: after ``z2`` its spread is 0.19 mm (of 0.52), correlated with the
 local curvature (-0.67) and with the nearest poke's (0.59). On thin_layer ``z_rgb`` scores
 0.79 at 5 pokes but 1.24 at 10, ``rgb`` 0.88 and 1.42. On plush no column beats ours; on
-lamb at 10 every column (1.20-1.33) beats ours' 1.45, none reaches ET.
+lamb at 10 every column (1.20-1.33) beats ours' 1.45, none reaches ET. ``pick`` helps where a
+line in a feature carries the law (dome 1.26 | 1.08, thin_layer 0.81 | 1.24, vest at 10 1.00)
+and hurts where it does not (plush 1.37 | 1.51, lamb 1.10 | 1.59): with 5-10 pokes the
+leave-one-poke-out scores choose too noisily to take the better of the two per object.
 
 Usage: python data/figures/linear_laws.py [--objects dome thin_layer] [--sizes 5 10]
 (about 30 s per object on one core; set OPENBLAS_NUM_THREADS=1).
@@ -57,7 +62,7 @@ VARIANTS = {'const': ([], []), 'z': (Z, Z), 'z2': (Z + Z2, Z + Z2), 'rgb': (RGB,
             'z_rgb': (Z + RGB, Z + RGB),
             'z_lap': (Z + LAP, Z)}
 """Name: (feature columns for the onset, for ``log F`` and ``p``)."""
-COLUMNS = ('et', 'ours', *VARIANTS, 'z_clamped', 'z_own_onset', 'z2_own_onset')
+COLUMNS = ('et', 'ours', *VARIANTS, 'z_clamped', 'pick', 'z_own_onset', 'z2_own_onset')
 RIDGES = (1e-3, 0.1, 1.0, 10.0)
 CURVATURE_RADIUS = 0.008
 
@@ -94,7 +99,7 @@ class LinearLaw:
     def fit(self, feats, laws, curves):
         """Choose the ridge weight by leave-one-poke-out force RMSE, then fit on all pokes."""
         scores = [self._loo(feats, laws, curves, w) for w in RIDGES]
-        self.weight = RIDGES[int(np.argmin(scores))]
+        self.weight, self.score = RIDGES[int(np.argmin(scores))], min(scores)
         self.parts = self._fit(feats, laws, self.weight)
         return self
 
@@ -134,6 +139,10 @@ def draw_errors(train, test, data, model):
     linear = {k: LinearLaw(model, cols).fit(feats[train], laws[train],
                                             [curves[i] for i in train])
               for k, cols in VARIANTS.items()}
+    # 'pick': ours or one of the columns, the lowest leave-one-poke-out force RMSE per draw
+    scores = {k: lin.score for k, lin in linear.items() if k not in ('z_lap',)}
+    scores['ours'] = min(ours.law_scores.values()) if ours.law_scores else np.inf
+    pick = min(scores, key=scores.get)
     onsets = np.array([curves[i].onset_d for i in train])
     clamp = (np.array([onsets.min() - ONSET_MARGIN, laws[train, 1].min() - LOG_FORCE_MARGIN,
                        laws[train, 2].min()]),
@@ -145,6 +154,8 @@ def draw_errors(train, test, data, model):
         rows = np.repeat(feats[i][None, :9], len(d), axis=0)
         out['et'].append(et.predict(rows, d) - f)
         out['ours'].append(ours.predict(rows, d) - f)
+        out['pick'].append(out['ours'][-1] if pick == 'ours' else
+                           linear[pick].force(linear[pick].law(feats[i:i + 1])[0], d) - f)
         for k, lin in linear.items():
             out[k].append(lin.force(lin.law(feats[i:i + 1])[0], d) - f)
         law = linear['z'].law(feats[i:i + 1])[0]

@@ -339,6 +339,10 @@ TF_STATIC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """QoS of ``/tf_static`` (transient local: a node started later still gets the mounts)."""
 
+TF_REQUEST_WAIT = 0.1
+"""Default seconds a request or goal stamped newer than ``/tf`` has reached waits for it
+(``tf_wait`` of the contact service and the poke server, with ``tf_dynamic``)."""
+
 
 class TfListener:
     """Feed a :class:`~pointforce_ros.frames.TransformBuffer` from ``/tf`` and ``/tf_static``.
@@ -411,12 +415,14 @@ def frame_to_base(tf: Optional[TransformBuffer], base: str, frame: str,
     return tf.lookup(base, frame, float(stamp) or None)
 
 
-def request_to_base(tf: TransformBuffer, base: str, header, dynamic: bool
+def request_to_base(tf: TransformBuffer, base: str, header, dynamic: bool, wait: float = 0.0
                     ) -> Optional[np.ndarray]:
     """``None`` for a request stamped in ``base`` (or unstamped), else ``base <- frame_id``.
 
     A request in another frame is placed through the tf tree at its stamp (0: the latest):
-    ``/tf_static``, and ``/tf`` too when the node listens to it (``dynamic``).
+    ``/tf_static``, and ``/tf`` too when the node listens to it (``dynamic``). There, a stamp
+    newer than ``/tf`` has reached yet (a planner stamps its query with ``now``) is waited
+    for up to ``wait`` seconds, as tf2's ``lookup_transform`` with a timeout would.
 
     Raises:
         InvalidInput: the tree cannot place the frame (the reason, about the request).
@@ -426,11 +432,15 @@ def request_to_base(tf: TransformBuffer, base: str, header, dynamic: bool
     if frame in ('', base):
         return None
     try:
-        return frame_to_base(tf, base, frame, stamp_to_sec(header.stamp))
+        stamp = stamp_to_sec(header.stamp)
+        if dynamic and wait > 0.0:
+            return tf.wait_transform(base, frame, stamp or None, wait)
+        return frame_to_base(tf, base, frame, stamp)
     except InvalidInput as exc:
-        raise InvalidInput(f'header.frame_id {frame!r}: {exc}; publish its transform to '
-                           f'{base!r} on /tf_static' + ('' if dynamic else
-                                                        ' (or set tf_dynamic for /tf)')
+        waited = f' (waited {wait:g} s)' if dynamic and wait > 0.0 else ''
+        raise InvalidInput(f'header.frame_id {frame!r}: {exc}{waited}; publish its transform '
+                           f'to {base!r} on /tf_static' + ('' if dynamic else
+                                                           ' (or set tf_dynamic for /tf)')
                            + f', or send the request in {base!r}') from None
 
 

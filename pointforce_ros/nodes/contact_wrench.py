@@ -52,7 +52,7 @@ from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import (build_node, declare, init_or_exit, live,
                                          publish_health, report_folder, request_to_base,
-                                         TfListener)
+                                         TF_REQUEST_WAIT, TfListener)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
 from pointforce_ros.response.blas import limit_blas_for_process
@@ -158,6 +158,10 @@ class ContactWrenchNode(Node):
                              'for requests stamped in a frame other than base: costs CPU at '
                              'the rate /tf is published (500 Hz from a UR driver)',
                              read_only=True)
+        self.tf_wait = declare(self, 'tf_wait', TF_REQUEST_WAIT,
+                               'With tf_dynamic: seconds a request stamped newer than /tf has '
+                               'reached yet waits for its transform', bounds=(0.0, 2.0),
+                               read_only=True)
         self.tf = TransformBuffer()
         self.tf_listener = TfListener(self, self.tf, tf_topic='/tf' if tf_dynamic else '')
         self.tf_listener_dynamic = tf_dynamic
@@ -339,7 +343,8 @@ class ContactWrenchNode(Node):
         start = time.perf_counter()
         deadline = time.monotonic() + self.server.limits.max_seconds   # answer and spread
         try:
-            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic)
+            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic,
+                                self.tf_wait)
             rotation = None if m is None else m[:3, :3].T      # the request's frame <- base
             query = contact_query_from_request(request, m)
             result, version = self.server.answer(query)
@@ -366,7 +371,8 @@ class ContactWrenchNode(Node):
                 self.requests_failed += 1
                 return fail(response, f'poses: {len(request.poses)} exceeds max_batch '
                                       f'{self.max_batch}')
-            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic)
+            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic,
+                                self.tf_wait)
             rotation = None if m is None else m[:3, :3].T
             query = batch_arrays_from_request(request, m)
             batch, version = self.server.answer_rows(*query)

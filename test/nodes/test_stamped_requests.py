@@ -7,6 +7,8 @@ frame is refused with a reason, and one it can (session 41) is answered in that 
 
 import array
 import dataclasses
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -19,12 +21,12 @@ from scipy.spatial.transform import Rotation
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
 
-from msg_adapters.geometry import (mesh_to_flat, mesh_to_msg, pose_to_msg, to_point,
-                                   transform_to_msg, vec)
+from msg_adapters.geometry import (mesh_to_flat, mesh_to_msg, pose_to_msg, sec_to_stamp,
+                                   to_point, transform_to_msg, vec)
 from pointforce_ros.bringup.bench_ros import round_trip
 from pointforce_ros.lab.synthetic_contact import patch_contact_model
 from pointforce_ros.model.files import save_model
-from pointforce_ros.nodes.common import TF_STATIC_QOS
+from pointforce_ros.nodes.common import TF_QOS, TF_STATIC_QOS
 from pointforce_ros.nodes.contact_wrench import ContactWrenchNode
 from pointforce_ros.shapes import icosphere
 from pointforce_ros.types import Pose
@@ -178,3 +180,51 @@ def test_the_flat_mesh_form_answers_as_the_mesh_message(ros_graph, tmp_path):
     bad_index[0] = 10_000
     outside = call_batch(mesh_vertices=vertices, mesh_triangles=bad_index)
     assert not outside.success and outside.message
+
+
+def test_a_request_stamped_ahead_of_tf_waits_for_it(ros_graph, tmp_path):
+    """Session 42: with ``tf_dynamic``, a planner's query stamped ``now`` in a frame /tf moves
+    (``world`` <- ``base`` at 10 Hz) was refused as extrapolation into the future until /tf
+    caught up; it now waits up to ``tf_wait`` for its transform, and past that is refused."""
+    save_model(patch_contact_model(spacing=0.003), tmp_path / 'models')
+    node = ros_graph.add(ContactWrenchNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('model_dir', value=str(tmp_path / 'models')),
+        Parameter('tf_dynamic', value=True), Parameter('tf_wait', value=1.0)]))
+    probe = ros_graph.add(Node('moving_world', context=ros_graph.context))
+    tf_pub = probe.create_publisher(TFMessage, '/tf', TF_QOS)
+    world_from_base = np.eye(4)
+
+    def world_at(stamp, x):
+        world_from_base[:3, 3] = [x, 0.0, 0.0]
+        tf_pub.publish(TFMessage(transforms=[transform_to_msg(world_from_base, 'world', 'base',
+                                                              stamp)]))
+
+    world_at(50.0, 0.0)
+    ros_graph.wait_for(lambda: node.tf.knows('world'), 10, 'world <- base on /tf')
+    single = probe.create_client(ContactWrench, '/contact_wrench/contact_wrench')
+    assert single.wait_for_service(timeout_sec=30.0)
+
+    def ask(stamp, x):
+        header = Header(frame_id='world')
+        sec_to_stamp(stamp, header.stamp)
+        return ContactWrench.Request(
+            header=header, pose=pose_to_msg(Pose(position=[0.5007 + x, 0.0011, 0.0583])),
+            mesh=mesh_to_msg(icosphere(0.02, 1)), approach=Vector3(x=0.0, y=0.0, z=-1.0),
+            torque_centre=to_point([0.5 + x, 0.0, 0.06]))
+
+    _, now = round_trip(single, ask(50.0, 0.0), 20, 'at /tf')
+    assert now.success, now.message
+    done = threading.Event()
+    future = single.call_async(ask(50.05, 0.1))     # /tf's newest is at 50.0: waits
+    future.add_done_callback(lambda _f: done.set())
+    assert not done.wait(0.3)
+    world_at(50.1, 0.2)                             # at 50.05 world <- base is 0.1 m along x
+    assert done.wait(20.0)
+    ahead = future.result()
+    assert ahead.success, ahead.message
+    np.testing.assert_allclose(vec(ahead.wrench.force), vec(now.wrench.force), atol=1e-6)
+    start = time.monotonic()                        # nothing comes: refused after tf_wait
+    _, late = round_trip(single, ask(60.0, 0.0), 20, 'no /tf')
+    assert not late.success and "'world'" in late.message
+    assert 'not arrived yet (waited 1 s)' in late.message
+    assert time.monotonic() - start >= 0.9

@@ -21,7 +21,7 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Tuple
+from typing import Optional, Tuple
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -190,9 +190,12 @@ class CloudCaptureNode(Node):
         with self._lock:
             # the pose of the same instant if one was published (like a tf lookup at the
             # cloud's stamp), else the newest pose, else the camera_pose parameter
-            pose = next((p for t, p in reversed(self._pose_history) if abs(t - stamp) < 1e-3),
-                        self._camera_pose)
-            self._latest = (msg, pose)
+            self._latest = (msg, self._pose_at(stamp) or self._camera_pose)
+
+    def _pose_at(self, stamp: float) -> Optional[Pose]:
+        """Return the camera pose published for ``stamp`` (within 1 ms) or None; hold the lock."""
+        return next((p for t, p in reversed(self._pose_history) if abs(t - stamp) < 1e-3),
+                    None)
 
     def _on_pose(self, msg: PoseStamped):
         try:
@@ -219,9 +222,7 @@ class CloudCaptureNode(Node):
         with self._lock:
             latest = self._latest
             if latest is not None:      # a pose of the cloud's instant placed since it came
-                stamp = stamp_to_sec(latest[0].header.stamp)  # (one that waited for /tf)
-                same = next((p for t, p in reversed(self._pose_history)
-                             if abs(t - stamp) < 1e-3), None)
+                same = self._pose_at(stamp_to_sec(latest[0].header.stamp))  # (it waited)
         if latest is None:
             raise PointforceError('no cloud received yet on the camera topic')
         msg, pose = latest[0], same or latest[1] or self.default_pose

@@ -415,33 +415,55 @@ def frame_to_base(tf: Optional[TransformBuffer], base: str, frame: str,
     return tf.lookup(base, frame, float(stamp) or None)
 
 
-def request_to_base(tf: TransformBuffer, base: str, header, dynamic: bool, wait: float = 0.0
-                    ) -> Optional[np.ndarray]:
-    """``None`` for a request stamped in ``base`` (or unstamped), else ``base <- frame_id``.
+class RequestFrames:
+    """Where a node's requests (contact queries, poke goals) stamped in other frames are placed.
 
-    A request in another frame is placed through the tf tree at its stamp (0: the latest):
-    ``/tf_static``, and ``/tf`` too when the node listens to it (``dynamic``). There, a stamp
-    newer than ``/tf`` has reached yet (a planner stamps its query with ``now``) is waited
-    for up to ``wait`` seconds, as tf2's ``lookup_transform`` with a timeout would.
-
-    Raises:
-        InvalidInput: the tree cannot place the frame (the reason, about the request).
-
+    Declares ``tf_dynamic`` and ``tf_wait``, keeps the node's tf tree (:attr:`buffer`) fed by
+    a :class:`TfListener`: ``/tf_static``, and ``/tf`` too with ``tf_dynamic`` (it costs the
+    executor CPU at ``/tf``'s rate, 500 Hz from a UR driver).
     """
-    frame = header.frame_id
-    if frame in ('', base):
-        return None
-    try:
-        stamp = stamp_to_sec(header.stamp)
-        if dynamic and wait > 0.0:
-            return tf.wait_transform(base, frame, stamp or None, wait)
-        return frame_to_base(tf, base, frame, stamp)
-    except InvalidInput as exc:
-        waited = f' (waited {wait:g} s)' if dynamic and wait > 0.0 else ''
-        raise InvalidInput(f'header.frame_id {frame!r}: {exc}{waited}; publish its transform '
-                           f'to {base!r} on /tf_static' + ('' if dynamic else
-                                                           ' (or set tf_dynamic for /tf)')
-                           + f', or send the request in {base!r}') from None
+
+    def __init__(self, node: Node, what: str):
+        """Declare the two parameters of ``node``; ``what``: the requests, for their help."""
+        self.dynamic = declare(node, 'tf_dynamic', False,
+                               'Also listen on /tf (transforms that move), not only '
+                               f'/tf_static, for {what} stamped in a frame other than base: '
+                               'costs CPU at the rate /tf is published (500 Hz from a UR '
+                               'driver)', read_only=True)
+        self.wait = declare(node, 'tf_wait', TF_REQUEST_WAIT,
+                            f'With tf_dynamic: seconds {what} stamped newer than /tf has '
+                            'reached yet wait for their transform', bounds=(0.0, 2.0),
+                            read_only=True)
+        self.buffer = TransformBuffer()
+        self.listener = TfListener(node, self.buffer, tf_topic='/tf' if self.dynamic else '')
+
+    def to_base(self, base: str, header) -> Optional[np.ndarray]:
+        """``None`` for a request stamped in ``base`` (or unstamped), else ``base <- frame_id``.
+
+        A request in another frame is placed through the tf tree at its stamp (0: the latest).
+        With ``tf_dynamic``, a stamp newer than ``/tf`` has reached yet (a planner stamps its
+        query with ``now``) is waited for up to ``tf_wait``, as tf2's ``lookup_transform``
+        with a timeout would.
+
+        Raises:
+            InvalidInput: the tree cannot place the frame (the reason, about the request).
+
+        """
+        frame = header.frame_id
+        if frame in ('', base):
+            return None
+        waits = self.dynamic and self.wait > 0.0
+        try:
+            stamp = stamp_to_sec(header.stamp)
+            if waits:
+                return self.buffer.wait_transform(base, frame, stamp or None, self.wait)
+            return frame_to_base(self.buffer, base, frame, stamp)
+        except InvalidInput as exc:
+            waited = f' (waited {self.wait:g} s)' if waits else ''
+            raise InvalidInput(f'header.frame_id {frame!r}: {exc}{waited}; publish its '
+                               f'transform to {base!r} on /tf_static'
+                               + ('' if self.dynamic else ' (or set tf_dynamic for /tf)')
+                               + f', or send the request in {base!r}') from None
 
 
 class CameraFrame:

@@ -48,11 +48,9 @@ from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_fr
                                      fail, fill_batch_response, fill_contact_response,
                                      fill_wrench_std, MODEL_FRAME)
 from pointforce_ros.errors import PointforceError
-from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import (build_node, declare, init_or_exit, live,
-                                         publish_health, report_folder, request_to_base,
-                                         TF_REQUEST_WAIT, TfListener)
+                                         publish_health, report_folder, RequestFrames)
 from pointforce_ros.nodes.service_loop import ServiceLoop
 from pointforce_ros.model.serving import RequestLimits, WrenchServer
 from pointforce_ros.response.blas import limit_blas_for_process
@@ -153,18 +151,8 @@ class ContactWrenchNode(Node):
                            'its next request up to 2x slower; a planner that sends bursts of '
                            'queries gets them faster for this much CPU per burst, ms',
                            bounds=(0.0, 100.0))
-        tf_dynamic = declare(self, 'tf_dynamic', False,
-                             'Also listen on /tf (transforms that move), not only /tf_static, '
-                             'for requests stamped in a frame other than base: costs CPU at '
-                             'the rate /tf is published (500 Hz from a UR driver)',
-                             read_only=True)
-        self.tf_wait = declare(self, 'tf_wait', TF_REQUEST_WAIT,
-                               'With tf_dynamic: seconds a request stamped newer than /tf has '
-                               'reached yet waits for its transform', bounds=(0.0, 2.0),
-                               read_only=True)
-        self.tf = TransformBuffer()
-        self.tf_listener = TfListener(self, self.tf, tf_topic='/tf' if tf_dynamic else '')
-        self.tf_listener_dynamic = tf_dynamic
+        self.frames = RequestFrames(self, 'requests')
+        self.tf = self.frames.buffer
         self.server = WrenchServer(spacing=spacing, series_compliance=series,
                                    hold_time=hold_time, limits=limits)
         self.requests_served = 0
@@ -343,8 +331,7 @@ class ContactWrenchNode(Node):
         start = time.perf_counter()
         deadline = time.monotonic() + self.server.limits.max_seconds   # answer and spread
         try:
-            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic,
-                                self.tf_wait)
+            m = self.frames.to_base(MODEL_FRAME, request.header)
             rotation = None if m is None else m[:3, :3].T      # the request's frame <- base
             query = contact_query_from_request(request, m)
             result, version = self.server.answer(query)
@@ -371,8 +358,7 @@ class ContactWrenchNode(Node):
                 self.requests_failed += 1
                 return fail(response, f'poses: {len(request.poses)} exceeds max_batch '
                                       f'{self.max_batch}')
-            m = request_to_base(self.tf, MODEL_FRAME, request.header, self.tf_listener_dynamic,
-                                self.tf_wait)
+            m = self.frames.to_base(MODEL_FRAME, request.header)
             rotation = None if m is None else m[:3, :3].T
             query = batch_arrays_from_request(request, m)
             batch, version = self.server.answer_rows(*query)

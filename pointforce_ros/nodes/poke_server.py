@@ -43,10 +43,8 @@ from msg_adapters.interfaces import (MODEL_FRAME, poke_feedback_msg, poke_goal_f
                                      poke_result_msg)
 from msg_adapters.pointcloud2 import surface_from_msg
 from pointforce_ros.errors import DeviceFault, PointforceError
-from pointforce_ros.frames import TransformBuffer
 from pointforce_ros.nodes.common import (declare, destroy_waitables, live, publish_health,
-                                         request_to_base, run, TF_REQUEST_WAIT,
-                                         TfListener)
+                                         RequestFrames, run)
 from pointforce_ros.pokes.limits import check_goal, PokeLimits
 from pointforce_ros.pokes.store import PokeStore, record_header
 from pointforce_ros.rotations import rotvec_aligning_z, rotvec_matrix_and_quaternion
@@ -186,16 +184,8 @@ class PokeServerNode(Node):
         self.samples_refused = 0
         self.last_rejection = ''   # why the last goal was rejected (also logged)
         self.surface = None
-        self.tf_dynamic = declare(self, 'tf_dynamic', False,
-                                  'Also listen on /tf (transforms that move), not only '
-                                  '/tf_static, for goals stamped in a frame other than base',
-                                  read_only=True)
-        self.tf_wait = declare(self, 'tf_wait', TF_REQUEST_WAIT,
-                               'With tf_dynamic: seconds a goal stamped newer than /tf has '
-                               'reached yet waits for its transform', bounds=(0.0, 2.0),
-                               read_only=True)
-        self.tf = TransformBuffer()
-        self.tf_listener = TfListener(self, self.tf, tf_topic='/tf' if self.tf_dynamic else '')
+        self.frames = RequestFrames(self, 'goals')
+        self.tf = self.frames.buffer
         group = ReentrantCallbackGroup()
         self.wrench_pub = self.create_publisher(WrenchStamped, '~/wrench', STREAM)
         self.pose_pub = self.create_publisher(PoseStamped, '~/tcp_pose', STREAM)
@@ -407,9 +397,7 @@ class PokeServerNode(Node):
 
     def _goal(self, goal_msg):
         """Return the goal in base: one stamped in another frame is placed through tf."""
-        return poke_goal_from_msg(goal_msg, request_to_base(self.tf, MODEL_FRAME,
-                                                            goal_msg.header, self.tf_dynamic,
-                                                            self.tf_wait))
+        return poke_goal_from_msg(goal_msg, self.frames.to_base(MODEL_FRAME, goal_msg.header))
 
     def _run_poke(self, goal_handle):
         try:

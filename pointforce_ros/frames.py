@@ -23,7 +23,8 @@ child that is given a new parent takes it (its history is restarted), as a re-mo
 would; a dynamic sample older than everything its edge keeps restarts that edge's history too
 (its publisher went back in time: a bag replayed, a simulator restarted). Thread-safe: the
 listener writes from one thread while nodes look up from others;
-:meth:`TransformBuffer.wait_transform` waits for a transform still in flight.
+:meth:`TransformBuffer.wait_transform` waits for a transform still in flight, but not twice
+for a frame that no transform has named since a wait for it ran out.
 """
 
 import bisect
@@ -56,6 +57,10 @@ MAX_TOTAL_SAMPLES = 200_000
 """Most samples all dynamic edges hold together (about 70 MB; a UR's seven links at 500 Hz
 hold 35 000); a transform that would add one more is refused."""
 
+MAX_VAIN = 1024
+"""Most frame names :meth:`TransformBuffer.wait_transform` remembers having waited for in vain
+(the oldest is forgotten first)."""
+
 UNIT_TOLERANCE = 1e-3
 """Largest departure of a quaternion's norm from 1 that is accepted (then normalised)."""
 
@@ -71,6 +76,10 @@ class Extrapolation(TransformUnavailable):
         """Keep the message and whether the time asked for is past the newest sample."""
         super().__init__(message)
         self.future = future
+
+
+class NotWaited(TransformUnavailable):
+    """:meth:`TransformBuffer.wait_transform` did not wait: its frame was waited for in vain."""
 
 
 def _frame_name(name, what: str) -> str:
@@ -186,8 +195,11 @@ class TransformBuffer:
         self._frames = set()
         self._samples = 0
         self._changed = threading.Condition()
+        self._vain: 'collections.OrderedDict[str, float]' = collections.OrderedDict()
         self.refused = 0
         """Transforms :meth:`set_transform` refused since the start."""
+        self.not_waited = 0
+        """Lookups :meth:`wait_transform` refused at once: their frame was waited for in vain."""
 
     # ------------------------------------------------------------------ writing
     def set_transform(self, parent: str, child: str, stamp: float, position, quaternion,
@@ -231,6 +243,8 @@ class TransformBuffer:
                     edge = self._edges[child] = _Edge(parent, bool(static))
                 self._samples += edge.add(stamp, p, q)
                 self._frames |= new
+                for frame in new:
+                    self._vain.pop(frame, None)
                 self._changed.notify_all()
         except InvalidInput:
             self.refused += 1
@@ -241,6 +255,7 @@ class TransformBuffer:
         with self._changed:
             self._edges.clear()
             self._frames.clear()
+            self._vain.clear()
             self._samples = 0
 
     # ------------------------------------------------------------------ reading
@@ -276,11 +291,15 @@ class TransformBuffer:
         """Like :meth:`lookup`, but wait up to ``timeout`` s for a transform not yet arrived.
 
         Only a time past an edge's newest sample, or a frame not yet heard of, is waited for;
-        anything else is refused at once.
+        anything else is refused at once. A frame that a wait ran out on and that no transform
+        has named since is not waited for again (its lookups are refused at once, counted in
+        :attr:`not_waited`): a client that keeps asking in a frame nobody publishes would
+        otherwise hold a thread ``timeout`` per request.
         """
         target = _frame_name(target, 'lookup target')
         source = _frame_name(source, 'lookup source')
-        deadline = time.monotonic() + max(0.0, float(timeout))
+        started = time.monotonic()
+        deadline = started + max(0.0, float(timeout))
         with self._changed:
             while True:
                 try:
@@ -290,13 +309,33 @@ class TransformBuffer:
                         raise
                     last = exc
                 except TransformUnavailable as exc:
-                    if target in self._frames and source in self._frames:
+                    unknown = [f for f in (target, source) if f not in self._frames]
+                    if not unknown:
                         raise       # both known, not connected
+                    vain = [f for f in unknown if f in self._vain]
+                    if vain:
+                        self.not_waited += 1
+                        raise NotWaited(
+                            f'{exc}; not waited for: no transform has named {vain[0]!r} since '
+                            f'a wait for it ran out {started - self._vain[vain[0]]:.3g} s '
+                            'ago') from None
                     last = exc
                 left = deadline - time.monotonic()
                 if left <= 0.0:
+                    if not isinstance(last, Extrapolation):
+                        self._remember_vain(f for f in (target, source)
+                                            if f not in self._frames)
                     raise last
                 self._changed.wait(left)
+
+    def _remember_vain(self, frames) -> None:
+        """Note ``frames`` as waited for in vain now (under the lock)."""
+        now = time.monotonic()
+        for frame in frames:
+            self._vain.pop(frame, None)
+            self._vain[frame] = now
+        while len(self._vain) > MAX_VAIN:
+            self._vain.popitem(last=False)
 
     # ------------------------------------------------------------------ internals
     def _ancestors(self, frame: str) -> List[str]:

@@ -443,7 +443,9 @@ class RequestFrames:
         A request in another frame is placed through the tf tree at its stamp (0: the latest).
         With ``tf_dynamic``, a stamp newer than ``/tf`` has reached yet (a planner stamps its
         query with ``now``) is waited for up to ``tf_wait``, as tf2's ``lookup_transform``
-        with a timeout would.
+        with a timeout would; so is a frame not heard of yet, once: until a transform names
+        it, later requests in it are refused at once (a client asking again and again in a
+        frame nobody publishes would hold a service thread ``tf_wait`` each time).
 
         Raises:
             InvalidInput: the tree cannot place the frame (the reason, about the request).
@@ -453,13 +455,17 @@ class RequestFrames:
         if frame in ('', base):
             return None
         waits = self.dynamic and self.wait > 0.0
+        started = time.monotonic()
         try:
             stamp = stamp_to_sec(header.stamp)
             if waits:
                 return self.buffer.wait_transform(base, frame, stamp or None, self.wait)
             return frame_to_base(self.buffer, base, frame, stamp)
         except InvalidInput as exc:
-            waited = f' (waited {self.wait:g} s)' if waits else ''
+            # said only where it did wait (a time too old, frames not connected or a frame
+            # waited for in vain before are refused at once)
+            waited = f' (waited {self.wait:g} s)' if (
+                waits and time.monotonic() - started >= 0.5 * self.wait) else ''
             raise InvalidInput(f'header.frame_id {frame!r}: {exc}{waited}; publish its '
                                f'transform to {base!r} on /tf_static'
                                + ('' if self.dynamic else ' (or set tf_dynamic for /tf)')

@@ -214,7 +214,8 @@ class ContactWrenchNode(Node):
         values = {'model_version': version, 'model_dir': self.model_dir or '',
                   'answered': served, 'refused': failed, 'callback_faults': faults,
                   'answered_since_last': served - before[0],
-                  'refused_since_last': failed - before[1]}
+                  'refused_since_last': failed - before[1],
+                  'refused_unwaited_frame': self.tf.not_waited}
         if version < 0:
             return (DiagnosticStatus.ERROR, 'no contact model loaded: every request is refused '
                     '(waiting for model_dir or stiffness_learner/model)', values)

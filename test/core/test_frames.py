@@ -195,6 +195,65 @@ def test_wait_transform_waits_for_a_transform_in_flight_only():
         buf.wait_transform('base', 'cam', 3.0, timeout=0.05)
 
 
+def test_a_frame_waited_for_in_vain_is_not_waited_for_again_until_a_transform_names_it(
+        monkeypatch):
+    """Session 43: each request in a frame nobody publishes held a service thread the whole
+    wait (tf_wait); a client asking again and again could hold every thread."""
+    buf = TransformBuffer()
+    buf.set_transform('base', 'cam', 0.0, [0, 0, 0], [0, 0, 0, 1], static=True)
+    buf.set_transform('base', 'arm', 1.0, [0, 0, 0], [0, 0, 0, 1])
+    start = time.monotonic()
+    with pytest.raises(TransformUnavailable) as first:
+        buf.wait_transform('base', 'ghost', None, timeout=0.2)
+    assert time.monotonic() - start >= 0.2 and not isinstance(first.value, frames.NotWaited)
+    start = time.monotonic()
+    for _ in range(50):                    # refused at once, each counted, saying why
+        with pytest.raises(frames.NotWaited, match="no transform has named 'ghost' since a "
+                           'wait for it ran out'):
+            buf.wait_transform('ghost', 'base', None, timeout=0.2)
+    assert time.monotonic() - start < 0.2 and buf.not_waited == 50
+    # a future time of a known frame is waited for every time (a /tf that lags, not a frame
+    # nobody publishes)
+    for _ in range(2):
+        start = time.monotonic()
+        with pytest.raises(Extrapolation, match='not arrived'):
+            buf.wait_transform('base', 'arm', 5.0, timeout=0.1)
+        assert time.monotonic() - start >= 0.1
+    assert buf.not_waited == 50
+
+    def late():
+        time.sleep(0.05)
+        buf.set_transform('cam', 'ghost', 2.0, [0, 0, 0.2], [0, 0, 0, 1])
+
+    # once a transform names it, it is waited for again (and found)
+    buf.set_transform('cam', 'ghost', 1.0, [0, 0, 0.1], [0, 0, 0, 1])
+    thread = threading.Thread(target=late)
+    thread.start()
+    got = buf.wait_transform('base', 'ghost', 2.0, timeout=10.0)
+    thread.join()
+    np.testing.assert_allclose(got[:3, 3], [0, 0, 0.2])
+    # a jump back in time (clear) forgets the frames waited for in vain with the rest
+    with pytest.raises(TransformUnavailable):
+        buf.wait_transform('base', 'other', None, timeout=0.01)
+    buf.clear()
+    buf.set_transform('base', 'cam', 1.0, [0, 0, 0], [0, 0, 0, 1])
+    start = time.monotonic()
+    with pytest.raises(TransformUnavailable) as again:
+        buf.wait_transform('base', 'other', None, timeout=0.1)
+    assert time.monotonic() - start >= 0.1 and not isinstance(again.value, frames.NotWaited)
+    # the memory of such frames is bounded: the oldest is forgotten first
+    monkeypatch.setattr(frames, 'MAX_VAIN', 3)
+    for name in ('a', 'b', 'c', 'd'):
+        with pytest.raises(TransformUnavailable):
+            buf.wait_transform('base', name, None, timeout=0.0)
+    with pytest.raises(frames.NotWaited):
+        buf.wait_transform('base', 'd', None, timeout=1.0)
+    start = time.monotonic()
+    with pytest.raises(TransformUnavailable) as oldest:
+        buf.wait_transform('base', 'a', None, timeout=0.05)
+    assert time.monotonic() - start >= 0.05 and not isinstance(oldest.value, frames.NotWaited)
+
+
 def test_samples_ahead_of_tf_wait_for_it_in_order_and_are_given_up_with_a_reason():
     """Session 42: a pose stream in a frame /tf places ran ahead of a slower /tf, and its
     newest samples were refused as extrapolation instead of waiting for the transform."""

@@ -228,3 +228,26 @@ def test_a_request_stamped_ahead_of_tf_waits_for_it(ros_graph, tmp_path):
     assert not late.success and "'world'" in late.message
     assert 'not arrived yet (waited 1 s)' in late.message
     assert time.monotonic() - start >= 0.9
+    # a frame nobody publishes: the first request waits tf_wait, the next ones are refused at
+    # once (session 43: each held a service thread tf_wait), until /tf names the frame
+
+    def ask_in(frame):
+        request = ask(0.0, 0.0)
+        request.header.frame_id = frame
+        return request
+
+    start = time.monotonic()
+    _, ghost = round_trip(single, ask_in('ghost'), 20, 'ghost, first')
+    assert not ghost.success and '(waited 1 s)' in ghost.message
+    assert time.monotonic() - start >= 0.9
+    start = time.monotonic()
+    for _ in range(3):
+        _, again = round_trip(single, ask_in('ghost'), 20, 'ghost, again')
+        assert not again.success and "not waited for: no transform has named 'ghost'" in \
+            again.message and 'waited 1 s' not in again.message
+    assert time.monotonic() - start < 0.9
+    assert node.health()[2]['refused_unwaited_frame'] == 3
+    tf_pub.publish(TFMessage(transforms=[transform_to_msg(np.eye(4), 'world', 'ghost', 50.1)]))
+    ros_graph.wait_for(lambda: node.tf.knows('ghost'), 10, 'world <- ghost on /tf')
+    _, found = round_trip(single, ask_in('ghost'), 20, 'ghost, named')
+    assert found.success, found.message

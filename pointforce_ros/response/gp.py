@@ -239,26 +239,10 @@ class FeatureGp:
         chunk = max(1, min(int(chunk), GRID_CHUNK_ELEMENTS // (n * n)))
         for lo in range(0, len(combos), chunk):
             c = combos[lo:lo + chunk]
-            inv = np.stack([_inv_len2(c[:, 0]), _inv_len2(c[:, 1]), _inv_len2(c[:, 2])], axis=1)
-            r = np.exp(-0.5 * np.einsum('ijg,cg->cij', d2, inv))
-            r += c[:, 3, None, None] * lin[None] + c[:, 4, None, None] * eye[None]
-            try:
-                chol = np.linalg.cholesky(r)
-            except np.linalg.LinAlgError:
+            scored = self._score_grid(c, d2, lin, eye, rhs, dof)
+            if scored is None:
                 continue
-            # One batched forward solve: w = L^-1 [1, y] gives every quadratic form needed.
-            w = np.linalg.solve(chol, np.broadcast_to(rhs, (len(c), n, 2)))
-            one_r_one = (w[:, :, 0] ** 2).sum(axis=1)
-            one_r_y = (w[:, :, 0] * w[:, :, 1]).sum(axis=1)
-            beta = one_r_y / one_r_one
-            quad = np.maximum((w[:, :, 1] ** 2).sum(axis=1) - beta * one_r_y, 0.0)
-            s2 = (quad + self.prior_dof * self.prior_scale ** 2) / dof
-            logdet = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
-            val = -0.5 * (dof * np.log(s2) + logdet + np.log(one_r_one))
-            mu_p, sd_p = self.grid.position_prior
-            mu_n, sd_n = self.grid.nugget_prior
-            val -= 0.5 * ((np.log(c[:, 0] / mu_p) / sd_p) ** 2
-                          + (np.log(c[:, 4] / mu_n) / sd_n) ** 2)
+            val, s2, beta = scored
             j = int(np.argmax(val))
             if val[j] > best_val:
                 best_val = float(val[j])
@@ -270,6 +254,37 @@ class FeatureGp:
                                'kernel (duplicate pokes with different values?)')
         self.condition(features, y, best, noise)
         return best
+
+    def _score_grid(self, c: np.ndarray, d2: np.ndarray, lin: np.ndarray, eye: np.ndarray,
+                    rhs: np.ndarray, dof: float, extra=0.0):
+        """``(value, s2, beta)`` (C,) of the grid rows ``c``, or ``None`` (not positive-definite).
+
+        ``value``: the restricted log likelihood plus the priors of :meth:`fit`; ``extra``: a
+        correlation term added to every row's kernel (0: none).
+        """
+        n = len(rhs)
+        inv = np.stack([_inv_len2(c[:, 0]), _inv_len2(c[:, 1]), _inv_len2(c[:, 2])], axis=1)
+        r = np.exp(-0.5 * np.einsum('ijg,cg->cij', d2, inv))
+        r += c[:, 3, None, None] * lin[None] + c[:, 4, None, None] * eye[None]
+        r += extra
+        try:
+            chol = np.linalg.cholesky(r)
+        except np.linalg.LinAlgError:
+            return None
+        # One batched forward solve: w = L^-1 [1, y] gives every quadratic form needed.
+        w = np.linalg.solve(chol, np.broadcast_to(rhs, (len(c), n, 2)))
+        one_r_one = (w[:, :, 0] ** 2).sum(axis=1)
+        one_r_y = (w[:, :, 0] * w[:, :, 1]).sum(axis=1)
+        beta = one_r_y / one_r_one
+        quad = np.maximum((w[:, :, 1] ** 2).sum(axis=1) - beta * one_r_y, 0.0)
+        s2 = (quad + self.prior_dof * self.prior_scale ** 2) / dof
+        logdet = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
+        val = -0.5 * (dof * np.log(s2) + logdet + np.log(one_r_one))
+        mu_p, sd_p = self.grid.position_prior
+        mu_n, sd_n = self.grid.nugget_prior
+        val -= 0.5 * ((np.log(c[:, 0] / mu_p) / sd_p) ** 2
+                      + (np.log(c[:, 4] / mu_n) / sd_n) ** 2)
+        return val, s2, beta
 
     @staticmethod
     def _noise(noise: Optional[np.ndarray], n: int) -> np.ndarray:

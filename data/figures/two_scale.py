@@ -1,0 +1,160 @@
+#!/usr/bin/env python3
+"""Figure 1's point-poke table with a second, short position length scale in ours' processes.
+
+A study (session 43), the same draws and output as ``spread_variants.py`` (seed 0, 10 random
+training subsets per size of the committed 30-poke fixtures, held-out pokes scored on their
+measured contact samples; median and mean RMSE over the draws, ratio to ET's).
+
+Why: on lamb ours is worse at 10 pokes (0.575 N) than at 5 (0.466 N). One poke over the
+buried bone, its exponent on the cap and its onset 3 mm early, bends the processes of pokes
+17 mm away: each process has one position length scale, so a poke that differs from its
+neighbours either pulls the field far around it (a long scale) or is written off as noise
+(the nugget, and the optional outlier screen, which loses the bone for the wide contacts that
+cross it: figure 2). A second RBF part over position only, ``w2 exp(-|dp|^2 / (2 lp2^2))``
+beside the product's kernel, lets one poke depart from the field over its own few millimetres
+and leave the rest alone; ``(lp2, w2)`` are chosen with the other hyperparameters by the
+restricted likelihood, ``w2 = 0`` (no local part) among the choices. Columns:
+
+- ``ours``: the default :class:`~pointforce_ros.response.ours.ContactGpModel`;
+- ``local_8``: ``lp2`` 0.08 of the object size (about 10 mm on lamb), ``w2`` 0 or 1;
+- ``local_any``: ``lp2`` 0.05, 0.1 or 0.2, ``w2`` 0, 1, 3 or 10.
+
+Session 43 (record ``two_scale.log``, medians): lamb at 10 pokes 1.45 -> 1.32 and 1.30 of ET
+(the means 1.51 -> 1.51 and 1.47: two or three draws move), the dome at 10 1.23 -> 1.19
+(``local_any``), vest at 5 1.00 -> 0.96; every other cell within 0.03 of ours, some worse
+(plush at 5 1.22 -> 1.25, the dome at 5 1.77 -> 1.79). Not kept: no cell that ours misses
+reaches 0.9x, and lamb's mean over the draws is where it was.
+
+Usage: python data/figures/two_scale.py [--objects lamb] [--sizes 5 10]
+(about 60 s per object on one core; set OPENBLAS_NUM_THREADS=1).
+"""
+
+import contextlib
+from dataclasses import dataclass
+
+import numpy as np
+from spread_variants import print_table   # this script's folder is on sys.path
+
+import pointforce_ros.response.ours as ours_module
+from pointforce_ros.lab.baseline import EtBaseline
+from pointforce_ros.response.gp import (_inv_len2, _sqdist, FeatureGp, GpState,
+                                        GRID_CHUNK_ELEMENTS)
+from pointforce_ros.response.ours import ContactGpModel
+
+
+@dataclass(frozen=True)
+class LocalState(GpState):
+    """A process's hyperparameters with the local part's length scale and weight."""
+
+    lp2: float = np.inf
+    w2: float = 0.0
+
+
+class LocalGp(FeatureGp):
+    """:class:`FeatureGp` with ``w2 exp(-|dp|^2 / (2 lp2^2))`` added to its kernel."""
+
+    choices = ((np.inf, 0.0),)
+    """``(lp2, w2)`` pairs on offer (position units of the object size)."""
+
+    def fit(self, features, y, chunk=512, noise=None):
+        """Choose ``(lp2, w2)`` with the rest of the grid by the same criterion; condition."""
+        features, y = np.asarray(features, dtype=float), np.asarray(y, dtype=float)
+        n = len(y)
+        groups, phi = self._prepare(features)
+        d2 = np.stack([_sqdist(g, g) for g in groups], axis=-1)
+        combos = self.grid.combos()
+        if phi.shape[1] == 0:
+            combos = combos[combos[:, 3] == combos[0, 3]]
+            combos[:, 3] = 0.0
+        eye, rhs = np.diag(self._noise(noise, n)), np.stack([np.ones(n), y], axis=1)
+        chunk = max(1, min(int(chunk), GRID_CHUNK_ELEMENTS // (n * n)))
+        best_val, best = -np.inf, None
+        for lp2, w2 in self.choices:
+            extra = w2 * np.exp(-0.5 * float(_inv_len2(lp2)) * d2[:, :, 0]) if w2 else 0.0
+            for lo in range(0, len(combos), chunk):
+                c = combos[lo:lo + chunk]
+                scored = self._score_grid(c, d2, phi @ phi.T, eye, rhs, n - 1 + self.prior_dof,
+                                          extra)
+                if scored is None:
+                    continue
+                val, s2, beta = scored
+                j = int(np.argmax(val))
+                if val[j] > best_val:
+                    best_val = float(val[j])
+                    best = LocalState(*(float(v) for v in c[j]), s2=float(s2[j]),
+                                      beta=float(beta[j]), lp2=float(lp2), w2=float(w2))
+        self.condition(features, y, best, noise)
+        return best
+
+    def _corr(self, ga, pa, gb, pb):
+        out = super()._corr(ga, pa, gb, pb)
+        w2 = getattr(self.state, 'w2', 0.0)
+        if w2:
+            out = out + w2 * np.exp(-0.5 * float(_inv_len2(self.state.lp2))
+                                    * _sqdist(ga[0], gb[0]))
+        return out
+
+    def predict(self, features, return_std=False, *, include_nugget=True, sq=None):
+        """As :meth:`FeatureGp.predict`, with the local part in the kernel and the prior."""
+        st = self.state
+        if not getattr(st, 'w2', 0.0):
+            return super().predict(features, return_std, include_nugget=include_nugget, sq=sq)
+        scaled, phi = self._prepare(np.asarray(features, dtype=float))
+        kt = self._corr(self._z, self._phi, scaled, phi)
+        mean = st.beta + self._alpha @ kt
+        if not return_std:
+            return mean
+        v = self._chol_inv @ kt
+        u = 1.0 - self._rinv1 @ kt
+        prior = 1.0 + st.w2 + (st.tau * np.einsum('ij,ij->i', phi, phi) if phi.shape[1]
+                               else 0.0)
+        var = prior - np.einsum('ij,ij->j', v, v) + u * u / self._one_rinv_one
+        if include_nugget:
+            var = var + st.nugget
+        return mean, np.sqrt(np.maximum(var, 0.0) * st.s2)
+
+
+@contextlib.contextmanager
+def local_processes(choices):
+    """Within the block, ours builds :class:`LocalGp` processes offering ``choices``."""
+    cls = type('Local', (LocalGp,), {'choices': ((np.inf, 0.0),) + tuple(choices)})
+    ours_module.FeatureGp = cls
+    try:
+        yield
+    finally:
+        ours_module.FeatureGp = FeatureGp
+
+
+class TwoScale:
+    """Ours fitted with a local part on offer in every process."""
+
+    def __init__(self, lengths, weights):
+        self.choices = tuple((lp2, w2) for lp2 in lengths for w2 in weights)
+
+    def fit(self, curves, surface):
+        """Fit ours; returns ``self`` (its processes keep their class for predicting)."""
+        with local_processes(self.choices):
+            self.model = ContactGpModel().fit(curves, surface)
+        self.poke_ids = self.model.poke_ids
+        return self
+
+    def predict(self, features, d):
+        """Ours' force (N)."""
+        return self.model.predict(features, d)
+
+
+VARIANTS = {
+    'ours': ContactGpModel,
+    'et': EtBaseline,
+    'local_8': lambda: TwoScale((0.08,), (1.0,)),
+    'local_any': lambda: TwoScale((0.05, 0.1, 0.2), (1.0, 3.0, 10.0)),
+}
+
+
+def main():
+    """The two-scale table."""
+    print_table(VARIANTS, __doc__.splitlines()[0])
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""How smooth the contact answer is along a planner's moves (a study, session 43).
+
+A planner that takes finite differences of the wrench (a push or grasp optimiser) needs to know
+over what step the answer is smooth. Ours (fitted on all 30 pokes of a figure fixture, baked on
+its surface as the learner bakes) drives the contact simulator (``c`` = 4 mm, the default
+rigid-sample spacing of 3 mm); a sphere (20 mm radius), a flat box (30 x 30 mm) and a
+cylinder (10 mm radius, 60 mm long, axis along x) are placed over the middle of the object,
+3 mm past its top, and moved:
+
+- sideways over 10 mm in 2 um steps (along x; the cylinder across its axis, along y): ``jumps``
+  counts the steps whose change in ``Fz`` is over 20 times the median step's, with the largest
+  as a share of the force; the finite-difference slope error is the median of
+  ``|central difference - slope of a degree-5 fit over the 10 mm|`` over the median fitted
+  slope, for steps ``h`` of 0.01, 0.1, 0.5 and 1 mm;
+- along the approach over 6 mm in 1 um steps: the same, and how many steps the force falls
+  as the body goes deeper.
+
+Each rigid sample's estimated contact point and nominal displacement average its three
+nearest surface points with equal weights (seed 000, eq. 1), so the answer steps where the
+third and fourth nearest of a sample swap; with some 50 samples in contact that is every few
+tens of microns of sideways travel.
+
+Session 43, lamb (record ``answer_smoothness.log``): sideways 21-45 steps per mm, each at
+most 0.3-1.0 % of the force, and the slope error 260-430 % at 0.01 mm, 87-228 % at 0.1 mm,
+22-64 % at 0.5 mm and 9-34 % at 1 mm; along the approach no step over 20 times the median,
+slope error 0.2-1.7 % at every ``h``, and one step in 18 000 where the force fell (0.25 mN at
+11.3 N, the LCP's tolerance). So: finite differences along the approach at any step; sideways
+at 1 mm or more, and even then with the sideways slope known to some 10-30 %.
+
+Usage: python data/figures/answer_smoothness.py [--object lamb] (about 2 min on one core; set
+OPENBLAS_NUM_THREADS=1).
+"""
+
+import argparse
+import time
+
+import numpy as np
+
+from pointforce_ros.contact.simulator import ContactSimulator
+from pointforce_ros.lab.figures import bake_depths, load_poke_fixture
+from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.shapes import box, cylinder, icosphere
+
+BODIES = {'sphere': (lambda: icosphere(0.02, 2), 0.02, 0),
+          'box': (lambda: box((0.03, 0.03, 0.02)), 0.0, 0),
+          'cylinder': (lambda: cylinder(0.01, 0.06), 0.0, 1)}
+"""Name: (mesh, height of its lowest point below the mesh origin, sideways axis)."""
+STEPS = (1e-5, 1e-4, 5e-4, 1e-3)
+DEPTH = 0.003
+
+
+def sweep(sim, mesh, poses):
+    """``Fz`` (N) at each pose, the body moving along -z."""
+    return np.asarray(sim.query_batch(mesh, poses, [0.0, 0.0, -1.0], poses[:, :3]).wrenches)[:, 2]
+
+
+def smoothness(fz, step, span):
+    """``(jumps, largest jump / F, slope errors per STEPS, steps where F fell, largest fall)``."""
+    change = np.diff(fz)
+    big = np.abs(change) > 20.0 * max(np.median(np.abs(change)), 1e-9)
+    largest = float(np.max(np.abs(change[big]) / np.abs(fz[1:][big]))) if big.any() else 0.0
+    x = np.linspace(0.0, 1.0, len(fz))
+    slope = np.polyval(np.polyder(np.polyfit(x, fz, 5)), x) / span
+    errors = []
+    for h in STEPS:
+        k = max(1, int(round(h / step)))
+        central = (fz[2 * k:] - fz[:-2 * k]) / (2 * k * step)
+        errors.append(float(np.median(np.abs(central - slope[k:-k]))
+                            / np.median(np.abs(slope[k:-k]))))
+    fell = change < -1e-12
+    return (int(big.sum()), largest, errors, int(fell.sum()),
+            float(-change[fell].min()) if fell.any() else 0.0)
+
+
+def main(argv=None):
+    """Print one line per body and direction."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--object', default='lamb')
+    args = parser.parse_args(argv)
+    surface, curves, _ = load_poke_fixture(args.object, say=lambda line: None)
+    sim = ContactSimulator(surface, ContactGpModel().fit(curves, surface).bake(
+        surface, bake_depths(curves)), c=0.004)
+    middle = np.median(surface.points, axis=0)
+    top = surface.points[np.linalg.norm(surface.points[:, :2] - middle[:2], axis=1) < 0.003,
+                         2].max()
+    for name, (make, low, side) in BODIES.items():
+        mesh = make()
+        for direction, span, step in (('sideways', 0.01, 2e-6), ('approach', 0.006, 1e-6)):
+            start = time.monotonic()
+            n = int(round(span / step)) + 1
+            poses = np.zeros((n, 7))
+            poses[:, 6] = 1.0
+            poses[:, :3] = middle
+            travel = np.linspace(0.0, span, n)
+            if direction == 'sideways':
+                poses[:, side] += travel - span / 2
+                poses[:, 2] = top + low - DEPTH
+            else:
+                poses[:, 2] = top + low - travel
+            fz = sweep(sim, mesh, poses)
+            jumps, largest, errors, fell, drop = smoothness(fz, step, span)
+            print(f'{args.object} {name} {direction} over {span * 1e3:.0f} mm: Fz '
+                  f'{fz.min():.2f}-{fz.max():.2f} N; {jumps} jumps (largest '
+                  f'{largest * 100:.2f} % of the force); slope error at h = 0.01 / 0.1 / 0.5 / '
+                  f'1 mm: ' + ' / '.join(f'{e * 100:.1f} %' for e in errors)
+                  + f'; steps where the force fell: {fell} of {n - 1} (largest '
+                  f'{drop * 1e3:.3g} mN)'
+                  + f'   [{time.monotonic() - start:.0f} s]', flush=True)
+
+
+if __name__ == '__main__':
+    main()

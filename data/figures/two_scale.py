@@ -37,8 +37,7 @@ from spread_variants import print_table   # this script's folder is on sys.path
 
 import pointforce_ros.response.ours as ours_module
 from pointforce_ros.lab.baseline import EtBaseline
-from pointforce_ros.response.gp import (_inv_len2, _sqdist, FeatureGp, GpState,
-                                        GRID_CHUNK_ELEMENTS)
+from pointforce_ros.response.gp import _inv_len2, _sqdist, FeatureGp, GpState
 from pointforce_ros.response.ours import ContactGpModel
 
 
@@ -51,40 +50,22 @@ class LocalState(GpState):
 
 
 class LocalGp(FeatureGp):
-    """:class:`FeatureGp` with ``w2 exp(-|dp|^2 / (2 lp2^2))`` added to its kernel."""
+    """:class:`FeatureGp` with ``w2 exp(-|dp|^2 / (2 lp2^2))`` added to its kernel.
+
+    ``(lp2, w2)`` is chosen with the rest of the grid by the same criterion (``fit``'s).
+    """
 
     choices = ((np.inf, 0.0),)
     """``(lp2, w2)`` pairs on offer (position units of the object size)."""
 
-    def fit(self, features, y, chunk=512, noise=None):
-        """Choose ``(lp2, w2)`` with the rest of the grid by the same criterion; condition."""
-        features, y = np.asarray(features, dtype=float), np.asarray(y, dtype=float)
-        n = len(y)
-        groups, phi = self._prepare(features)
-        d2 = np.stack([_sqdist(g, g) for g in groups], axis=-1)
-        combos = self.grid.combos()
-        if phi.shape[1] == 0:
-            combos = combos[combos[:, 3] == combos[0, 3]]
-            combos[:, 3] = 0.0
-        eye, rhs = np.diag(self._noise(noise, n)), np.stack([np.ones(n), y], axis=1)
-        chunk = max(1, min(int(chunk), GRID_CHUNK_ELEMENTS // (n * n)))
-        best_val, best = -np.inf, None
-        for lp2, w2 in self.choices:
-            extra = w2 * np.exp(-0.5 * float(_inv_len2(lp2)) * d2[:, :, 0]) if w2 else 0.0
-            for lo in range(0, len(combos), chunk):
-                c = combos[lo:lo + chunk]
-                scored = self._score_grid(c, d2, phi @ phi.T, eye, rhs, n - 1 + self.prior_dof,
-                                          extra)
-                if scored is None:
-                    continue
-                val, s2, beta = scored
-                j = int(np.argmax(val))
-                if val[j] > best_val:
-                    best_val = float(val[j])
-                    best = LocalState(*(float(v) for v in c[j]), s2=float(s2[j]),
-                                      beta=float(beta[j]), lp2=float(lp2), w2=float(w2))
-        self.condition(features, y, best, noise)
-        return best
+    def _kernel_terms(self, d2):
+        """The plain kernel, then each ``(lp2, w2)`` of :attr:`choices` added to it."""
+        return tuple((w2 * np.exp(-0.5 * float(_inv_len2(lp2)) * d2[:, :, 0]) if w2 else 0.0,
+                      {'lp2': float(lp2), 'w2': float(w2)}) for lp2, w2 in self.choices)
+
+    @staticmethod
+    def _state(row, s2, beta, fields):
+        return LocalState(*(float(v) for v in row[:5]), s2=s2, beta=beta, **fields)
 
     def _corr(self, ga, pa, gb, pb):
         out = super()._corr(ga, pa, gb, pb)

@@ -237,23 +237,36 @@ class FeatureGp:
         rhs = np.stack([np.ones(n), y], axis=1)
         # a chunk holds a few (chunk, n, n) arrays: at most GRID_CHUNK_ELEMENTS each
         chunk = max(1, min(int(chunk), GRID_CHUNK_ELEMENTS // (n * n)))
-        for lo in range(0, len(combos), chunk):
-            c = combos[lo:lo + chunk]
-            scored = self._score_grid(c, d2, lin, eye, rhs, dof)
-            if scored is None:
-                continue
-            val, s2, beta = scored
-            j = int(np.argmax(val))
-            if val[j] > best_val:
-                best_val = float(val[j])
-                best = GpState(lp=float(c[j, 0]), lc=float(c[j, 1]), ln=float(c[j, 2]),
-                               tau=float(c[j, 3]), nugget=float(c[j, 4]), s2=float(s2[j]),
-                               beta=float(beta[j]))
+        for extra, fields in self._kernel_terms(d2):
+            for lo in range(0, len(combos), chunk):
+                c = combos[lo:lo + chunk]
+                scored = self._score_grid(c, d2, lin, eye, rhs, dof, extra)
+                if scored is None:
+                    continue
+                val, s2, beta = scored
+                j = int(np.argmax(val))
+                if val[j] > best_val:
+                    best_val = float(val[j])
+                    best = self._state(c[j], float(s2[j]), float(beta[j]), fields)
         if best is None:
             raise InvalidInput('FeatureGp.fit: no hyperparameters give a positive-definite '
                                'kernel (duplicate pokes with different values?)')
         self.condition(features, y, best, noise)
         return best
+
+    def _kernel_terms(self, d2: np.ndarray):
+        """``(term, fields)`` pairs :meth:`fit` scores the whole grid with.
+
+        ``term`` is added to every grid row's correlation matrix (``d2``: the training points'
+        (n, n, 3) squared distances per feature group), ``fields`` go to :meth:`_state`. One
+        pair, no term: the kernel of the module docstring (a study may offer more).
+        """
+        return ((0.0, {}),)
+
+    @staticmethod
+    def _state(row: np.ndarray, s2: float, beta: float, fields: Mapping) -> GpState:
+        """Return the state of grid row ``(lp, lc, ln, tau, nugget)`` (``fields``: none here)."""
+        return GpState(*(float(v) for v in row[:5]), s2=s2, beta=beta, **fields)
 
     def _score_grid(self, c: np.ndarray, d2: np.ndarray, lin: np.ndarray, eye: np.ndarray,
                     rhs: np.ndarray, dof: float, extra=0.0):

@@ -170,18 +170,25 @@ def test_total_samples_are_bounded(monkeypatch):
     np.testing.assert_allclose(buf.lookup('base', 'tool0')[:3, 3], [0, 0, 0.1])
 
 
-def test_wait_transform_waits_for_a_transform_in_flight_only():
-    buf = TransformBuffer()
-    buf.set_transform('base', 'cam', 1.0, [0, 0, 0], [0, 0, 0, 1])
-
+def _wait_for_late(buf, transform, lookup):
+    """Return ``buf.wait_transform(*lookup)`` while ``transform`` is set 50 ms later."""
     def late():
         time.sleep(0.05)
-        buf.set_transform('base', 'cam', 2.0, [0, 0, 0.5], [0, 0, 0, 1])
+        buf.set_transform(*transform)
 
     thread = threading.Thread(target=late)
     thread.start()
-    got = buf.wait_transform('base', 'cam', 2.0, timeout=10.0)
-    thread.join()
+    try:
+        return buf.wait_transform(*lookup, timeout=10.0)
+    finally:
+        thread.join()
+
+
+def test_wait_transform_waits_for_a_transform_in_flight_only():
+    buf = TransformBuffer()
+    buf.set_transform('base', 'cam', 1.0, [0, 0, 0], [0, 0, 0, 1])
+    got = _wait_for_late(buf, ('base', 'cam', 2.0, [0, 0, 0.5], [0, 0, 0, 1]),
+                         ('base', 'cam', 2.0))
     np.testing.assert_allclose(got[:3, 3], [0, 0, 0.5])
     # a time already dropped, or two known frames not connected, is refused without waiting
     _set(buf, 'world', 'map', np.eye(4))
@@ -221,16 +228,10 @@ def test_a_frame_waited_for_in_vain_is_not_waited_for_again_until_a_transform_na
         assert time.monotonic() - start >= 0.1
     assert buf.not_waited == 50
 
-    def late():
-        time.sleep(0.05)
-        buf.set_transform('cam', 'ghost', 2.0, [0, 0, 0.2], [0, 0, 0, 1])
-
     # once a transform names it, it is waited for again (and found)
     buf.set_transform('cam', 'ghost', 1.0, [0, 0, 0.1], [0, 0, 0, 1])
-    thread = threading.Thread(target=late)
-    thread.start()
-    got = buf.wait_transform('base', 'ghost', 2.0, timeout=10.0)
-    thread.join()
+    got = _wait_for_late(buf, ('cam', 'ghost', 2.0, [0, 0, 0.2], [0, 0, 0, 1]),
+                         ('base', 'ghost', 2.0))
     np.testing.assert_allclose(got[:3, 3], [0, 0, 0.2])
     # a jump back in time (clear) forgets the frames waited for in vain with the rest
     with pytest.raises(TransformUnavailable):

@@ -19,14 +19,19 @@ cylinder (10 mm radius, 60 mm long, axis along x) are placed over the middle of 
 Each rigid sample's estimated contact point and nominal displacement average its three
 nearest surface points with equal weights (seed 000, eq. 1), so the answer steps where the
 third and fourth nearest of a sample swap; with some 50 samples in contact that is every few
-tens of microns of sideways travel.
+tens of microns of sideways travel. For the sphere's sideways sweep each jump is put down to
+its cause (:func:`attribute`): a kept sample's neighbour triple changed, or the kept samples
+themselves (one per surface point and per triple; a sample entering contact).
 
 Session 43, lamb (record ``answer_smoothness.log``): sideways 21-45 steps per mm, each at
 most 0.3-1.0 % of the force, and the slope error 260-430 % at 0.01 mm, 87-228 % at 0.1 mm,
 22-64 % at 0.5 mm and 9-34 % at 1 mm; along the approach no step over 20 times the median,
 slope error 0.2-1.7 % at every ``h``, and one step in 18 000 where the force fell (0.25 mN at
 11.3 N, the LCP's tolerance). So: finite differences along the approach at any step; sideways
-at 1 mm or more, and even then with the sideways slope known to some 10-30 %.
+at 1 mm or more, and even then with the sideways slope known to some 10-30 %. Of the
+sphere's 384 sideways jumps, 339 are a kept sample's neighbour triple changing alone (the
+largest, 0.99 %, among them), 15 the kept samples changing and 30 both: neighbour weights that
+vanish where a sample's third and fourth nearest swap would take out most of them.
 
 Usage: python data/figures/answer_smoothness.py [--object lamb] (about 2 min on one core; set
 OPENBLAS_NUM_THREADS=1).
@@ -37,6 +42,7 @@ import time
 
 import numpy as np
 
+from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.contact.simulator import ContactSimulator
 from pointforce_ros.lab.figures import bake_depths, load_poke_fixture
 from pointforce_ros.response.ours import ContactGpModel
@@ -73,6 +79,36 @@ def smoothness(fz, step, span):
             float(-change[fell].min()) if fell.any() else 0.0)
 
 
+def attribute(sim, mesh, poses, fz):
+    """``{cause: (count, largest jump / F)}`` of the sideways jumps (identity rotations only).
+
+    Between the two poses of each jump the contact candidates (steps 1-3 of the simulator:
+    each rigid sample's neighbour triple, one sample kept per surface point and per triple)
+    are compared: ``triple`` a kept sample's three nearest surface points changed, ``samples``
+    the kept samples changed, ``both``, or ``neither``.
+    """
+    local, _ = sample_mesh_surface(mesh, sim.spacing)
+    change = np.diff(fz)
+    big = np.flatnonzero(np.abs(change) > 20.0 * max(np.median(np.abs(change)), 1e-9))
+
+    def kept(i):
+        cand = sim._candidates(local, np.eye(3)[None], poses[i:i + 1, :3],
+                               np.array([0.0, 0.0, -1.0]))
+        ids = np.argmin(np.linalg.norm((cand['p'] - poses[i, :3])[:, None, :] - local[None],
+                                       axis=2), axis=1)
+        return {int(k): tuple(sorted(t)) for k, t in zip(ids, cand['nbr'])}
+
+    out = {k: [] for k in ('triple', 'samples', 'both', 'neither')}
+    for j in big:
+        before, after = kept(j), kept(j + 1)
+        moved = set(before) != set(after)
+        triple = any(before[k] != after[k] for k in set(before) & set(after))
+        cause = 'both' if moved and triple else 'triple' if triple else \
+            'samples' if moved else 'neither'
+        out[cause].append(abs(change[j]) / abs(fz[j + 1]))
+    return {k: (len(v), max(v, default=0.0)) for k, v in out.items()}
+
+
 def main(argv=None):
     """Print one line per body and direction."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -100,12 +136,16 @@ def main(argv=None):
                 poses[:, 2] = top + low - travel
             fz = sweep(sim, mesh, poses)
             jumps, largest, errors, fell, drop = smoothness(fz, step, span)
+            causes = attribute(sim, mesh, poses, fz) if (
+                name == 'sphere' and direction == 'sideways') else None
             print(f'{args.object} {name} {direction} over {span * 1e3:.0f} mm: Fz '
                   f'{fz.min():.2f}-{fz.max():.2f} N; {jumps} jumps (largest '
                   f'{largest * 100:.2f} % of the force); slope error at h = 0.01 / 0.1 / 0.5 / '
                   f'1 mm: ' + ' / '.join(f'{e * 100:.1f} %' for e in errors)
                   + f'; steps where the force fell: {fell} of {n - 1} (largest '
                   f'{drop * 1e3:.3g} mN)'
+                  + (''.join(f'; {k} {n} (largest {v * 100:.2f} %)'
+                             for k, (n, v) in causes.items()) if causes else '')
                   + f'   [{time.monotonic() - start:.0f} s]', flush=True)
 
 

@@ -25,7 +25,7 @@ Usage: python data/figures/feature_variants.py [--objects dome thin_layer] [--si
 import contextlib
 
 import numpy as np
-from spread_variants import PickByLoo, print_table   # this script's folder is on sys.path
+from spread_variants import OursWithin, PickByLoo, print_table   # this folder is on sys.path
 
 import pointforce_ros.response.gp as gp
 from pointforce_ros.lab.baseline import EtBaseline
@@ -60,23 +60,9 @@ def height_weight(k):
     return patched_prepare(change)
 
 
-class HeightWeighted:
+def height_weighted(k):
     """Ours fitted and queried with the height weighed ``k`` times in the position kernel."""
-
-    def __init__(self, k):
-        self.k = float(k)
-
-    def fit(self, curves, surface):
-        """Fit ours under the weighting; returns ``self``."""
-        with height_weight(self.k):
-            self.model = ContactGpModel().fit(curves, surface)
-        self.poke_ids = self.model.poke_ids
-        return self
-
-    def predict(self, features, d):
-        """Ours' force (N) under the weighting."""
-        with height_weight(self.k):
-            return self.model.predict(features, d)
+    return OursWithin(lambda: height_weight(float(k)))
 
 
 def chosen_law_score(wrapper) -> float:
@@ -89,14 +75,14 @@ class HeightByLoo(PickByLoo):
     """Ours with the height weight of ``ks`` whose fit has the lowest leave-one-poke-out error."""
 
     def __init__(self, ks=(1.0, 4.0)):
-        super().__init__([lambda k=k: HeightWeighted(k) for k in ks], chosen_law_score)
+        super().__init__([lambda k=k: height_weighted(k) for k in ks], chosen_law_score)
 
 
 VARIANTS = {
     'ours': ContactGpModel,
     'et': EtBaseline,
-    'height_x4': lambda: HeightWeighted(4.0),
-    'height_x10': lambda: HeightWeighted(10.0),
+    'height_x4': lambda: height_weighted(4.0),
+    'height_x10': lambda: height_weighted(10.0),
     'height_loo': HeightByLoo,
     'fine_colour': lambda: ContactGpModel(grid=GpGrid(colour=(np.inf, 0.3, 0.1, 0.05))),
 }

@@ -37,7 +37,7 @@ import contextlib
 
 import numpy as np
 from height_basis import height_basis       # this script's folder is on sys.path
-from spread_variants import print_table
+from spread_variants import OursWithin, print_table
 
 from pointforce_ros.lab.baseline import EtBaseline
 from pointforce_ros.response import gp
@@ -107,32 +107,18 @@ def patched(loo=False, unclamped=False, height=False):
             ContactGpModel._bounds = ORIGINAL_BOUNDS
 
 
-class Patched:
-    """Ours fitted and queried under :func:`patched`."""
-
-    def __init__(self, **changes):
-        self.changes = changes
-
-    def fit(self, curves, surface):
-        """Fit ours with the changes; returns ``self``."""
-        with patched(**self.changes):
-            self.model = ContactGpModel().fit(curves, surface)
-        self.poke_ids = self.model.poke_ids
-        return self
-
-    def predict(self, features, d):
-        """Ours' force (N) with the changes."""
-        with patched(**self.changes):
-            return self.model.predict(features, d)
+def changed(**changes):
+    """Ours fitted and queried under :func:`patched` with ``changes``."""
+    return OursWithin(lambda: patched(**changes))
 
 
 VARIANTS = {
     'ours': ContactGpModel,
     'et': EtBaseline,
-    'unclamped': lambda: Patched(unclamped=True),
-    'loo': lambda: Patched(loo=True),
-    'z_unclamped': lambda: Patched(height=True, unclamped=True),
-    'z_loo': lambda: Patched(height=True, loo=True, unclamped=True),
+    'unclamped': lambda: changed(unclamped=True),
+    'loo': lambda: changed(loo=True),
+    'z_unclamped': lambda: changed(height=True, unclamped=True),
+    'z_loo': lambda: changed(height=True, loo=True, unclamped=True),
 }
 
 

@@ -20,7 +20,7 @@ Usage: python data/figures/height_basis.py [--objects dome] [--sizes 5 10]
 
 import numpy as np
 from feature_variants import patched_prepare   # this script's folder is on sys.path
-from spread_variants import print_table
+from spread_variants import OursWithin, print_table
 
 from pointforce_ros.lab.baseline import EtBaseline
 from pointforce_ros.response.ours import ContactGpModel
@@ -39,31 +39,17 @@ def height_basis(columns, skip=()):
     return patched_prepare(change)
 
 
-class HeightBasis:
+def height_basis_model(columns, skip=()):
     """Ours fitted and queried with the extra basis columns."""
-
-    def __init__(self, columns, skip=()):
-        self.columns, self.skip = tuple(columns), tuple(skip)
-
-    def fit(self, curves, surface):
-        """Fit ours with the basis; returns ``self``."""
-        with height_basis(self.columns, self.skip):
-            self.model = ContactGpModel().fit(curves, surface)
-        self.poke_ids = self.model.poke_ids
-        return self
-
-    def predict(self, features, d):
-        """Ours' force (N) with the basis."""
-        with height_basis(self.columns, self.skip):
-            return self.model.predict(features, d)
+    return OursWithin(lambda: height_basis(tuple(columns), tuple(skip)))
 
 
 VARIANTS = {
     'ours': ContactGpModel,
     'et': EtBaseline,
-    'z': lambda: HeightBasis(('z',)),
-    'znz': lambda: HeightBasis(('z', 'nz')),
-    'znz_no_onset': lambda: HeightBasis(('z', 'nz'), skip=('rigid',)),
+    'z': lambda: height_basis_model(('z',)),
+    'znz': lambda: height_basis_model(('z', 'nz')),
+    'znz_no_onset': lambda: height_basis_model(('z', 'nz'), skip=('rigid',)),
 }
 
 

@@ -28,10 +28,10 @@ Session 43 (record ``nugget_floor.log``). Figure 1, ``n05`` against ours (median
 ET at 5 | 10 pokes): thin_layer 1.00 | 1.36 (1.00 | 1.43), lamb 1.08 | 1.16 (1.06 | 1.45),
 dome 1.64 | 1.24 (1.77 | 1.23), plush 1.04 | 1.09 (1.22 | 1.13), vest 1.01 | 1.07 (1.00 |
 1.10): better on 6 of 10 cells, none at 0.9x. Figure 2: lamb 7.2 -> 6.9 % of the peak, vest
-8.4 -> 7.9 %, plush 8.7 -> 8.6 %. The step tables, which figure 1 did not choose the variant on: as good as ours
-on the whole and no better (``n05`` / ours per cell 0.95-1.10, lamb at 10 pokes 0.320 ->
-0.353 N, plush at 5 0.666 -> 0.630 N). Not the product's default: the gain is figure 1's data's,
-not the method's.
+8.4 -> 7.9 %, plush 8.7 -> 8.6 %. The step tables, which figure 1 did not choose the variant
+on: as good as ours on the whole and no better (``n05`` / ours per cell 0.95-1.10, lamb at
+10 pokes 0.320 -> 0.353 N, plush at 5 0.666 -> 0.630 N). Not the product's default: the gain
+is figure 1's data's, not the method's.
 
 Usage: python data/figures/nugget_floor.py [--part figure1|steps|figure2] [--objects ...]
 [--sizes 5 10] (figure 1 about 35 s per object, steps 15 s, figure 2 2-4 min per object

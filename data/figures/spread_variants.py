@@ -69,6 +69,25 @@ class PickByLoo:
         return self.model.predict(features, d)
 
 
+class OursWithin:
+    """Ours fitted and queried inside ``within()``, a context manager that patches it."""
+
+    def __init__(self, within):
+        self.within = within
+
+    def fit(self, curves, surface):
+        """Fit ours inside the block; returns ``self``."""
+        with self.within():
+            self.model = ContactGpModel().fit(curves, surface)
+        self.poke_ids = self.model.poke_ids
+        return self
+
+    def predict(self, features, d):
+        """Ours' force (N) inside the block."""
+        with self.within():
+            return self.model.predict(features, d)
+
+
 class PickDecorrelation(PickByLoo):
     """Fit ours with and without decorrelation; keep the lower leave-one-poke-out error."""
 

@@ -33,7 +33,7 @@ import contextlib
 from dataclasses import dataclass
 
 import numpy as np
-from spread_variants import print_table   # this script's folder is on sys.path
+from spread_variants import OursWithin, print_table   # this folder is on sys.path
 
 import pointforce_ros.response.ours as ours_module
 from pointforce_ros.lab.baseline import EtBaseline
@@ -106,29 +106,17 @@ def local_processes(choices):
         ours_module.FeatureGp = FeatureGp
 
 
-class TwoScale:
-    """Ours fitted with a local part on offer in every process."""
-
-    def __init__(self, lengths, weights):
-        self.choices = tuple((lp2, w2) for lp2 in lengths for w2 in weights)
-
-    def fit(self, curves, surface):
-        """Fit ours; returns ``self`` (its processes keep their class for predicting)."""
-        with local_processes(self.choices):
-            self.model = ContactGpModel().fit(curves, surface)
-        self.poke_ids = self.model.poke_ids
-        return self
-
-    def predict(self, features, d):
-        """Ours' force (N)."""
-        return self.model.predict(features, d)
+def two_scale(lengths, weights):
+    """Ours with a local part of each ``(lp2, w2)`` in ``lengths`` x ``weights`` on offer."""
+    choices = tuple((lp2, w2) for lp2 in lengths for w2 in weights)
+    return OursWithin(lambda: local_processes(choices))
 
 
 VARIANTS = {
     'ours': ContactGpModel,
     'et': EtBaseline,
-    'local_8': lambda: TwoScale((0.08,), (1.0,)),
-    'local_any': lambda: TwoScale((0.05, 0.1, 0.2), (1.0, 3.0, 10.0)),
+    'local_8': lambda: two_scale((0.08,), (1.0,)),
+    'local_any': lambda: two_scale((0.05, 0.1, 0.2), (1.0, 3.0, 10.0)),
 }
 
 

@@ -5,7 +5,8 @@ Algorithm for one rigid body pose (all in ``base``, metres, newtons):
 1. Sample the rigid mesh once (:func:`sample_mesh_surface`) and pose the samples.
 2. Project rigid samples and surface points onto the plane normal to the approach direction
    ``a``; for each rigid sample ``p`` take its 3 nearest surface points in that plane and
-   average their positions, normals and nominal displacements
+   average (equally, the paper; or with weights that vanish where a point leaves the three,
+   :data:`NEIGHBOUR_RULES`) their positions, normals and nominal displacements
    ``d_k = -(p - p_k)^T n_k`` (eq. 1) into the *estimated equilibrium point* ``q`` and ``d``.
 3. Keep ``d > d0``, where ``d0`` is the contact onset of the learned response at those
    neighbours (the paper keeps ``d > 0``; see below). Only the front-most rigid sample counts
@@ -19,8 +20,8 @@ Algorithm for one rigid body pose (all in ``base``, metres, newtons):
    optionally times a tail ``exp(-r / L)`` whose length ``L`` is one (``decay``) or grows with
    each contact's penetration (``decay_law='penetration'``).
 5. ``f_i = y(q_i, d_i) - y(q_i, d_i - d~_i)`` with ``y`` the baked point response interpolated
-   over the 3 neighbours with equal weights (as ``q`` is averaged), ``F = sum f_i n_i`` and
-   ``tau = sum (p_i - centre) x f_i n_i`` (eq. 4): the wrench the object exerts on the rigid
+   over the 3 neighbours with the weights of step 2 (as ``q`` is averaged), ``F = sum f_i n_i``
+   and ``tau = sum (p_i - centre) x f_i n_i`` (eq. 4): the wrench the object exerts on the rigid
    body.
 
 Two restrictions beyond the paper, both stated in :class:`ContactSimulator`: only surface points
@@ -108,6 +109,22 @@ true force, two of them live demos), and on the foam block it was no worse (cali
 often picks no tail, where both laws are the paper's ``g``). ``'fixed'`` restores the
 simulator of before."""
 
+NEIGHBOUR_RULES = ('equal', 'smooth')
+"""How step 2 weighs a rigid sample's 3 nearest surface points (:class:`ContactSimulator`
+``neighbours``): equally (the paper), or by :func:`~pointforce_ros.contact.single_pose.
+neighbour_weights`, which vanish where a point leaves the three."""
+
+NEIGHBOURS = 'equal'
+"""The neighbour rule a simulator gets when none is given: the paper's. Smooth weights take
+most of the steps out of the answer (on the demo's lamb, 10 mm sideways in 2 um steps: 12
+steps over 20 times the median one where equal weights make 384 (a sphere), 31 for 453 (a
+box), 74 for 212 (a cylinder); ``data/figures/answer_smoothness.py``), and are about as
+accurate: figure 2's force RMSE better on four objects (plush 0.63 -> 0.60 N, the dome 0.34 ->
+0.32 N) and worse on thin_layer (1.31 -> 1.43 N; ``data/figures/neighbour_rule.py``), the
+demo's 9 planner queries on 10 stored demos 8.67 % of the largest true force (mean) against
+8.53 % (``data/fem/demo_neighbour_replay.py``). So the default stays the paper's, and the
+contact service's ``neighbour_weights`` parameter chooses per cell."""
+
 DECAY_REFERENCE = 0.004
 """Penetration (past the response's onset) at which a contact's decay length is ``decay`` under
 the ``'penetration'`` law, metres: ``L_i = decay * max(e_i, DECAY_FLOOR * DECAY_REFERENCE) /
@@ -161,6 +178,18 @@ def layer_proxy(response, onsets: np.ndarray, reference: Optional[float] = None)
     if reference is None:
         reference = float(np.median(ratio[ok]))
     return np.clip(np.where(ok, reference / np.where(ok, ratio, 1.0), 1.0), *LAYER_CLIP)
+
+
+def check_neighbours(value) -> str:
+    """Return ``value`` as a neighbour rule, one of :data:`NEIGHBOUR_RULES`.
+
+    Raises:
+        InvalidInput: not one of them (the message lists them).
+
+    """
+    if value not in NEIGHBOUR_RULES:
+        raise InvalidInput(f'neighbours: must be one of {NEIGHBOUR_RULES}, got {value!r}')
+    return value
 
 
 def check_decay_law(value, name: str = 'decay_law') -> str:
@@ -390,17 +419,26 @@ class ContactSimulator:
             ``data/figures/probe_layer_law.py``): a choice, not the default.
         near: the shape function's near field, ``'paper'`` (``c / (c + r)``, the default) or
             ``'flat'`` (``(1 + r / c) exp(-r / c)``; :data:`~pointforce_ros.contact.lcp.NEARS`).
+        neighbours: how a rigid sample's 3 nearest surface points are averaged in steps 2
+            and 5, ``'equal'`` (the paper) or ``'smooth'`` (``None``: :data:`NEIGHBOURS`).
+            Equal weights make the answer step each time a sample's third and fourth nearest
+            points swap, 20-45 times per millimetre of sideways travel on the demo's lamb
+            (``data/figures/answer_smoothness.py``); smooth weights,
+            ``w_k = (r_4 - r_k) / sum`` over the in-plane distances (:func:`~pointforce_ros.
+            contact.single_pose.neighbour_weights`), vanish where a point leaves the three,
+            so the answer moves continuously but where the kept samples change (step 3).
 
     Raises:
         InvalidInput: a response whose length differs from the surface's, a non-positive
-            ``c``/``spacing``/``max_gap``/``decay``, an unknown ``decay_law`` or ``near``, or
-            a surface with fewer than 3 points.
+            ``c``/``spacing``/``max_gap``/``decay``, an unknown ``decay_law``, ``near`` or
+            ``neighbours``, or a surface with fewer than 3 points.
 
     """
 
     def __init__(self, surface: Surface, response, c: float, spacing: float = 0.003,
                  max_gap: Optional[float] = None, decay: float = np.inf,
-                 decay_law: Optional[str] = None, near: str = 'paper'):
+                 decay_law: Optional[str] = None, near: str = 'paper',
+                 neighbours: Optional[str] = None):
         if not isinstance(surface, Surface):
             raise InvalidInput(f'ContactSimulator: surface must be a types.Surface, got '
                                f'{type(surface).__name__}')
@@ -417,6 +455,7 @@ class ContactSimulator:
         self.decay = check_decay(decay)
         self.decay_law = check_decay_law(DECAY_LAW if decay_law is None else decay_law)
         self.near = check_near(near)
+        self.neighbours = check_neighbours(NEIGHBOURS if neighbours is None else neighbours)
         self.spacing = _positive('spacing', spacing)
         self.max_gap = None if max_gap is None else _positive('max_gap', max_gap)
         self._points = surface.points
@@ -443,7 +482,8 @@ class ContactSimulator:
 
     def with_shape_constant(self, c: float, decay: Optional[float] = None,
                             decay_law: Optional[str] = None,
-                            near: Optional[str] = None) -> 'ContactSimulator':
+                            near: Optional[str] = None,
+                            neighbours: Optional[str] = None) -> 'ContactSimulator':
         """Return a simulator identical but for ``c`` (and each other argument not ``None``).
 
         The copy shares the cached spatial structures.
@@ -460,6 +500,8 @@ class ContactSimulator:
             other.decay_law = check_decay_law(decay_law)
         if near is not None:
             other.near = check_near(near)
+        if neighbours is not None:
+            other.neighbours = check_neighbours(neighbours)
         return other
 
     # ----------------------------------------------------------------------------- public API
@@ -642,18 +684,20 @@ class ContactSimulator:
                 layer_proxy(self.response, self._onset), dtype=np.float64)
         return proxy
 
-    def layer_scales(self, b_idx: np.ndarray, nbr: np.ndarray) -> Optional[np.ndarray]:
+    def layer_scales(self, b_idx: np.ndarray, nbr: np.ndarray,
+                     w: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
         """(K,) the ``'layer'`` law's factor of each candidate: its pose's median proxy.
 
-        ``b_idx`` (K,) the candidates' poses (sorted), ``nbr`` (K, 3) their neighbours; each
-        candidate's proxy is its neighbours' mean :meth:`layer_thickness`. ``None`` under the
-        other laws (no factor).
+        ``b_idx`` (K,) the candidates' poses (sorted), ``nbr`` (K, 3) their neighbours and
+        ``w`` (K, 3) their weights (``None``: equal); each candidate's proxy is its neighbours'
+        weighted mean :meth:`layer_thickness`. ``None`` under the other laws (no factor).
         """
         if self.decay_law != 'layer':
             return None
         if len(b_idx) == 0:
             return np.ones(0)
-        t = self.layer_thickness()[nbr].mean(axis=1)
+        t = (self.layer_thickness()[nbr].mean(axis=1) if w is None
+             else np.einsum('kj,kj->k', self.layer_thickness()[nbr], w))
         order = np.lexsort((t, b_idx))
         ts = t[order]
         starts = np.flatnonzero(np.concatenate([[True], b_idx[1:] != b_idx[:-1]]))
@@ -785,19 +829,20 @@ class ContactSimulator:
         # 2. Three nearest surface points in the projection plane (eq. 1), within max_gap: the
         # single-pose path's search, so that ties (a sample equidistant from grid points) go
         # the same way in both
-        nn, rows = single_pose.three_nearest(uv, proj.origin, proj.cell, proj.last,
-                                             *self._cells(proj), proj.tree.data, proj.max_gap)
+        nn, w, rows = single_pose.three_nearest(uv, proj.origin, proj.cell, proj.last,
+                                                *self._cells(proj), proj.tree.data,
+                                                proj.max_gap, self.neighbours == 'smooth')
         nbr = proj.index[nn]
         b_idx = b_idx[rows]
         p = posed[rows, 2:] + pos[b_idx]
-        # sums over the 3 neighbours: normal (0:3), n . x (3), onset (4), position (5:8), in
-        # the order sum(axis=1) takes (row gathers: 10x faster than one (K, 3, 8) gather)
+        # weighted sums over the 3 neighbours: normal (0:3), n . x (3), onset (4), position
+        # (5:8), in the compiled kernel's order (row gathers: 10x faster than one (K, 3, 8))
         cols = np.ascontiguousarray(nbr.T)
-        sums = np.take(self._table, cols[0], axis=0)
-        sums += np.take(self._table, cols[1], axis=0)
-        sums += np.take(self._table, cols[2], axis=0)
-        d = (sums[:, 3] - np.einsum('ki,ki->k', p, sums[:, :3])) / 3.0
-        e = d - sums[:, 4] / 3.0       # penetration past the response's onset (their mean)
+        sums = np.take(self._table, cols[0], axis=0) * w[:, 0:1]
+        sums += np.take(self._table, cols[1], axis=0) * w[:, 1:2]
+        sums += np.take(self._table, cols[2], axis=0) * w[:, 2:3]
+        d = sums[:, 3] - np.einsum('ki,ki->k', p, sums[:, :3])
+        e = d - sums[:, 4]       # penetration past the response's onset (their mean)
         # 3. Front-most (deepest) sample per surface location, then per neighbour triple;
         # the selections are composed on indices and applied to the arrays once.
         idx = np.flatnonzero(e > 0.0)
@@ -809,9 +854,10 @@ class ContactSimulator:
         sel = _deepest_per_triple(b_idx[idx], _sorted_triples(nbr[idx]), e[idx])
         if sel is not None:
             idx = idx[sel]
-        b_idx, p, nbr, sums, d, e = b_idx[idx], p[idx], nbr[idx], sums[idx], d[idx], e[idx]
+        b_idx, p, nbr, w, sums = b_idx[idx], p[idx], nbr[idx], w[idx], sums[idx]
+        d, e = d[idx], e[idx]
         nsum = sums[:, :3]
-        return dict(b=b_idx, p=p, nbr=nbr, q=sums[:, 5:] / 3.0,
+        return dict(b=b_idx, p=p, nbr=nbr, w=w, q=sums[:, 5:],
                     nq=nsum / np.linalg.norm(nsum, axis=1, keepdims=True), d=d, e=e)
 
     def _solve_candidates(self, cand: Optional[dict], B: int, centres: np.ndarray,
@@ -819,11 +865,12 @@ class ContactSimulator:
         """Solve :meth:`_candidates` (steps 4-5 of :meth:`_run`; ``None``: no contact)."""
         if cand is None:
             return _empty_run(B)
-        b_idx, p, nbr, q, nq, d, e = (cand[k] for k in ('b', 'p', 'nbr', 'q', 'nq', 'd', 'e'))
+        b_idx, p, nbr, w, q, nq, d, e = (cand[k] for k in ('b', 'p', 'nbr', 'w', 'q', 'nq', 'd',
+                                                           'e'))
         # 4. LCP per pose, padded stacks of similar size.
-        x, u, residual = self._solve_grouped(b_idx, q, e, B, self.layer_scales(b_idx, nbr))
+        x, u, residual = self._solve_grouped(b_idx, q, e, B, self.layer_scales(b_idx, nbr, w))
         # 5. Forces and wrench (eq. 4).
-        f = self._contact_forces(nbr, d, x)
+        f = self._contact_forces(nbr, w, d, x)
         # b_idx is sorted: per-pose sums over runs, in the order add.at would take
         both = _force_torque(f, nq, p - centres[b_idx])
         wrench = np.zeros((B, 6))
@@ -837,11 +884,15 @@ class ContactSimulator:
         deepest[poses] = np.maximum(np.maximum.reduceat(np.where(x > 0.0, d, 0.0), starts), 0.0)
         run = dict(wrench=wrench, count=count, umax=umax, residual=residual, deepest=deepest)
         if detail:
-            run.update(b=b_idx, p=p, nbr=nbr, q=q, nq=nq, d=d, e=e, x=x, f=f)
+            run.update(b=b_idx, p=p, nbr=nbr, w=w, q=q, nq=nq, d=d, e=e, x=x, f=f)
         return run
 
-    def _contact_forces(self, nbr: np.ndarray, d: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Step 5's ``f`` (K,): the 3 neighbours' mean ``y(d) - y(d - x)`` where ``x > 0``."""
+    def _contact_forces(self, nbr: np.ndarray, w: np.ndarray, d: np.ndarray,
+                        x: np.ndarray) -> np.ndarray:
+        """Step 5's ``f`` (K,): the neighbours' ``y(d) - y(d - x)`` weighted by ``w`` (K, 3).
+
+        Zero where ``x <= 0``.
+        """
         f = np.zeros(len(d))
         act = np.flatnonzero(x > 0.0)
         if len(act):
@@ -851,7 +902,8 @@ class ContactSimulator:
             both = np.asarray(self.response.force(np.concatenate([ia, ia]),
                                                   np.concatenate([da, da - xa])),
                               dtype=np.float64)
-            f[act] = (both[:len(ia)] - both[len(ia):]).reshape(-1, 3).mean(axis=1)
+            f[act] = np.einsum('kj,kj->k', (both[:len(ia)] - both[len(ia):]).reshape(-1, 3),
+                               w[act])
         return f
 
     @staticmethod
@@ -870,11 +922,12 @@ class ContactSimulator:
         cost of some 80 numpy calls: a planner's single query (issue 21).
         """
         frame = np.column_stack([a, proj.basis])
-        (nbr, keep, p, q, nq, d, e, G, x, u, residual,
+        (nbr, w, keep, p, q, nq, d, e, G, x, u, residual,
          status) = single_pose.single_query(
             local, rot.T @ frame, pos @ frame, np.ascontiguousarray(rot), proj.floor,
             proj.origin, proj.cell, proj.last, proj.bound, *self._cells(proj), proj.tree.data,
-            proj.index, proj.max_gap, pos, self._table, self.c, self.decay,
+            proj.index, proj.max_gap, self.neighbours == 'smooth', pos, self._table, self.c,
+            self.decay,
             self.decay_law != 'fixed',
             self.layer_thickness() if self.decay_law == 'layer' else _NO_PROXY,
             self.near == 'flat', DECAY_REFERENCE, DECAY_FLOOR,
@@ -888,11 +941,11 @@ class ContactSimulator:
         elif status == single_pose.NOT_CONVERGED:
             raise NotConverged(f'LCP: still infeasible after {MAX_PIVOTING} pivoting rounds '
                                f'(residual {residual:.3g})')
-        nbr = nbr[keep]
+        nbr, w = nbr[keep], w[keep]
         if self._baked is not None:
-            f, wrench = single_pose.baked_wrench(nbr, d, x, nq, p, centre, *self._baked)
+            f, wrench = single_pose.baked_wrench(nbr, w, d, x, nq, p, centre, *self._baked)
         else:
-            f = self._contact_forces(nbr, d, x)
+            f = self._contact_forces(nbr, w, d, x)
             wrench = _force_torque(f, nq, p - centre).sum(axis=0)
         touching = d[x > 0.0]
         run = dict(wrench=wrench[None], count=np.array([np.count_nonzero(x > 0.0)]),
@@ -900,8 +953,8 @@ class ContactSimulator:
                    deepest=np.array([max(float(touching.max()), 0.0) if len(touching)
                                      else 0.0]))
         if detail:
-            run.update(b=np.zeros(len(d), dtype=np.int64), p=p, nbr=nbr, q=q, nq=nq, d=d, e=e,
-                       x=x, f=f)
+            run.update(b=np.zeros(len(d), dtype=np.int64), p=p, nbr=nbr, w=w, q=q, nq=nq, d=d,
+                       e=e, x=x, f=f)
         return run
 
     def _solve_grouped(self, b_idx: np.ndarray, q: np.ndarray, d: np.ndarray, B: int,
@@ -978,7 +1031,7 @@ class ContactSimulator:
         q, x = run['q'][act], run['x'][act]
         if return_displacements:
             disp_idx = np.arange(len(self._points))
-            scale = self.layer_scales(run['b'], run['nbr'])
+            scale = self.layer_scales(run['b'], run['nbr'], run['w'])
             disp = self.surface_displacement(q, x, run['e'][act],
                                              1.0 if scale is None else float(scale[0]))
         else:
@@ -1100,7 +1153,6 @@ def _positive(name: str, value) -> float:
 
 __all__: List[str] = ['APPROACH_TOLERANCE', 'BatchContactResult', 'ContactResult',
                       'ContactSimulator', 'DECAY_FLOOR', 'DECAY_LAW', 'DECAY_LAWS',
-                      'DECAY_REFERENCE', 'LAYER_CLIP', 'LAYER_DEPTHS', 'check_decay_law',
-                      'layer_proxy', 'layer_stiffening', 'normalise_approach',
-                      'poses_as_arrays',
-                      ]
+                      'DECAY_REFERENCE', 'LAYER_CLIP', 'LAYER_DEPTHS', 'NEIGHBOURS',
+                      'NEIGHBOUR_RULES', 'check_decay_law', 'check_neighbours', 'layer_proxy',
+                      'layer_stiffening', 'normalise_approach', 'poses_as_arrays']

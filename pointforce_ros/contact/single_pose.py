@@ -91,8 +91,24 @@ def prefilter(local, to_frame, offset, rot, floor, origin, cell, last, bound):
     return uv[:k], posed[:k]
 
 
-@numba.njit((_M, _V, float64, _I, _I, _I, _M, float64), **_JIT)
-def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
+@numba.njit((float64, float64, float64, float64), **_JIT)
+def neighbour_weights(r0, r1, r2, r3):
+    """Weights of a sample's 3 nearest points at in-plane distances ``r0 <= r1 <= r2``.
+
+    ``w_k = (r3 - r_k) / sum``, ``r3`` the fourth-nearest distance (at most ``max_gap``): a
+    point's weight vanishes where it leaves the three (``r2 = r3``), so the averages of step 2
+    are continuous as a sample moves across the surface, where equal weights step each time
+    the third and fourth nearest swap. Equal weights where all four are equally far.
+    """
+    w0, w1, w2 = max(r3 - r0, 0.0), max(r3 - r1, 0.0), max(r3 - r2, 0.0)
+    total = w0 + w1 + w2
+    if not total > 0.0:
+        return 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0
+    return w0 / total, w1 / total, w2 / total
+
+
+@numba.njit((_M, _V, float64, _I, _I, _I, _M, float64, boolean), **_JIT)
+def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap, smooth):
     """Step 2's neighbour search: the 3 nearest facing points of each ``uv`` within ``max_gap``.
 
     A KD-tree query for 3 neighbours plus a ``max_gap`` test on the third, as a fixed-radius
@@ -107,18 +123,22 @@ def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
             ``members``.
         members: (F,) facing-point positions (rows of ``facing``) sorted by cell.
         facing: (F, 2) the facing points in the projection plane.
+        smooth: weigh the three by :func:`neighbour_weights` (else 1/3 each).
 
     Returns:
-        ``nn`` (J, 3) positions in ``facing``, nearest first, and ``rows`` (J,) the samples
-        whose third-nearest point lies within ``max_gap``, in sample order.
+        ``nn`` (J, 3) positions in ``facing``, nearest first, their weights ``w`` (J, 3) and
+        ``rows`` (J,) the samples whose third-nearest point lies within ``max_gap``, in
+        sample order.
 
     """
     n = uv.shape[0]
     ny = last[1] + 1
     nn = np.empty((n, 3), dtype=np.int64)
+    w = np.empty((n, 3))
     rows = np.empty(n, dtype=np.int64)
-    best = np.empty(3)
-    pick = np.empty(3, dtype=np.int64)
+    best = np.empty(4)
+    pick = np.empty(4, dtype=np.int64)
+    slots = 4 if smooth else 3
     j = 0
     for k in range(n):
         u, v = uv[k, 0], uv[k, 1]
@@ -126,6 +146,7 @@ def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
         cj = min(max(np.int64(math.floor((v - origin[1]) / cell)), 0), last[1])
         best[:] = np.inf
         pick[:] = -1
+        tail = slots - 1
         for a in range(max(ci - 1, 0), min(ci + 1, last[0]) + 1):
             for b in range(max(cj - 1, 0), min(cj + 1, last[1]) + 1):
                 key = a * ny + b
@@ -134,9 +155,9 @@ def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
                     du = facing[m, 0] - u
                     dv = facing[m, 1] - v
                     d2 = du * du + dv * dv
-                    if d2 > best[2] or (d2 == best[2] and m > pick[2]):
+                    if d2 > best[tail] or (d2 == best[tail] and m > pick[tail]):
                         continue
-                    slot = 2
+                    slot = tail
                     while slot > 0 and (d2 < best[slot - 1]
                                         or (d2 == best[slot - 1] and m < pick[slot - 1])):
                         best[slot] = best[slot - 1]
@@ -146,9 +167,15 @@ def three_nearest(uv, origin, cell, last, starts, members, facing, max_gap):
                     pick[slot] = m
         if pick[2] >= 0 and math.sqrt(best[2]) <= max_gap:
             nn[j, 0], nn[j, 1], nn[j, 2] = pick[0], pick[1], pick[2]
+            if smooth:
+                w[j, 0], w[j, 1], w[j, 2] = neighbour_weights(
+                    math.sqrt(best[0]), math.sqrt(best[1]), math.sqrt(best[2]),
+                    min(math.sqrt(best[3]), max_gap))
+            else:
+                w[j, 0] = w[j, 1] = w[j, 2] = 1.0 / 3.0
             rows[j] = k
             j += 1
-    return nn[:j], rows[:j]
+    return nn[:j], w[:j], rows[:j]
 
 
 @numba.njit((_I, _I), **_JIT)
@@ -279,15 +306,16 @@ def bpp(G, d, free, max_iter, tol):
     return np.maximum(x, 0.0), max_iter, NOT_CONVERGED
 
 
-@numba.njit((_IM, _M, _V, _M, float64, float64, boolean, _V, boolean, float64, float64,
+@numba.njit((_IM, _M, _M, _V, _M, float64, float64, boolean, _V, boolean, float64, float64,
              float64, int64, float64), **_JIT)
-def solve_single(nbr, posed, pos, table, c, decay, penetration_law, thickness, flat, reference,
-                 floor_share, warm_start, max_iter, tol):
+def solve_single(nbr, w, posed, pos, table, c, decay, penetration_law, thickness, flat,
+                 reference, floor_share, warm_start, max_iter, tol):
     """Solve steps 2 (after the search), 3 and 4 of one pose: candidates, dedupes, LCP.
 
     Args:
         nbr: (K, 3) int64 surface indices of each sample's three nearest points (within
             ``max_gap``).
+        w: (K, 3) their weights (each row sums to one; :func:`three_nearest`).
         posed: (K, 3) their rotated samples, ``base`` less ``pos``.
         pos: (3,) the pose's position, ``base``.
         table: (N, 8) per surface point: normal, ``n . x``, onset, position.
@@ -296,7 +324,7 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, thickness, f
             (``decay * max(e, floor_share * reference) / reference``); False: one ``decay``.
         thickness: (N,) per surface point the layer proxy of the ``'layer'`` law: with
             ``penetration_law``, every length of the pose is also multiplied by the median
-            over its candidates of their three neighbours' mean proxy; empty: not.
+            over its candidates of their three neighbours' weighted mean proxy; empty: not.
         flat: the flat-topped near field ``(1 + r / c) exp(-r / c)`` instead of the paper's
             ``c / (c + r)`` (:data:`~pointforce_ros.contact.lcp.NEARS`).
         warm_start: the first free set: penetration >= ``warm_start`` x the deepest.
@@ -319,13 +347,14 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, thickness, f
     npos = 0
     for k in range(K):
         i0, i1, i2 = nbr[k, 0], nbr[k, 1], nbr[k, 2]
+        w0, w1, w2 = w[k, 0], w[k, 1], w[k, 2]
         for j in range(8):
-            sums[k, j] = table[i0, j] + table[i1, j] + table[i2, j]
+            sums[k, j] = w0 * table[i0, j] + w1 * table[i1, j] + w2 * table[i2, j]
         for j in range(3):
             p_all[k, j] = posed[k, j] + pos[j]
         dot = p_all[k, 0] * sums[k, 0] + p_all[k, 1] * sums[k, 1] + p_all[k, 2] * sums[k, 2]
-        d_all[k] = (sums[k, 3] - dot) / 3.0
-        e_all[k] = d_all[k] - sums[k, 4] / 3.0
+        d_all[k] = sums[k, 3] - dot
+        e_all[k] = d_all[k] - sums[k, 4]
         if e_all[k] > 0.0:
             positive[npos] = k
             npos += 1
@@ -376,7 +405,7 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, thickness, f
         norm = math.sqrt(sums[k, 0] ** 2 + sums[k, 1] ** 2 + sums[k, 2] ** 2)
         for j in range(3):
             p[a, j] = p_all[k, j]
-            q[a, j] = sums[k, 5 + j] / 3.0
+            q[a, j] = sums[k, 5 + j]
             nq[a, j] = sums[k, j] / norm
         d[a] = d_all[k]
         e[a] = e_all[k]
@@ -391,8 +420,8 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, thickness, f
             proxy = np.empty(M)
             for a in range(M):
                 k = idx[a]
-                proxy[a] = (thickness[nbr[k, 0]] + thickness[nbr[k, 1]]
-                            + thickness[nbr[k, 2]]) / 3.0
+                proxy[a] = (w[k, 0] * thickness[nbr[k, 0]] + w[k, 1] * thickness[nbr[k, 1]]
+                            + w[k, 2] * thickness[nbr[k, 2]])
             scale = np.median(proxy)
         for a in range(M):
             lengths[a] = scale * decay * max(e[a], floor_share * reference) / reference
@@ -427,33 +456,34 @@ def solve_single(nbr, posed, pos, table, c, decay, penetration_law, thickness, f
     return idx, p, q, nq, d, e, G, x, u, residual, status
 
 
-@numba.njit((_M, _M, _V, _M, float64, _V, float64, _I, _M, _I, _I, _M, _I, float64, _V, _M,
-             float64, float64, boolean, _V, boolean, float64, float64, float64, int64, float64),
-            **_JIT)
+@numba.njit((_M, _M, _V, _M, float64, _V, float64, _I, _M, _I, _I, _M, _I, float64, boolean,
+             _V, _M, float64, float64, boolean, _V, boolean, float64, float64, float64, int64,
+             float64), **_JIT)
 def single_query(local, to_frame, offset, rot, floor, origin, cell, last, bound, starts, members,
-                 facing, facing_index, max_gap, pos, table, c, decay, penetration_law, thickness,
-                 flat, reference, floor_share, warm_start, max_iter, tol):
+                 facing, facing_index, max_gap, smooth, pos, table, c, decay, penetration_law,
+                 thickness, flat, reference, floor_share, warm_start, max_iter, tol):
     """Solve steps 1-4 of one pose in one call.
 
     :func:`prefilter`, :func:`three_nearest`, then :func:`solve_single`, with their arguments;
     ``facing_index`` (F,) maps rows of ``facing`` to surface indices.
 
     Returns:
-        ``nbr`` (K, 3) surface indices of every candidate, followed by what
-        :func:`solve_single` returns (``keep`` indexes ``nbr``).
+        ``nbr`` (K, 3) surface indices of every candidate and their weights ``w`` (K, 3),
+        followed by what :func:`solve_single` returns (``keep`` indexes both).
 
     """
     uv, posed = prefilter(local, to_frame, offset, rot, floor, origin, cell, last, bound)
-    nn, rows = three_nearest(uv, origin, cell, last, starts, members, facing, max_gap)
+    nn, w, rows = three_nearest(uv, origin, cell, last, starts, members, facing, max_gap,
+                                smooth)
     nbr = np.empty(nn.shape, dtype=np.int64)
     near = np.empty((len(rows), 3))
     for k in range(len(rows)):
         for j in range(3):
             nbr[k, j] = facing_index[nn[k, j]]
             near[k, j] = posed[rows[k], j]
-    out = solve_single(nbr, near, pos, table, c, decay, penetration_law, thickness, flat,
+    out = solve_single(nbr, w, near, pos, table, c, decay, penetration_law, thickness, flat,
                        reference, floor_share, warm_start, max_iter, tol)
-    return (nbr,) + out
+    return (nbr, w) + out
 
 
 @numba.njit((_V, _M, _V, int64, float64), **_JIT)
@@ -470,11 +500,12 @@ def _interpolate(depths, forces, slopes, i, d):
     return f0 + w * (forces[i, k + 1] - f0)
 
 
-@numba.njit((_IM, _V, _V, _M, _M, _V, _V, _M, _V), **_JIT)
-def baked_wrench(nbr, d, x, nq, p, centre, depths, forces, slopes):
+@numba.njit((_IM, _M, _V, _V, _M, _M, _V, _V, _M, _V), **_JIT)
+def baked_wrench(nbr, w, d, x, nq, p, centre, depths, forces, slopes):
     """Step 5 with a baked response: per-contact forces ``f`` (M,) and the wrench (6,).
 
-    ``f_i = mean over the 3 neighbours of y(d_i) - y(d_i - x_i)`` for ``x_i > 0`` (else 0);
+    ``f_i = sum over the 3 neighbours, weighted by w_i, of y(d_i) - y(d_i - x_i)`` for
+    ``x_i > 0`` (else 0);
     force ``sum f_i nq_i`` and torque ``sum (p_i - centre) x f_i nq_i``.
     """
     M = len(d)
@@ -486,9 +517,9 @@ def baked_wrench(nbr, d, x, nq, p, centre, depths, forces, slopes):
         s = 0.0
         for j in range(3):
             i = nbr[a, j]
-            s += (_interpolate(depths, forces, slopes, i, d[a])
-                  - _interpolate(depths, forces, slopes, i, d[a] - x[a]))
-        f[a] = s / 3.0
+            s += w[a, j] * (_interpolate(depths, forces, slopes, i, d[a])
+                            - _interpolate(depths, forces, slopes, i, d[a] - x[a]))
+        f[a] = s
     for a in range(M):
         fx, fy, fz = f[a] * nq[a, 0], f[a] * nq[a, 1], f[a] * nq[a, 2]
         ax, ay, az = p[a, 0] - centre[0], p[a, 1] - centre[1], p[a, 2] - centre[2]
@@ -525,4 +556,5 @@ def baked_tables(response) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 __all__ = ['MAX_KEY_POINTS', 'NOT_CONVERGED', 'OK', 'SINGULAR', 'baked_tables', 'baked_wrench',
-           'bpp', 'cell_members', 'prefilter', 'single_query', 'solve_single', 'three_nearest']
+           'bpp', 'cell_members', 'neighbour_weights', 'prefilter', 'single_query',
+           'solve_single', 'three_nearest']

@@ -53,7 +53,7 @@ from typing import Dict, Mapping, Optional, Sequence, Tuple, Union
 import numpy as np
 from scipy.special import ndtri
 
-from pointforce_ros.contact.simulator import ContactSimulator
+from pointforce_ros.contact.simulator import check_neighbours, ContactSimulator
 from pointforce_ros.errors import InvalidInput
 from pointforce_ros.response.baked import BakedResponse, ONSET_FORCE
 from pointforce_ros.types import Mesh, Pose
@@ -102,13 +102,13 @@ class WrenchUncertainty:
 class _Perturbed:
     """The model's simulator and its one-sigma response copy, built once per model."""
 
-    def __init__(self, model: ContactModel, spacing: float):
+    def __init__(self, model: ContactModel, spacing: float, neighbours: Optional[str]):
         response = model.response
         law = getattr(model, 'shape_decay_law', None)   # None: the simulator's default
         near = getattr(model, 'shape_near', 'paper')
         self.nominal = ContactSimulator(model.surface, response, model.shape_constant,
                                         spacing=spacing, decay=model.shape_decay,
-                                        decay_law=law, near=near)
+                                        decay_law=law, near=near, neighbours=neighbours)
         self.raised = None
         if response.std is not None:
             # raised where the table is a contact force only (above the onset force): the
@@ -127,24 +127,24 @@ class _Perturbed:
                                    version=response.version, meta=response.meta)
             self.raised = ContactSimulator(model.surface, raised, model.shape_constant,
                                            spacing=spacing, decay=model.shape_decay,
-                                           decay_law=law, near=near)
+                                           decay_law=law, near=near, neighbours=neighbours)
 
 
-_CACHE: Dict[int, Tuple[object, float, _Perturbed]] = {}
+_CACHE: Dict[int, Tuple[object, float, Optional[str], _Perturbed]] = {}
 _LOCK = threading.Lock()
 
 
-def _perturbed(model: ContactModel, spacing: float) -> _Perturbed:
+def _perturbed(model: ContactModel, spacing: float, neighbours: Optional[str]) -> _Perturbed:
     key = id(model)
     with _LOCK:
         hit = _CACHE.get(key)
-        if hit is not None and hit[0] is model and hit[1] == spacing:
-            return hit[2]
-    built = _Perturbed(model, spacing)
+        if hit is not None and hit[0] is model and hit[1:3] == (spacing, neighbours):
+            return hit[3]
+    built = _Perturbed(model, spacing, neighbours)
     with _LOCK:
         if len(_CACHE) >= 4:
             _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = (model, spacing, built)
+        _CACHE[key] = (model, spacing, neighbours, built)
     return built
 
 
@@ -271,7 +271,8 @@ def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Seque
                        approach, torque_centre, *, shape_cov=None,
                        relative_std: Optional[float] = None, response: bool = True,
                        spacing: float = 0.003, lateral_std: Optional[float] = None,
-                       centre: bool = True) -> WrenchUncertainty:
+                       centre: bool = True,
+                       neighbours: Optional[str] = None) -> WrenchUncertainty:
     """Return the standard deviation of the wrench of ``mesh`` at ``poses`` (module docstring).
 
     Args:
@@ -290,6 +291,8 @@ def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Seque
             approach (>= 0), with the torque it carries from the centre of pressure;
             ``None``: ``model.meta['lateral_std']`` if present, else 0.
         spacing: rigid-mesh sampling step of the simulator, metres (the service's).
+        neighbours: the simulator's neighbour rule (the service's; ``None``: the default,
+            :data:`~pointforce_ros.contact.simulator.NEIGHBOURS`).
         centre: with a relative share, also the torque of the centre of pressure it moves
             (module docstring; ``False`` leaves it out, for comparisons).
 
@@ -313,7 +316,8 @@ def wrench_uncertainty(model: ContactModel, mesh: Mesh, poses: Union[Pose, Seque
     if not (np.isfinite(lat) and lat >= 0):
         raise InvalidInput(f'lateral_std: must be a finite share >= 0, got {lat}')
     poses = [poses] if isinstance(poses, Pose) else poses
-    sims = _perturbed(model, float(spacing))
+    sims = _perturbed(model, float(spacing),
+                      None if neighbours is None else check_neighbours(neighbours))
     nominal = sims.nominal.query_batch(mesh, poses, approach, torque_centre,
                                        centre_of_pressure=lat > 0 or (rel > 0 and centre))
     base = nominal.wrenches

@@ -30,8 +30,8 @@ import numpy as np
 
 from pointforce_ros.contact import ContactSimulator
 from pointforce_ros.contact.sampling import MAX_SAMPLES, mesh_bytes, mesh_sample_count
-from pointforce_ros.contact.simulator import (BatchContactResult, normalise_approach,
-                                              poses_as_arrays)
+from pointforce_ros.contact.simulator import (BatchContactResult, check_neighbours, NEIGHBOURS,
+                                              normalise_approach, poses_as_arrays)
 from pointforce_ros.contact.uncertainty import SOURCE_KEYS, wrench_uncertainty
 from pointforce_ros.effects.forward import ForwardTerms, model_surface, solve_retreat
 from pointforce_ros.errors import InvalidInput, ModelNotReady
@@ -169,7 +169,7 @@ class WrenchServer:
 
     def __init__(self, spacing: float = 0.003, *, series_compliance: bool = True,
                  hold_time: float = 0.0, limits: Optional[RequestLimits] = None,
-                 workers: Optional[int] = None):
+                 workers: Optional[int] = None, neighbours: Optional[str] = None):
         """Create an empty server.
 
         Args:
@@ -179,6 +179,9 @@ class WrenchServer:
                 effect (0: the instantaneous force).
             limits: what one request may ask (default :class:`RequestLimits`).
             workers: threads a batch's chunks are solved on (default: the cores, at most 4).
+            neighbours: the contact simulator's neighbour rule
+                (:data:`~pointforce_ros.contact.simulator.NEIGHBOUR_RULES`; ``None``: its
+                default): ``'smooth'`` for a planner that takes finite differences sideways.
 
         """
         self.limits = RequestLimits() if limits is None else limits
@@ -186,6 +189,7 @@ class WrenchServer:
             raise InvalidInput(f'WrenchServer: limits must be a RequestLimits, got '
                                f'{type(self.limits).__name__}')
         self._spacing = float(spacing)
+        self._neighbours = check_neighbours(NEIGHBOURS if neighbours is None else neighbours)
         self._series = bool(series_compliance)
         self._hold_time = float(hold_time)
         ForwardTerms.of({}, hold_time=self._hold_time)  # validates hold_time
@@ -215,16 +219,22 @@ class WrenchServer:
         """
         terms = ForwardTerms.of(model.effects, series_compliance=self._series,
                                 hold_time=self._hold_time)
-        simulator = ContactSimulator(model_surface(model), model.response, model.shape_constant,
-                                     spacing=self._spacing, decay=model.shape_decay,
-                                     decay_law=model.shape_decay_law,
-                                     near=model.shape_near)
+        simulator = self._simulator(model, self._spacing, self._neighbours)
         bounds = _model_bounds(model, self.limits)
         with self._swap_lock:
             if self._current is None or model.version >= self._current[0].version:
                 self._current = (model, simulator, terms, bounds)
 
+    @staticmethod
+    def _simulator(model: ContactModel, spacing: float, neighbours: str) -> ContactSimulator:
+        """Return the simulator that answers from ``model`` under these settings."""
+        return ContactSimulator(model_surface(model), model.response, model.shape_constant,
+                                spacing=spacing, decay=model.shape_decay,
+                                decay_law=model.shape_decay_law, near=model.shape_near,
+                                neighbours=neighbours)
+
     def configure(self, *, spacing: Optional[float] = None,
+                  neighbours: Optional[str] = None,
                   series_compliance: Optional[bool] = None, hold_time: Optional[float] = None,
                   limits: Optional[RequestLimits] = None) -> None:
         """Change settings at run time; the next request uses them (``None``: unchanged).
@@ -234,11 +244,12 @@ class WrenchServer:
         checked first, so a refused change leaves the server as it was.
 
         Raises:
-            InvalidInput: a spacing that is not a positive length, a negative hold time,
-                limits that are not a :class:`RequestLimits`.
+            InvalidInput: a spacing that is not a positive length, an unknown neighbour
+                rule, a negative hold time, limits that are not a :class:`RequestLimits`.
 
         """
         spacing = self._spacing if spacing is None else float(spacing)
+        neighbours = self._neighbours if neighbours is None else check_neighbours(neighbours)
         if not (np.isfinite(spacing) and spacing > 0):
             raise InvalidInput(f'sample_spacing: must be a positive length in metres, got '
                                f'{spacing!r}')
@@ -254,11 +265,9 @@ class WrenchServer:
         if current is not None:
             model, simulator = current[0], current[1]
             if spacing != self._spacing:
-                simulator = ContactSimulator(model_surface(model), model.response,
-                                             model.shape_constant, spacing=spacing,
-                                             decay=model.shape_decay,
-                                             decay_law=model.shape_decay_law,
-                                             near=model.shape_near)
+                simulator = self._simulator(model, spacing, neighbours)
+            elif neighbours != self._neighbours:   # shares the sampled meshes
+                simulator = simulator.with_shape_constant(simulator.c, neighbours=neighbours)
             rebuilt = (model, simulator, ForwardTerms.of(model.effects,
                                                          series_compliance=series,
                                                          hold_time=hold_time),
@@ -266,6 +275,7 @@ class WrenchServer:
         with self._swap_lock:
             self._spacing, self._series, self._hold_time, self.limits = (
                 spacing, series, hold_time, limits)
+            self._neighbours = neighbours
             if rebuilt is not None and self._current is current:
                 self._current = rebuilt
             elif self._current is not None and self._current is not current:
@@ -489,7 +499,8 @@ class WrenchServer:
         for start in range(0, len(rows), UNCERTAINTY_CHUNK):
             self._in_time(deadline, start, len(rows), 'poses with a spread')
             parts.append(wrench_uncertainty(model, mesh, rows[start:start + UNCERTAINTY_CHUNK],
-                                            approach, centre, spacing=self._spacing).std)
+                                            approach, centre, spacing=self._spacing,
+                                            neighbours=self._neighbours).std)
         std = np.concatenate(parts) * abs(terms.force_scale)
         if not np.all(np.isfinite(std)):
             raise InvalidInput('the spread of this answer is not finite')

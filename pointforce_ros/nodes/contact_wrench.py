@@ -47,6 +47,7 @@ from msg_adapters.contact_markers import contact_markers
 from msg_adapters.interfaces import (batch_arrays_from_request, contact_query_from_request,
                                      fail, fill_batch_response, fill_contact_response,
                                      fill_wrench_std, MODEL_FRAME)
+from pointforce_ros.contact.simulator import check_neighbours, NEIGHBOURS
 from pointforce_ros.errors import PointforceError
 from pointforce_ros.model.files import version_of_path
 from pointforce_ros.nodes.common import (build_node, declare, init_or_exit, live,
@@ -94,6 +95,12 @@ class ContactWrenchNode(Node):
         spacing = declare(self, 'sample_spacing', 0.003,
                           'Rigid-mesh surface sampling distance, m (seed paper: 3 mm)',
                           bounds=(0.0005, 0.05))
+        neighbours = declare(
+            self, 'neighbour_weights', NEIGHBOURS,
+            "How a rigid sample averages its 3 nearest surface points: 'equal' (the seed "
+            "paper) or 'smooth' (weights that vanish where a point leaves the three: an answer "
+            'without most of its sideways steps, for finite differences; on the demo 0.1-0.25 '
+            '% of the largest force less accurate)')
         poll = declare(self, 'poll_period', 1.0, 'Seconds between model_dir polls',
                        bounds=(0.05, 60.0))
         series = declare(self, 'series_compliance', True,
@@ -154,7 +161,7 @@ class ContactWrenchNode(Node):
         self.frames = RequestFrames(self, 'requests')
         self.tf = self.frames.buffer
         self.server = WrenchServer(spacing=spacing, series_compliance=series,
-                                   hold_time=hold_time, limits=limits)
+                                   hold_time=hold_time, limits=limits, neighbours=neighbours)
         self.requests_served = 0
         self.requests_failed = 0
         self.markers_published = 0
@@ -186,6 +193,8 @@ class ContactWrenchNode(Node):
         live(self, {'max_batch': lambda v: lambda: setattr(self, 'max_batch', v),
                     'uncertainty': lambda v: lambda: setattr(self, 'uncertainty', v),
                     'sample_spacing': lambda v: self._configure(spacing=v),
+                    'neighbour_weights': lambda v: self._configure(
+                        neighbours=check_neighbours(v)),
                     'series_compliance': lambda v: self._configure(series_compliance=v),
                     'hold_time': lambda v: self._configure(hold_time=v),
                     **{name: self._limit(name) for name in LIMIT_PARAMETERS},

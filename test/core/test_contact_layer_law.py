@@ -96,10 +96,12 @@ def test_batch_single_query_and_displacement_field_agree_under_the_layer_law(lay
                                plain.query(mesh, pose, DOWN, np.zeros(3)).wrench.as_vector(),
                                rtol=1e-3)
         # the field at the contacts: each dent over its own length times the pose's factor,
-        # the median over the candidates (the detailed run's) of their neighbours' mean proxy
+        # the median over the candidates (the detailed run's) of their neighbours' weighted
+        # mean proxy
         run = layered._run(layered._samples(mesh), pose.rotation()[None], pose.position[None],
                            DOWN, np.zeros((1, 3)), detail=True)
-        factor = float(np.median(layered.layer_thickness()[run['nbr']].mean(axis=1)))
+        factor = float(np.median(np.einsum('kj,kj->k', layered.layer_thickness()[run['nbr']],
+                                           run['w'])))
         assert factor < 0.99                  # the deeper end presses the stiffening region
         e = np.maximum(one.nominal_displacements, DECAY_FLOOR * DECAY_REFERENCE)
         r = np.linalg.norm(layered.surface.points[:, None] - one.contact_points[None], axis=2)

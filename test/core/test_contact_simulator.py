@@ -94,16 +94,23 @@ def test_contact_starts_at_the_responses_onset_not_at_the_observed_surface(bias)
         np.testing.assert_allclose(b.wrench.torque, a.wrench.torque, rtol=1e-6, atol=1e-11)
 
 
-def test_flat_punch_on_a_homogeneous_linear_surface(flat):
+@pytest.mark.parametrize('neighbours', ['equal', 'smooth'])
+def test_flat_punch_on_a_homogeneous_linear_surface(flat, neighbours):
     # 5 x 5 punch points 3 mm apart, each offset (0.25, 0.25) mm from a surface node: its 3
-    # nearest nodes are (i, j), (i+1, j), (i, j+1), so q = punch point + (1/12, 1/12) mm and
-    # every nominal displacement is the punch depth. Expected: F = k * depth * 1' G^-1 1.
+    # nearest nodes are (i, j), (i+1, j), (i, j+1), 0.354, 0.791 and 0.791 mm away, the fourth
+    # (i+1, j+1) 1.061 mm. Equal weights put q at the punch point + (1/12, 1/12) mm; smooth
+    # weights (r4 - r_k) at + (w1 - 0.25) mm each way, w1 = 0.27 / (0.707 + 2 x 0.27).
+    # Every nominal displacement is the punch depth. Expected: F = k * depth * 1' G^-1 1.
+    flat = flat if neighbours == 'smooth' else ContactSimulator(
+        flat.surface, flat.response, c=C, neighbours='equal')
     depth = 0.0015
     ticks = np.arange(-2, 3) * 0.003 + 0.00025
     x, y = np.meshgrid(ticks, ticks, indexing='ij')
     punch = np.column_stack([x.ravel(), y.ravel(), np.full(25, -depth)])
     q = punch.copy()
-    q[:, :2] += 0.001 / 12.0
+    r = np.hypot([0.25, 0.75], 0.25)
+    w1 = (np.hypot(0.75, 0.75) - r[1]) / (3 * np.hypot(0.75, 0.75) - r[0] - 2 * r[1])
+    q[:, :2] += (0.001 / 12.0 if neighbours == 'equal' else 0.001 * w1 - 0.00025)
     q[:, 2] = 0.0
     expected_x = np.linalg.solve(shape_matrix(q, C), np.full(25, depth))
     assert expected_x.min() > 0  # every point touches: the closed form applies
@@ -253,7 +260,7 @@ def test_batch_equals_per_pose_queries(dome):
 def test_paper_algorithm_agrees_where_it_converges():
     surface = dome_surface(n=121, half=0.03, radius=0.1)
     k = K * (1.0 + 20.0 * surface.points[:, 0])  # affine in x: averaging commutes with y
-    ours = ContactSimulator(surface, linear_response(k), c=C)
+    ours = ContactSimulator(surface, linear_response(k), c=C, neighbours='equal')
     paper = PaperContactSimulator(
         surface, lambda feats, d: K * (1.0 + 20.0 * feats[:, 0]) * np.clip(d, 0, None), c=C)
     mesh = icosphere(0.01, 2)

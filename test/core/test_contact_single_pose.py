@@ -68,15 +68,18 @@ def _random_poses(rng, n, depth=(0.001, 0.007)):
                  orientation=q) for q in quat]
 
 
-@pytest.mark.parametrize('decay_law, decay, near', [
-    ('penetration', 0.008, 'paper'), ('fixed', 0.006, 'paper'), ('fixed', np.inf, 'paper'),
-    ('penetration', 0.008, 'flat'), ('fixed', np.inf, 'flat'), ('layer', 0.008, 'paper')])
-def test_single_poses_equal_the_stacked_numpy_path(decay_law, decay, near):
+@pytest.mark.parametrize('decay_law, decay, near, neighbours', [
+    ('penetration', 0.008, 'paper', 'equal'), ('fixed', 0.006, 'paper', 'equal'),
+    ('fixed', np.inf, 'paper', 'equal'), ('penetration', 0.008, 'flat', 'equal'),
+    ('fixed', np.inf, 'flat', 'equal'), ('layer', 0.008, 'paper', 'equal'),
+    ('penetration', 0.008, 'paper', 'smooth'), ('layer', 0.008, 'paper', 'smooth')])
+def test_single_poses_equal_the_stacked_numpy_path(decay_law, decay, near, neighbours):
     rng = np.random.default_rng(21)
     surface = _bumpy_surface(rng)
     sim = ContactSimulator(surface, _heterogeneous_response(rng, len(surface),
                                                             decay_law == 'layer'),
-                           c=0.004, spacing=0.002, decay=decay, decay_law=decay_law, near=near)
+                           c=0.004, spacing=0.002, decay=decay, decay_law=decay_law, near=near,
+                           neighbours=neighbours)
     assert sim._baked is not None
     if decay_law == 'layer':
         assert np.ptp(sim.layer_thickness()) > 0.5
@@ -139,13 +142,15 @@ def test_the_kernels_deduplication_keeps_the_numpy_paths_candidates_in_its_order
         nbr[k - 5:] = nbr[k - 10:k - 5][:, ::-1]         # repeated triples, permuted
         posed = rng.uniform(-0.01, 0.01, (k, 3))
         pos = np.zeros(3)
-        out = single_pose.solve_single(nbr, posed, pos, table, 0.004, np.inf, False, np.zeros(0),
-                                       False, 0.004, 0.1, 0.65, 200, 1e-12)
+        w = rng.uniform(0.0, 1.0, (k, 3))
+        w /= w.sum(axis=1, keepdims=True)
+        out = single_pose.solve_single(nbr, w, posed, pos, table, 0.004, np.inf, False,
+                                       np.zeros(0), False, 0.004, 0.1, 0.65, 200, 1e-12)
         keep = out[0]
         # the numpy path's selection, step by step
-        sums = table[nbr[:, 0]] + table[nbr[:, 1]] + table[nbr[:, 2]]
-        d = (sums[:, 3] - np.einsum('ki,ki->k', posed, sums[:, :3])) / 3.0
-        e = d - sums[:, 4] / 3.0
+        sums = np.einsum('kj,kjc->kc', w, table[nbr])
+        d = sums[:, 3] - np.einsum('ki,ki->k', posed, sums[:, :3])
+        e = d - sums[:, 4]
         idx = np.flatnonzero(e > 0.0)
         sel = _deepest_per_key(nbr[idx, 0], e[idx])
         idx = idx if sel is None else idx[sel]
@@ -153,7 +158,7 @@ def test_the_kernels_deduplication_keeps_the_numpy_paths_candidates_in_its_order
                                   e[idx])
         idx = idx if sel is None else idx[sel]
         np.testing.assert_array_equal(keep, idx)
-        np.testing.assert_allclose(out[5], e[idx], rtol=1e-14)
+        np.testing.assert_allclose(out[5], e[idx], rtol=1e-12)
 
 
 def test_the_compiled_pivoting_equals_the_dense_solver_and_survives_duplicates():
@@ -202,13 +207,24 @@ def test_the_grid_neighbour_search_finds_the_kd_trees_three_nearest_within_max_g
     assert starts[-1] == len(facing) and np.all(np.diff(starts) >= 0)
     # samples inside, at the rim and outside the cloud, plus a few exactly on facing points
     uv = np.vstack([rng.uniform(-0.04, 0.04, (3000, 2)), facing[:20]])
-    nn, rows = single_pose.three_nearest(uv, origin, cell, last, starts, members, facing,
-                                         max_gap)
-    dist, ref = cKDTree(facing).query(uv, k=3)
+    dist, ref = cKDTree(facing).query(uv, k=4)
     within = np.flatnonzero(dist[:, 2] <= max_gap)
     assert 500 < len(within) < len(uv) - 500
-    np.testing.assert_array_equal(rows, within)
-    np.testing.assert_array_equal(nn, ref[within])
+    for smooth in (False, True):
+        nn, w, rows = single_pose.three_nearest(uv, origin, cell, last, starts, members,
+                                                facing, max_gap, smooth)
+        np.testing.assert_array_equal(rows, within)
+        np.testing.assert_array_equal(nn, ref[within, :3])
+        np.testing.assert_allclose(w.sum(axis=1), 1.0, rtol=1e-14)
+        if not smooth:
+            np.testing.assert_array_equal(w, 1.0 / 3.0)
+            continue
+        # w_k = r4 - r_k over their sum, r4 the fourth-nearest (at most max_gap)
+        r = dist[within]
+        want = np.minimum(r[:, 3:], max_gap) - r[:, :3]
+        np.testing.assert_allclose(w, want / want.sum(axis=1, keepdims=True), rtol=1e-9,
+                                   atol=1e-12)
+        assert np.all(np.diff(w, axis=1) <= 1e-15)        # nearer, heavier
 
 
 def test_a_pose_over_a_regular_grid_gets_the_same_neighbours_single_and_batched():
@@ -224,3 +240,30 @@ def test_a_pose_over_a_regular_grid_gets_the_same_neighbours_single_and_batched(
         assert one.contact_count == batch.contact_count[i] > 0
         np.testing.assert_allclose(batch.wrenches[i], one.wrench.as_vector(), rtol=1e-9,
                                    atol=1e-12)
+
+
+def test_smooth_neighbour_weights_take_the_steps_out_of_a_sideways_sweep():
+    # One rigid point 1.5 mm into a jittered, heterogeneous surface, moved sideways over 3 mm
+    # in 0.25 um steps. With equal weights its force jumps where its third and fourth nearest
+    # surface points swap: the largest change does not shrink with the step. With smooth
+    # weights the force is continuous: halve the step and the largest change halves.
+    rng = np.random.default_rng(27)
+    surface = _bumpy_surface(rng, n=41)
+    table = _heterogeneous_response(rng, len(surface))
+    xs = np.arange(0.0, 0.003, 2.5e-7) + 0.0013
+    largest = {}
+    for rule in ('equal', 'smooth'):
+        sim = ContactSimulator(surface, table, c=0.004, spacing=0.002, neighbours=rule)
+        fz = []
+        for x in xs:
+            z = 0.002 * np.sin(x / 0.007) * np.cos(0.0021 / 0.011)
+            fz.append(sim.query_points(np.array([[x, 0.0021, z - 0.0015]]), DOWN,
+                                       np.zeros(3)).wrench.force[2])
+        fz = np.asarray(fz)
+        assert np.all(fz > 0.0)
+        # the largest change over a step of 0.5 um and of 0.25 um, as shares of the force
+        largest[rule] = [np.max(np.abs(np.diff(fz[::k]))) / np.median(fz) for k in (2, 1)]
+    coarse, fine = largest['equal']
+    assert coarse > 0.1 and fine > 0.95 * coarse        # a jump of over 10 % of the force
+    coarse, fine = largest['smooth']
+    assert coarse < 0.02 and 1.7 * fine < coarse          # continuous

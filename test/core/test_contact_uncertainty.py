@@ -291,3 +291,24 @@ def test_the_response_std_grows_past_the_learned_depth():
     own = wrench_uncertainty(model, mesh, poses, DOWN, centre).parts['response'][:, 2]
     np.testing.assert_allclose(parts[0], own, rtol=1e-12)
     assert np.all(parts[1] > 1.5 * own) and np.all(parts[2] > 1.5 * parts[1])
+
+
+def test_the_spread_is_taken_under_the_services_neighbour_rule():
+    model = patch_contact_model(spacing=0.003)
+    sphere = icosphere(0.012, 2)
+    poses = [Pose(position=[0.5003 + 0.0004 * i, 0.0011, 0.04 + 0.012 - 0.003]) for i in range(4)]
+    down, centre = [0.0, 0.0, -1.0], [0.5, 0.0, 0.05]
+    answers = {}
+    for rule in ('equal', 'smooth'):
+        u = wrench_uncertainty(model, sphere, poses, down, centre, relative_std=0.1,
+                               neighbours=rule)
+        sim = ContactSimulator(model.surface, model.response, model.shape_constant,
+                               neighbours=rule)
+        np.testing.assert_allclose(u.wrench, sim.query_batch(sphere, poses, down,
+                                                             centre).wrenches, rtol=1e-12)
+        answers[rule] = u
+    # the two rules answer differently (the spread follows the answer it is of)
+    assert np.all(np.abs(answers['smooth'].wrench[:, 2] - answers['equal'].wrench[:, 2])
+                  > 1e-4 * answers['equal'].wrench[:, 2])
+    with pytest.raises(InvalidInput, match="neighbours: must be one of"):
+        wrench_uncertainty(model, sphere, poses, down, centre, neighbours='cubic')

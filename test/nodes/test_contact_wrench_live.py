@@ -237,3 +237,22 @@ def test_hot_wait_keeps_the_service_thread_polling_after_an_answer_then_not(serv
         polls[hot] = loop.polls - before
     # 100 ms of zero-timeout waits of ~60 us each: about 1600 (a loaded machine, fewer)
     assert polls[100.0] > 50 and polls[0.0] == 0, polls
+
+
+def test_neighbour_weights_apply_to_the_next_request(served):  # noqa: F811
+    graph, node, client_node, single, _, model, _ = served
+    request, pose = _request(0.003, x=0.5007, y=0.0011)   # off the patch's grid
+    before = _call(graph, single, request)
+    assert _set(graph, client_node, 'neighbour_weights', 'smooth').successful
+    after = _call(graph, single, request)
+    assert before.success and after.success
+    for rule, response in (('equal', before), ('smooth', after)):
+        core = WrenchServer(neighbours=rule)
+        core.swap(model)
+        direct, _ = core.answer(ContactQuery(mesh=SPHERE, poses=(pose,), approach=[0, 0, -1],
+                                             torque_centre=pose.position))
+        assert response.wrench.force.z == pytest.approx(direct.wrench.force[2], rel=1e-12)
+    assert abs(after.wrench.force.z - before.wrench.force.z) > 1e-4 * before.wrench.force.z
+    refused = _set(graph, client_node, 'neighbour_weights', 'cubic')
+    assert not refused.successful and "'equal', 'smooth'" in refused.reason
+    assert _call(graph, single, request).wrench.force.z == after.wrench.force.z

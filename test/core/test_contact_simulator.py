@@ -101,8 +101,7 @@ def test_flat_punch_on_a_homogeneous_linear_surface(flat, neighbours):
     # (i+1, j+1) 1.061 mm. Equal weights put q at the punch point + (1/12, 1/12) mm; smooth
     # weights (r4 - r_k) at + (w1 - 0.25) mm each way, w1 = 0.27 / (0.707 + 2 x 0.27).
     # Every nominal displacement is the punch depth. Expected: F = k * depth * 1' G^-1 1.
-    flat = flat if neighbours == 'smooth' else ContactSimulator(
-        flat.surface, flat.response, c=C, neighbours='equal')
+    flat = ContactSimulator(flat.surface, flat.response, c=C, neighbours=neighbours)
     depth = 0.0015
     ticks = np.arange(-2, 3) * 0.003 + 0.00025
     x, y = np.meshgrid(ticks, ticks, indexing='ij')

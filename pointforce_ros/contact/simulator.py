@@ -180,15 +180,15 @@ def layer_proxy(response, onsets: np.ndarray, reference: Optional[float] = None)
     return np.clip(np.where(ok, reference / np.where(ok, ratio, 1.0), 1.0), *LAYER_CLIP)
 
 
-def check_neighbours(value) -> str:
+def check_neighbours(value, name: str = 'neighbours') -> str:
     """Return ``value`` as a neighbour rule, one of :data:`NEIGHBOUR_RULES`.
 
     Raises:
-        InvalidInput: not one of them (the message lists them).
+        InvalidInput: not one of them (the message starts with ``name`` and lists them).
 
     """
     if value not in NEIGHBOUR_RULES:
-        raise InvalidInput(f'neighbours: must be one of {NEIGHBOUR_RULES}, got {value!r}')
+        raise InvalidInput(f'{name}: must be one of {NEIGHBOUR_RULES}, got {value!r}')
     return value
 
 

@@ -101,6 +101,7 @@ class ContactWrenchNode(Node):
             "paper) or 'smooth' (weights that vanish where a point leaves the three: an answer "
             'without most of its sideways steps, for finite differences; on the demo 0.1-0.25 '
             '% of the largest force less accurate)')
+        check_neighbours(neighbours, 'neighbour_weights')
         poll = declare(self, 'poll_period', 1.0, 'Seconds between model_dir polls',
                        bounds=(0.05, 60.0))
         series = declare(self, 'series_compliance', True,
@@ -194,7 +195,7 @@ class ContactWrenchNode(Node):
                     'uncertainty': lambda v: lambda: setattr(self, 'uncertainty', v),
                     'sample_spacing': lambda v: self._configure(spacing=v),
                     'neighbour_weights': lambda v: self._configure(
-                        neighbours=check_neighbours(v)),
+                        neighbours=check_neighbours(v, 'neighbour_weights')),
                     'series_compliance': lambda v: self._configure(series_compliance=v),
                     'hold_time': lambda v: self._configure(hold_time=v),
                     **{name: self._limit(name) for name in LIMIT_PARAMETERS},

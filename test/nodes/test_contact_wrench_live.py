@@ -254,5 +254,6 @@ def test_neighbour_weights_apply_to_the_next_request(served):  # noqa: F811
         assert response.wrench.force.z == pytest.approx(direct.wrench.force[2], rel=1e-12)
     assert abs(after.wrench.force.z - before.wrench.force.z) > 1e-4 * before.wrench.force.z
     refused = _set(graph, client_node, 'neighbour_weights', 'cubic')
-    assert not refused.successful and "'equal', 'smooth'" in refused.reason
+    assert not refused.successful and "neighbour_weights: must be one of ('equal', 'smooth')" \
+        in refused.reason
     assert _call(graph, single, request).wrench.force.z == after.wrench.force.z

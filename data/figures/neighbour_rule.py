@@ -21,11 +21,11 @@ one core; set OPENBLAS_NUM_THREADS=1).
 """
 
 import argparse
-import time
 
+from nugget_floor import figure2_line  # this folder
 from pointforce_ros.contact import simulator as simulator_module
 from pointforce_ros.contact.simulator import NEIGHBOUR_RULES
-from pointforce_ros.lab.figures import figure_probes, load_poke_fixture, load_probe_fixture
+from pointforce_ros.lab.figures import load_poke_fixture, load_probe_fixture
 
 OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
 
@@ -39,19 +39,12 @@ def main(argv=None):
         surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
         trials, dent, _ = load_probe_fixture(name, say=lambda line: None)
         for rule in NEIGHBOUR_RULES:
-            start = time.monotonic()
             before = simulator_module.NEIGHBOURS
             simulator_module.NEIGHBOURS = rule   # every simulator the figure builds
             try:
-                res = figure_probes(curves, surface, trials, dent, paper_draws=1,
-                                    say=lambda line: None)
+                figure2_line(f'{name} {rule}', surface, curves, trials, dent)
             finally:
                 simulator_module.NEIGHBOURS = before
-            ours, base = res['rmse']['ours']['force'], res['rmse']['baseline']['force']
-            print(f'{name} {rule}: ours {ours:.3f} N ({100 * ours / res["peak_force"]:.1f} '
-                  f'% of the peak {res["peak_force"]:.2f} N), the paper\'s simulator on one '
-                  f'draw {base:.3f} N (ratio {ours / base:.2f})'
-                  f'   [{time.monotonic() - start:.0f} s]', flush=True)
 
 
 if __name__ == '__main__':

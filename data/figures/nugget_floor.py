@@ -111,19 +111,22 @@ def figure2(objects):
         surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
         trials, dent, _ = load_probe_fixture(name, say=lambda line: None)
         for setting in ('ours', 'n05'):
-            start = time.monotonic()
             if setting == 'n05':
                 ours_module.GpGrid = lambda **kw: GpGrid(**{'nugget': FLOOR, **kw})
             try:
-                res = figure_probes(curves, surface, trials, dent, paper_draws=1,
-                                    say=lambda line: None)
+                figure2_line(f'{name} {setting}', surface, curves, trials, dent)
             finally:
                 ours_module.GpGrid = GpGrid
-            ours, base = res['rmse']['ours']['force'], res['rmse']['baseline']['force']
-            print(f'{name} {setting}: ours {ours:.3f} N ({100 * ours / res["peak_force"]:.1f} '
-                  f'% of the peak {res["peak_force"]:.2f} N), the paper\'s simulator on one '
-                  f'draw {base:.3f} N (ratio {ours / base:.2f})'
-                  f'   [{time.monotonic() - start:.0f} s]', flush=True)
+
+
+def figure2_line(label, surface, curves, trials, dent):
+    """Score figure 2's trials of one object (ours, the paper's simulator on one draw); print."""
+    start = time.monotonic()
+    res = figure_probes(curves, surface, trials, dent, paper_draws=1, say=lambda line: None)
+    ours, base = res['rmse']['ours']['force'], res['rmse']['baseline']['force']
+    print(f'{label}: ours {ours:.3f} N ({100 * ours / res["peak_force"]:.1f} % of the peak '
+          f'{res["peak_force"]:.2f} N), the paper\'s simulator on one draw {base:.3f} N (ratio '
+          f'{ours / base:.2f})   [{time.monotonic() - start:.0f} s]', flush=True)
 
 
 def main(argv=None):

@@ -103,21 +103,28 @@ def test_request_limits_apply_to_the_next_request(served):  # noqa: F811
     assert node.model_dir != '/tmp'
 
 
-def test_sample_spacing_rebuilds_the_simulator_for_the_next_request(served):  # noqa: F811
+@pytest.mark.parametrize('name, value, setting, bad, reason', [
+    ('sample_spacing', 0.0015, 'spacing', 1.0, None),       # out of bounds
+    ('neighbour_weights', 'smooth', 'neighbours', 'cubic',
+     "neighbour_weights: must be one of ('equal', 'smooth')")])
+def test_a_simulator_setting_rebuilds_the_simulator_for_the_next_request(
+        served, name, value, setting, bad, reason):  # noqa: F811
     graph, node, client_node, single, _, model, _ = served
-    request, pose = _request(0.003)
+    request, pose = _request(0.003, x=0.5007, y=0.0011)   # off the patch's grid
     before = _call(graph, single, request)
-    assert _set(graph, client_node, 'sample_spacing', 0.0015).successful
+    assert _set(graph, client_node, name, value).successful
     after = _call(graph, single, request)
     assert before.success and after.success
-    for spacing, response in ((0.003, before), (0.0015, after)):
-        core = WrenchServer(spacing=spacing)
+    for settings, response in (({}, before), ({setting: value}, after)):
+        core = WrenchServer(**settings)
         core.swap(model)
         direct, _ = core.answer(ContactQuery(mesh=SPHERE, poses=(pose,), approach=[0, 0, -1],
                                              torque_centre=pose.position))
         assert response.wrench.force.z == pytest.approx(direct.wrench.force[2], rel=1e-12)
-    assert abs(after.wrench.force.z - before.wrench.force.z) > 1e-3 * before.wrench.force.z
-    assert not _set(graph, client_node, 'sample_spacing', 1.0).successful   # out of bounds
+    assert abs(after.wrench.force.z - before.wrench.force.z) > 1e-4 * before.wrench.force.z
+    refused = _set(graph, client_node, name, bad)
+    assert not refused.successful and (reason is None or reason in refused.reason)
+    assert _call(graph, single, request).wrench.force.z == after.wrench.force.z
 
 
 def test_series_compliance_and_hold_time_apply_to_the_next_request(ros_graph, tmp_path):
@@ -237,23 +244,3 @@ def test_hot_wait_keeps_the_service_thread_polling_after_an_answer_then_not(serv
         polls[hot] = loop.polls - before
     # 100 ms of zero-timeout waits of ~60 us each: about 1600 (a loaded machine, fewer)
     assert polls[100.0] > 50 and polls[0.0] == 0, polls
-
-
-def test_neighbour_weights_apply_to_the_next_request(served):  # noqa: F811
-    graph, node, client_node, single, _, model, _ = served
-    request, pose = _request(0.003, x=0.5007, y=0.0011)   # off the patch's grid
-    before = _call(graph, single, request)
-    assert _set(graph, client_node, 'neighbour_weights', 'smooth').successful
-    after = _call(graph, single, request)
-    assert before.success and after.success
-    for rule, response in (('equal', before), ('smooth', after)):
-        core = WrenchServer(neighbours=rule)
-        core.swap(model)
-        direct, _ = core.answer(ContactQuery(mesh=SPHERE, poses=(pose,), approach=[0, 0, -1],
-                                             torque_centre=pose.position))
-        assert response.wrench.force.z == pytest.approx(direct.wrench.force[2], rel=1e-12)
-    assert abs(after.wrench.force.z - before.wrench.force.z) > 1e-4 * before.wrench.force.z
-    refused = _set(graph, client_node, 'neighbour_weights', 'cubic')
-    assert not refused.successful and "neighbour_weights: must be one of ('equal', 'smooth')" \
-        in refused.reason
-    assert _call(graph, single, request).wrench.force.z == after.wrench.force.z

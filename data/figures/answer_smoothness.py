@@ -38,7 +38,9 @@ a sample's three): sideways 12 steps over 20 times the median one for the sphere
 equal weights), 31 for the box (453), 74 for the cylinder (212); the largest 0.35, 0.17 and
 0.49 % of the force; none is a neighbour triple changing alone any more (the sphere's 12: 9
 the kept samples, 3 both). The slope error at 1 mm 25, 10 and 15 % (34, 9 and 17 %): what is
-left are the kept samples changing and the kinks of the weights.
+left are the kept samples changing and the kinks of the weights. Squared weights ``(r_4 -
+r_k)^2``, whose slope vanishes too where a point leaves the three, do no better (9, 25 and 73
+steps, slope error at 1 mm 35, 11 and 15 %; not kept).
 
 Usage: python data/figures/answer_smoothness.py [--object lamb] [--neighbours equal|smooth]
 (about 2 min on one core; set OPENBLAS_NUM_THREADS=1).

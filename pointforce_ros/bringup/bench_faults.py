@@ -734,6 +734,7 @@ def _held_up_stream(server, poke, store_dir: Path) -> dict:
     result = poke(hold_mid_push)
     out = dict(held_mid_push=fired.is_set(), hold_s=HOLD_S,
                outcome=None if result is None else result.outcome,
+               message='' if result is None else result.message[:160],
                stored=bool(result is not None and result.poke_id))
     if not out['stored']:
         return out

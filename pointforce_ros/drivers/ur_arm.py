@@ -33,9 +33,10 @@ controller):
   at normal priority and :attr:`UrArm.stream_scheduling` says why.
 
 Faults are reported as :class:`ArmEvent` records, never silently: ``stall`` (no new controller
-sample for ``stall_timeout``), ``ft_frozen`` (``actual_TCP_force`` bitwise identical for
-``ft_freeze_timeout`` of controller time while the timestamp advances: a real F/T sensor always
-has noise), ``protective_stop``, ``program_stopped`` and ``connection_lost``, each with a
+sample for ``stall_timeout`` of the poller's running time: a time the stream worker itself was
+not run, over half ``stall_timeout``, is a stream loss, not a stall), ``ft_frozen``
+(``actual_TCP_force`` bitwise identical for ``ft_freeze_timeout`` of controller time while the
+timestamp advances: a real F/T sensor always has noise), ``protective_stop``, ``program_stopped`` and ``connection_lost``, each with a
 matching ``*_cleared`` event when the condition ends (``connection_lost`` never ends: build a new
 :class:`UrArm`).
 
@@ -1032,8 +1033,16 @@ class _StreamPoller:
                     return
                 t = rx.getTimestamp()
                 now = time.monotonic()
-                held = max(held, now - polled)
+                gap = now - polled
+                held = max(held, gap)
                 polled = now
+                if gap > 0.5 * self.stall_timeout:
+                    # this poller did not run for `gap` (SIGSTOP, a loaded machine), nor did
+                    # ur_rtde's receive thread beside it: whether the controller was silent
+                    # then is unknown, and that time does not count towards a stall (the
+                    # slots it let pass are reported as a stream loss; a poller that resumes
+                    # before the receive thread took a hold of 60 ms for a stall, session 44)
+                    last_new += gap
                 if t == last_t:
                     if now - last_new > self.stall_timeout:
                         self._event(EVENT_STALL,

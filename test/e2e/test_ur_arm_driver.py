@@ -141,6 +141,27 @@ def test_a_held_up_stream_worker_reports_the_slots_it_missed(cell):
     assert not arm.active_faults()
 
 
+@pytest.mark.parametrize('hold', [0.08, 0.15])
+def test_a_held_up_stream_worker_does_not_take_its_own_hold_for_a_controller_stall(cell, hold):
+    """SIGSTOP the stream worker (its poller and ur_rtde's receive thread with it) for longer
+    than the 50 ms stall timeout: when it runs again the controller has been streaming all
+    along, so no stall may be reported, whichever of its threads runs first (a push that saw
+    one aborted on a loaded machine, session 44)."""
+    emu, arm = cell
+    assert arm.wait_samples(50, 2.0)
+    for _ in range(5):
+        pid = arm.stream_pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            time.sleep(hold)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        assert arm.wait_samples(50, 3.0)
+    stalls = [e for e in arm.events() if e.kind == EVENT_STALL]
+    assert not stalls, stalls
+    assert not arm.active_faults()
+
+
 def _fifo_permitted() -> bool:
     """Whether a process of ours may take SCHED_FIFO here (tried in a child)."""
     probe = subprocess.run([sys.executable, '-c', 'import os; os.sched_setscheduler('

@@ -36,9 +36,9 @@ Faults are reported as :class:`ArmEvent` records, never silently: ``stall`` (no 
 sample for ``stall_timeout`` of the poller's running time: a time the stream worker itself was
 not run, over half ``stall_timeout``, is a stream loss, not a stall), ``ft_frozen``
 (``actual_TCP_force`` bitwise identical for ``ft_freeze_timeout`` of controller time while the
-timestamp advances: a real F/T sensor always has noise), ``protective_stop``, ``program_stopped`` and ``connection_lost``, each with a
-matching ``*_cleared`` event when the condition ends (``connection_lost`` never ends: build a new
-:class:`UrArm`).
+timestamp advances: a real F/T sensor always has noise), ``protective_stop``,
+``program_stopped`` and ``connection_lost``, each with a matching ``*_cleared`` event when the
+condition ends (``connection_lost`` never ends: build a new :class:`UrArm`).
 
 Units SI, frames as ur_rtde reports them: TCP pose ``[x, y, z, rx, ry, rz]`` (m, rotation vector
 in rad) in ``base``; wrench ``[fx, fy, fz, tx, ty, tz]`` (N, N m) base-oriented, tared, the

@@ -70,9 +70,13 @@ VARIANTS = {
 STEP_OBJECTS = ('foam_block', 'lamb', 'plush', 'vest', 'dome', 'thin_layer')
 
 
-def steps(objects, sizes):
-    """Print ours, ``n05`` and ET on each object's step table (median and mean over draws)."""
-    models = {k: VARIANTS[k] for k in ('et', 'ours', 'n05')}
+def step_sets(objects, sizes):
+    """Yield ``(label, start, draws)`` per object and size of the step tables' held-out draws.
+
+    Each draw is ``(train, surface, queries)``: the training curves and, per held-out poke,
+    ``(feature rows, depths, noise-free forces)`` (40 pokes of 10 steps, seed 7; 10 random
+    training sets per size, seed 3). Also used by ``curve_average.py``.
+    """
     with tempfile.TemporaryDirectory() as tmp:
         for name in objects:
             start = time.monotonic()
@@ -84,25 +88,32 @@ def steps(objects, sizes):
             feats = curve_features(curves, surface)
             rng = np.random.default_rng(3)
             for size in sizes:
-                rows = []
+                draws = []
                 for _ in range(10):
                     train = rng.choice(len(curves), size=size, replace=False)
-                    fitted = {k: make().fit([curves[i] for i in train], surface)
-                              for k, make in models.items()}
-                    errs = {k: [] for k in models}
-                    for i in np.setdiff1d(np.arange(len(curves)), train):
-                        d = made['depth'][i]
-                        rows_i = np.repeat(feats[i][None], len(d), axis=0)
-                        for k, model in fitted.items():
-                            errs[k].append(model.predict(rows_i, d) - made['force_true'][i])
-                    rows.append({k: float(np.sqrt(np.mean(np.concatenate(v) ** 2)))
-                                 for k, v in errs.items()})
-                med = {k: float(np.median([r[k] for r in rows])) for k in models}
-                mean = {k: float(np.mean([r[k] for r in rows])) for k in models}
-                print(f'{name} {size} median | ' + ' | '.join(
-                    f'{k} {med[k]:.3f} ({med[k] / med["et"]:.2f})' for k in models)
-                    + '  mean | ' + ' | '.join(f'{k} {mean[k]:.3f}' for k in models)
-                    + f'   [{time.monotonic() - start:.0f} s]', flush=True)
+                    queries = [(np.repeat(feats[i][None], len(made['depth'][i]), axis=0),
+                                made['depth'][i], made['force_true'][i])
+                               for i in np.setdiff1d(np.arange(len(curves)), train)]
+                    draws.append(([curves[i] for i in train], surface, queries))
+                yield f'{name} {size}', start, draws
+
+
+def steps(objects, sizes):
+    """Print ours, ``n05`` and ET on each object's step table (median and mean over draws)."""
+    models = {k: VARIANTS[k] for k in ('et', 'ours', 'n05')}
+    for label, start, draws in step_sets(objects, sizes):
+        rows = []
+        for train, surface, queries in draws:
+            fitted = {k: make().fit(train, surface) for k, make in models.items()}
+            rows.append({k: float(np.sqrt(np.mean(np.concatenate(
+                [model.predict(x, d) - f for x, d, f in queries]) ** 2)))
+                for k, model in fitted.items()})
+        med = {k: float(np.median([r[k] for r in rows])) for k in models}
+        mean = {k: float(np.mean([r[k] for r in rows])) for k in models}
+        print(f'{label} median | ' + ' | '.join(
+            f'{k} {med[k]:.3f} ({med[k] / med["et"]:.2f})' for k in models)
+            + '  mean | ' + ' | '.join(f'{k} {mean[k]:.3f}' for k in models)
+            + f'   [{time.monotonic() - start:.0f} s]', flush=True)
 
 
 def figure2(objects):

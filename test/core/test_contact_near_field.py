@@ -130,6 +130,35 @@ def test_calibrate_shape_reuses_the_held_out_refits_choose_near_made(patch, monk
     assert sorted(f for f in fits if f) == [n - 1] * (len(NEARS) * n) + [n]
 
 
+def test_the_share_after_a_choice_predicts_each_push_under_the_near_field_chosen_without_it(
+        patch):
+    """With four pushes the held-out share is nested: the chosen near field's own held-out
+    errors are the smallest offered, so they understate what the choice meets on a new push."""
+    surface, response = patch
+    made = {near: _pushes(ContactSimulator(surface, response, c=0.005, decay=0.016, near=near))
+            for near in NEARS}
+    pushes = [made['flat'][0], made['paper'][1], made['flat'][2], made['paper'][0]]
+    start = ContactSimulator(surface, response, c=0.002)
+    decays = (0.008, 0.016, 0.032)
+    cal = calibrate_shape(start, pushes, decays=decays, nears=NEARS)
+    assert cal.near == 'flat'
+    inner = []
+    for i, push in enumerate(pushes):
+        others = pushes[:i] + pushes[i + 1:]
+        near, _ = choose_near(start, others, decays=decays)
+        inner.append(near)
+        sim = start.with_shape_constant(start.c, near=near)
+        fit = identify.identify_shape_constant_from_probes(sim, others, decays=decays)
+        error = identify._relative_error(sim.with_shape_constant(fit.c, fit.decay), push)
+        np.testing.assert_allclose(cal.held_out[i], (fit.c, error), rtol=1e-9)
+        assert cal.held_out_decays[i] == fit.decay
+    assert inner.count('paper') >= 1 and cal.near == 'flat'    # the choice flips: a real test
+    errors = np.array([e for _, e in cal.held_out])
+    share = np.sqrt(np.mean(errors ** 2)) * identify.small_sample_factor(len(errors))
+    assert cal.relative_std == pytest.approx(max(share, cal.in_sample_std), rel=1e-12)
+    assert cal.relative_std > cal.near_errors['flat'] * identify.small_sample_factor(4)
+
+
 def test_models_shape_files_the_learner_and_the_service_keep_the_near_field(tmp_path, patch):
     surface, response = patch
     flat = ContactModel(surface=surface, response=response, shape_constant=0.005, version=3,

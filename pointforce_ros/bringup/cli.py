@@ -1,4 +1,4 @@
-"""The ``pointforce`` command: demo, cell, diagnose, replica, deformation, figures, replay, bench.
+"""The ``pointforce`` command: one entry point for the demo, the cell, the studies and benches.
 
 Each sub-command imports what it needs lazily, so ``pointforce --help`` is instant and the core
 sub-commands run without a ROS graph.
@@ -192,7 +192,8 @@ def _cmd_replay(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser of the ``pointforce`` command."""
-    parser = argparse.ArgumentParser(prog='pointforce', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='pointforce',
+                                     description=__doc__.splitlines()[0].replace('``', ''))
     sub = parser.add_subparsers(dest='command', required=True)
 
     demo = sub.add_parser('demo', help='run the whole job on the simulated cell')

@@ -139,7 +139,7 @@ def test_the_share_after_a_choice_predicts_each_push_under_the_near_field_chosen
             for near in NEARS}
     pushes = [made['flat'][0], made['paper'][1], made['flat'][2], made['paper'][0]]
     start = ContactSimulator(surface, response, c=0.002)
-    decays = (0.008, 0.016, 0.032)
+    decays = (0.016,)                   # one decay length: the choice still flips, 3x faster
     cal = calibrate_shape(start, pushes, decays=decays, nears=NEARS)
     assert cal.near == 'flat'
     inner = []

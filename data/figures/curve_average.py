@@ -91,8 +91,8 @@ def kernel_weights(xtr, xq, scales):
 class CurveAverage:
     """Training curves averaged at equal depth (or past the onset), weights chosen by LOPO."""
 
-    def __init__(self, aligned=False, top=1):
-        self.aligned, self.top = aligned, top
+    def __init__(self, aligned=False):
+        self.aligned = aligned
 
     def fit(self, curves, surface, ours=None):
         self.x = curve_features(curves, surface)
@@ -119,7 +119,7 @@ class CurveAverage:
         self.table = table
         self.curves = curves
         loo = [self._lopo(s) for s in COMBOS]
-        self.chosen = [COMBOS[k] for k in np.argsort(loo)[:self.top]]
+        self.ranked = [COMBOS[k] for k in np.argsort(loo)]    # best leave-one-poke-out first
         return self
 
     def _curve_values(self, keep, xq, d, scales):
@@ -138,24 +138,24 @@ class CurveAverage:
             res.append(self._curve_values(keep, self.x[j], c.d[sel], scales) - c.f[sel])
         return float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
 
-    def predict(self, rows, d, scales=None):
-        """Force at ``d`` for feature rows ``rows`` (rows grouped by equal features)."""
+    def predict(self, rows, d, scales=None, top=1):
+        """Force at ``d`` for feature rows ``rows`` (rows grouped by equal features): the mean
+        over the ``top`` best length scales, or with ``scales`` given."""
         keep = np.ones(len(self.curves), bool)
         out = np.zeros(len(d))
         uniq, inv = np.unique(rows, axis=0, return_inverse=True)
+        chosen = [scales] if scales is not None else self.ranked[:top]
         for k, xq in enumerate(uniq):
             at = inv.ravel() == k
-            chosen = [scales] if scales is not None else self.chosen
             out[at] = np.mean([self._curve_values(keep, xq, d[at], s) for s in chosen], axis=0)
         return out
 
 
 def fitted_models(train, surface):
-    """Every column's model fitted on ``train`` (``nw_best`` and ``nw_mean`` use ``nw``'s)."""
+    """The models fitted on ``train`` (``nw_top5``, ``nw_best`` and ``nw_mean`` use ``nw``)."""
     ours = ContactGpModel().fit(train, surface)
-    nw = CurveAverage().fit(train, surface, ours)
-    return {'et': EtBaseline().fit(train, surface), 'ours': ours, 'nw': nw,
-            'nw_top5': CurveAverage(top=5).fit(train, surface, ours),
+    return {'et': EtBaseline().fit(train, surface), 'ours': ours,
+            'nw': CurveAverage().fit(train, surface, ours),
             'nw_aligned': CurveAverage(aligned=True).fit(train, surface, ours)}
 
 
@@ -164,8 +164,9 @@ def draw_rmse(models, queries):
     res = {k: [] for k in COLUMNS if k != 'nw_best'}
     best = {s: [] for s in COMBOS}
     for rows, d, f in queries:
-        for k in ('et', 'ours', 'nw', 'nw_top5', 'nw_aligned'):
+        for k in ('et', 'ours', 'nw', 'nw_aligned'):
             res[k].append(models[k].predict(rows, d) - f)
+        res['nw_top5'].append(models['nw'].predict(rows, d, top=5) - f)
         res['blend'].append(0.5 * (res['ours'][-1] + res['nw'][-1]))
         res['nw_mean'].append(models['nw'].predict(rows, d, (np.inf,) * len(GROUPS)) - f)
         for s in COMBOS:

@@ -606,7 +606,7 @@ def _choose_near(simulator, pokes: List[tuple], decays, c_bounds, nears):
     return best, errors, refits
 
 
-def _chosen_held_out(simulator, pokes: List[tuple], decays, c_bounds, nears, refits):
+def _chosen_held_out(simulator, pokes: List[tuple], decays, c_bounds, refits):
     """Per push, its held-out refit under the near field chosen WITHOUT it (nested).
 
     The chosen near field's own held-out errors are the smallest of those offered, so they
@@ -671,8 +671,7 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
       the 90 % intervals, 89.5 % with ``L`` refitted; ``data/figures/share_prior.py``). With
       two, one push cannot choose ``L``: ``c`` alone is refitted at the joint ``L``;
     * ``c`` is fitted to each push alone at the joint ``L``, and their spread is added to the
-      covariance of ``log c`` (:class:`ShapeCalibration`).
-
+      covariance of ``log c`` (:class:`ShapeCalibration`);
     * where the near field is chosen (``nears``, more than :data:`NEAR_PUSHES` pushes), each
       push is predicted under the near field chosen from the other pushes alone (nested):
       the chosen near field's own held-out errors are the smallest of those offered and so
@@ -718,7 +717,7 @@ def calibrate_shape(simulator, pokes: Sequence[tuple],
     if nears is not None:
         near, near_errors, every = _choose_near(simulator, pokes, decays, c_bounds, nears)
         if near_errors:
-            refits = (_chosen_held_out(simulator, pokes, decays, c_bounds, nears, every)
+            refits = (_chosen_held_out(simulator, pokes, decays, c_bounds, every)
                       if len(pokes) > NEAR_PUSHES else every[near])
         simulator = simulator.with_shape_constant(simulator.c, near=near)
     fit = identify_shape_constant_from_probes(simulator, pokes, c_bounds, decays)

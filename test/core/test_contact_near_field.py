@@ -152,7 +152,7 @@ def test_the_share_after_a_choice_predicts_each_push_under_the_near_field_chosen
         error = identify._relative_error(sim.with_shape_constant(fit.c, fit.decay), push)
         np.testing.assert_allclose(cal.held_out[i], (fit.c, error), rtol=1e-9)
         assert cal.held_out_decays[i] == fit.decay
-    assert inner.count('paper') >= 1 and cal.near == 'flat'    # the choice flips: a real test
+    assert 'paper' in inner             # the choice flips without some push: a real test
     errors = np.array([e for _, e in cal.held_out])
     share = np.sqrt(np.mean(errors ** 2)) * identify.small_sample_factor(len(errors))
     assert cal.relative_std == pytest.approx(max(share, cal.in_sample_std), rel=1e-12)

@@ -501,7 +501,8 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
     Models: ours, ours as it was before issue 17 (``ours_before``: power law, force at the
     parameters' mean), ours capped at its training pokes' largest force (a diagnostic, see
     :class:`CappedAtTraining`), ours with independent parameter processes (before
-    decorrelation), ours with the outlier screen, its shape-free candidate, ET and Auto-ET.
+    decorrelation), ours with the outlier screen, ours with its laws spread by Extra Trees
+    (``ours_trees``), its shape-free candidate, ET and Auto-ET.
     ``truth``
     (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
     force cap.
@@ -513,6 +514,8 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
                  'ours_independent': lambda: ContactGpModel(decorrelate=False),
                  # the optional outlier screen (ours.py, module docstring point 8)
                  'ours_screened': lambda: ContactGpModel(robust_z=ROBUST_Z),
+                 # the laws spread by Extra Trees instead of the processes (response/trees.py)
+                 'ours_trees': lambda: ContactGpModel(spread='trees'),
                  'ours_shape_free': ShapeFreeGpModel, 'et': EtBaseline,
                  'auto_et': lambda: AutoEtBaseline(budget_s=auto_budget)}
     sizes = [s for s in sizes if s < len(curves)]

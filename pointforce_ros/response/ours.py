@@ -187,6 +187,18 @@ _GH_Z, _GH_W = np.polynomial.hermite_e.hermegauss(ONSET_NODES)
 _GH_W = _GH_W / _GH_W.sum()
 
 
+def check_spread(value, name: str = 'spread') -> str:
+    """Return ``value`` as a spread, one of :data:`SPREADS`.
+
+    Raises:
+        InvalidInput: not one of them (the message starts with ``name`` and lists them).
+
+    """
+    if value not in SPREADS:
+        raise InvalidInput(f'{name}: must be one of {SPREADS}, got {value!r}')
+    return value
+
+
 class ContactGpModel:
     """Per-poke monotone contact law + GP over the surface (see the module docstring).
 
@@ -260,9 +272,7 @@ class ContactGpModel:
         if relevance not in ('fixed', 'auto'):
             raise InvalidInput(f'ContactGpModel: relevance must be fixed or auto, got '
                                f'{relevance!r}')
-        if spread not in SPREADS:
-            raise InvalidInput(f'ContactGpModel: spread must be one of {SPREADS}, got '
-                               f'{spread!r}')
+        check_spread(spread, 'ContactGpModel: spread')
         if mean not in MEANS + ('auto',):
             raise InvalidInput(f'ContactGpModel: mean must be auto or one of {MEANS}, got '
                                f'{mean!r}')
@@ -980,7 +990,7 @@ class ContactGpModel:
                              version=self.version,
                              meta={'model': self.kind, 'n_pokes': len(self._ids),
                                    'poke_ids': list(self._ids), 'ref_depth': self.ref_depth,
-                                   'law': self.law, 'mean': self.mean})
+                                   'law': self.law, 'mean': self.mean, 'spread': self.spread})
 
     def reference_depth(self) -> float:
         """Return a depth (m) where every trained location is in contact: max onset + ref."""

@@ -305,6 +305,21 @@ def test_a_shape_constant_in_the_effects_file_sets_the_parameter_and_model(ros_g
     assert model.shape_constant == pytest.approx(0.0021)
 
 
+@pytest.mark.parametrize('spread', ['gp', 'trees'])
+def test_the_point_spread_parameter_chooses_how_the_laws_are_spread(ros_graph, tmp_path, spread):
+    _setup(tmp_path)
+    node = ros_graph.add(StiffnessLearnerNode(context=ros_graph.context, parameter_overrides=[
+        Parameter('store_dir', value=str(tmp_path / 'pokes')),
+        Parameter('model_dir', value=str(tmp_path / 'models')),
+        Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
+        Parameter('poll_period', value=600.0), Parameter('point_spread', value=spread)]))
+    probe = LearnerProbe(ros_graph, f'spread_probe_{spread}')
+    saved = load_model(probe.wait_version(4).model_path)
+    assert saved.response.meta['spread'] == spread
+    assert node.learner.model.spread == spread
+    assert np.all(np.isfinite(saved.response.forces)) and saved.response.forces.max() > 0
+
+
 @pytest.mark.parametrize('threshold, learned', [(None, 4), (0.3, 0)])
 def test_soft_pokes_are_learned_by_default_and_skipped_under_a_fixed_threshold(
         ros_graph, tmp_path, threshold, learned):

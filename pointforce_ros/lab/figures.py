@@ -772,7 +772,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
                   dent: Optional[Mapping] = None, repeats: int = 10, seed: int = 0,
                   n_train: int = PROBE_TRAIN_POKES, c_grid: Optional[Sequence[float]] = None,
                   paper_draws: int = 3, say: Callable[[str], None] = print,
-                  nears: Sequence[str] = NEARS) -> Dict:
+                  nears: Sequence[str] = NEARS,
+                  point_model: Callable[[], object] = ContactGpModel) -> Dict:
     """Figures 2 and 3 for one object (see the module docstring).
 
     Every trial is scored, each with ``c`` identified from the object's *other* trials
@@ -796,7 +797,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     the paper's ``g`` (the error before that effect was added). The near field of ``ours``
     (``nears``, :data:`~pointforce_ros.contact.lcp.NEARS`) is chosen per trial by the other
     trials, each predicted from the rest (:func:`~pointforce_ros.contact.identify.
-    choose_near`); ``('paper',)`` keeps the seed's ``c / (c + r)``.
+    choose_near`); ``('paper',)`` keeps the seed's ``c / (c + r)``. ``point_model`` makes ours'
+    point model for each draw (default: :class:`~pointforce_ros.response.ours.ContactGpModel`).
 
     Returns:
         dict with ``c`` (``dent``, ``probe``: median of ``per_trial``, the leave-one-out
@@ -863,7 +865,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     for rep in range(int(repeats)):
         pick = rng.choice(len(curves), size=n_train, replace=False)
         train = [curves[i] for i in pick]
-        ours = ContactGpModel().fit(train, surface)
+        ours = point_model().fit(train, surface)
         sim = ContactSimulator(surface, ours.bake(surface, depths), DEFAULT_C)
         et = EtBaseline().fit(train, surface)
         et_sim = ContactSimulator(surface, et.bake(surface, depths), DEFAULT_C)

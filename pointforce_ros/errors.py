@@ -93,6 +93,18 @@ def check_npz_size(archive, path, what: str, limit: Optional[int] = None) -> Non
                         f'{limit / 2 ** 20:.0f} MiB): not a {what} this node can hold')
 
 
+def check_choice(value, choices, name: str) -> str:
+    """Return ``value`` if it is one of the text ``choices``.
+
+    Raises:
+        InvalidInput: it is not (the message starts with ``name`` and lists ``choices``).
+
+    """
+    if not isinstance(value, str) or value not in tuple(choices):
+        raise InvalidInput(f'{name}: must be one of {tuple(choices)}, got {value!r}')
+    return str(value)
+
+
 def read_json(path, what: str) -> dict:
     """Read a JSON file whose top level is an object; every fault is a :class:`DataError`.
 

@@ -59,10 +59,9 @@ import itertools
 import time
 
 import numpy as np
-from nugget_floor import STEP_OBJECTS, step_sets   # this script's folder is on sys.path
+from nugget_floor import figure1_sets, STEP_OBJECTS, step_sets   # this folder is on sys.path
 
 from pointforce_ros.lab.baseline import EtBaseline
-from pointforce_ros.lab.figures import load_poke_fixture
 from pointforce_ros.response.common import curve_features
 from pointforce_ros.response.ours import ContactGpModel
 from pointforce_ros.response.scoring import CONTACT_MARGIN
@@ -185,24 +184,10 @@ def print_row(label, rows, start):
 
 
 def figure1(objects, sizes):
-    for name in objects:
-        start = time.monotonic()
-        surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
-        features = curve_features(curves, surface)
-        rng = np.random.default_rng(0)              # the figure's draws: sizes in order
-        for size in sizes:
-            rows = []
-            for _ in range(10):
-                idx = rng.choice(len(curves), size=size, replace=False)
-                models = fitted_models([curves[i] for i in idx], surface)
-                queries = []
-                for i in np.setdiff1d(np.arange(len(curves)), idx):
-                    c = curves[i]
-                    sel = c.d >= c.onset_d - CONTACT_MARGIN
-                    queries.append((np.repeat(features[i][None], sel.sum(), 0), c.d[sel],
-                                    c.f[sel]))
-                rows.append(draw_rmse(models, queries))
-            print_row(f'{name} {size}', rows, start)
+    for label, start, draws in figure1_sets(objects, sizes):
+        rows = [draw_rmse(fitted_models(train, surface), queries)
+                for train, surface, queries in draws]
+        print_row(label, rows, start)
 
 
 def steps(objects, sizes):

@@ -55,6 +55,7 @@ from pointforce_ros.pokes.table import load_pokes, surface_from_records
 from pointforce_ros.response.common import curve_features
 from pointforce_ros.response.gp import GpGrid
 from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.scoring import CONTACT_MARGIN
 import pointforce_ros.response.ours as ours_module
 
 FLOOR = (0.05, 0.2, 1.0)
@@ -68,6 +69,33 @@ VARIANTS = {
     'n05_long': lambda: ContactGpModel(grid=GpGrid(nugget=FLOOR, position_prior=(1.0, 0.7))),
 }
 STEP_OBJECTS = ('foam_block', 'lamb', 'plush', 'vest', 'dome', 'thin_layer')
+
+
+def figure1_sets(objects, sizes):
+    """Yield ``(label, start, draws)`` per object and size of figure 1's held-out draws.
+
+    As :func:`step_sets`: each draw is ``(train, surface, queries)``, the queries each held-out
+    poke's ``(feature rows, depths, measured forces)`` on its contact samples (seed 0, 10
+    random training subsets per size of the committed 30-poke fixtures, sizes in order: the
+    draws of ``python -m pointforce_ros.lab.figures --learning-only``). Also used by
+    ``curve_average.py`` and ``tree_laws.py``.
+    """
+    for name in objects:
+        start = time.monotonic()
+        surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
+        features = curve_features(curves, surface)
+        queries = []
+        for c, x in zip(curves, features):
+            sel = c.d >= c.onset_d - CONTACT_MARGIN
+            queries.append((np.repeat(x[None], sel.sum(), 0), c.d[sel], c.f[sel]))
+        rng = np.random.default_rng(0)
+        for size in sizes:
+            draws = []
+            for _ in range(10):
+                idx = rng.choice(len(curves), size=size, replace=False)
+                draws.append(([curves[i] for i in idx], surface,
+                              [queries[i] for i in np.setdiff1d(np.arange(len(curves)), idx)]))
+            yield f'{name} {size}', start, draws
 
 
 def step_sets(objects, sizes):

@@ -41,7 +41,7 @@ import argparse
 import time
 
 import numpy as np
-from nugget_floor import STEP_OBJECTS, step_sets   # this script's folder is on sys.path
+from nugget_floor import figure1_sets, STEP_OBJECTS, step_sets   # this folder is on sys.path
 
 from pointforce_ros.lab.baseline import EtBaseline
 from pointforce_ros.lab.evaluate import learning_curve
@@ -49,9 +49,7 @@ from pointforce_ros.lab.figures import (DATA_DIR, figure_probes, load_poke_fixtu
                                         load_probe_fixture, probe_goals)
 from pointforce_ros.contact.uncertainty import Z90
 from pointforce_ros.lab.synthetic_response import spread_indices, SyntheticObject
-from pointforce_ros.response.common import curve_features
 from pointforce_ros.response.ours import ContactGpModel
-from pointforce_ros.response.scoring import CONTACT_MARGIN
 
 OBJECTS = ('plush', 'vest', 'lamb', 'dome', 'thin_layer')
 MODELS = {'et': EtBaseline, 'ours': ContactGpModel,
@@ -73,47 +71,22 @@ def print_row(label, rows, start):
 
 
 def figure1(objects, sizes):
-    for name in objects:
-        start = time.monotonic()
-        surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
-        features = curve_features(curves, surface)
-        rng = np.random.default_rng(0)              # the figure's draws: sizes in order
-        for size in sizes:
-            rows = []
-            for _ in range(10):
-                idx = rng.choice(len(curves), size=size, replace=False)
-                queries = []
-                for i in np.setdiff1d(np.arange(len(curves)), idx):
-                    c = curves[i]
-                    sel = c.d >= c.onset_d - CONTACT_MARGIN
-                    queries.append((np.repeat(features[i][None], sel.sum(), 0), c.d[sel],
-                                    c.f[sel]))
-                rows.append(draw_rmse([curves[i] for i in idx], surface, queries))
-            print_row(f'{name} {size}', rows, start)
+    for label, start, draws in figure1_sets(objects, sizes):
+        print_row(label, [draw_rmse(*draw) for draw in draws], start)
 
 
 def coverage(objects, sizes):
-    for name in objects:
-        start = time.monotonic()
-        surface, curves, _ = load_poke_fixture(name, say=lambda line: None)
-        features = curve_features(curves, surface)
-        rng = np.random.default_rng(0)              # the figure's draws: sizes in order
-        for size in sizes:
-            hits = {k: [] for k in ('ours', 'ours_trees')}
-            for _ in range(10):
-                idx = rng.choice(len(curves), size=size, replace=False)
-                train = [curves[i] for i in idx]
-                for k in hits:
-                    model = MODELS[k]().fit(train, surface)
-                    for i in np.setdiff1d(np.arange(len(curves)), idx):
-                        c = curves[i]
-                        sel = c.d >= c.onset_d - CONTACT_MARGIN
-                        x = np.repeat(features[i][None], sel.sum(), 0)
-                        err = np.abs(model.predict(x, c.d[sel]) - c.f[sel])
-                        hits[k].append(err <= Z90 * model.predict_std(x, c.d[sel]))
-            print(f'{name} {size} coverage | ' + ' | '.join(
-                f'{k} {100 * np.mean(np.concatenate(v)):.0f} %' for k, v in hits.items())
-                + f'   [{time.monotonic() - start:.0f} s]', flush=True)
+    for label, start, draws in figure1_sets(objects, sizes):
+        hits = {k: [] for k in ('ours', 'ours_trees')}
+        for train, surface, queries in draws:
+            for k in hits:
+                model = MODELS[k]().fit(train, surface)
+                for x, d, f in queries:
+                    hits[k].append(np.abs(model.predict(x, d) - f)
+                                   <= Z90 * model.predict_std(x, d))
+        print(f'{label} coverage | ' + ' | '.join(
+            f'{k} {100 * np.mean(np.concatenate(v)):.0f} %' for k, v in hits.items())
+            + f'   [{time.monotonic() - start:.0f} s]', flush=True)
 
 
 def probes(objects):

@@ -39,7 +39,7 @@ from typing import Optional, Tuple
 import numpy as np
 from scipy.linalg import lapack
 
-from pointforce_ros.errors import InvalidInput, NotConverged
+from pointforce_ros.errors import check_choice, InvalidInput, NotConverged
 
 
 NEARS = ('paper', 'flat')
@@ -58,9 +58,7 @@ def check_near(value, name: str = 'near') -> str:
         InvalidInput: not one of :data:`NEARS` (the message starts with ``name``).
 
     """
-    if value not in NEARS:
-        raise InvalidInput(f'{name}: must be one of {NEARS}, got {value!r}')
-    return str(value)
+    return check_choice(value, NEARS, name)
 
 
 def _near(r: np.ndarray, c: float, near: str) -> np.ndarray:

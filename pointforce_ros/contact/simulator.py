@@ -64,7 +64,7 @@ from pointforce_ros.contact.lcp import (bpp_dense, check_decay, check_near, lcp_
                                         PointShapeStack, shape_function, solve_lcp_batch)
 from pointforce_ros.contact.sampling import sample_mesh_surface
 from pointforce_ros.contact import single_pose
-from pointforce_ros.errors import InvalidInput, NotConverged
+from pointforce_ros.errors import check_choice, InvalidInput, NotConverged
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.response.blas import single_threaded_blas
 from pointforce_ros.types import as_array, Mesh, Pose, Surface, Wrench
@@ -187,9 +187,7 @@ def check_neighbours(value, name: str = 'neighbours') -> str:
         InvalidInput: not one of them (the message starts with ``name`` and lists them).
 
     """
-    if value not in NEIGHBOUR_RULES:
-        raise InvalidInput(f'{name}: must be one of {NEIGHBOUR_RULES}, got {value!r}')
-    return value
+    return check_choice(value, NEIGHBOUR_RULES, name)
 
 
 def check_decay_law(value, name: str = 'decay_law') -> str:
@@ -200,9 +198,7 @@ def check_decay_law(value, name: str = 'decay_law') -> str:
             lists them).
 
     """
-    if value not in DECAY_LAWS:
-        raise InvalidInput(f'{name}: must be one of {DECAY_LAWS}, got {value!r}')
-    return value
+    return check_choice(value, DECAY_LAWS, name)
 
 
 @dataclass(frozen=True)

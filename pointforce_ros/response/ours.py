@@ -110,7 +110,7 @@ from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 from scipy.optimize import least_squares
 
-from pointforce_ros.errors import InvalidInput, ModelNotReady
+from pointforce_ros.errors import check_choice, InvalidInput, ModelNotReady
 from pointforce_ros.pokes.curves import fit_power_onset, PokeCurve
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.response.blas import single_threaded_blas
@@ -194,9 +194,7 @@ def check_spread(value, name: str = 'spread') -> str:
         InvalidInput: not one of them (the message starts with ``name`` and lists them).
 
     """
-    if value not in SPREADS:
-        raise InvalidInput(f'{name}: must be one of {SPREADS}, got {value!r}')
-    return value
+    return check_choice(value, SPREADS, name)
 
 
 class ContactGpModel:

@@ -49,6 +49,8 @@ MAX_FOLDS = 10
 CALIBRATION_PRIOR = 2.0
 """Pseudo-pokes of a calibrated spread (z^2 = 1) in the scatter's calibration."""
 SEED = 0
+CHUNK = 4096
+"""Points whose parameters every tree predicts at once (a few MB)."""
 SCALE_FLOOR = np.array([1e-5, 1e-3, 1e-3, 1e-2])
 """Smallest standard deviation of ``(d0 [m], log F, p, q)`` used to standardise them."""
 
@@ -99,11 +101,19 @@ class Forest:
         return out.reshape(len(self.trees.estimators_), len(features), -1) * self.sd + self.mu
 
     def dist(self, features: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        """Mean (M, P) and covariance (M, P, P) of the trees' parameters."""
-        per = self.per_tree(features)
-        mean = per.mean(axis=0)
-        dev = per - mean
-        return mean, np.einsum('tmi,tmj->mij', dev, dev) / len(per)
+        """Mean (M, P) and covariance (M, P, P) of the trees' parameters.
+
+        In chunks of :data:`CHUNK` points: every tree's parameters at once for a whole
+        surface (40 000 points) would take over 100 MB.
+        """
+        k = len(self.mu)
+        mean, cov = np.zeros((len(features), k)), np.zeros((len(features), k, k))
+        for lo in range(0, len(features), CHUNK):
+            per = self.per_tree(features[lo:lo + CHUNK])
+            mean[lo:lo + CHUNK] = per.mean(axis=0)
+            dev = per - mean[lo:lo + CHUNK]
+            cov[lo:lo + CHUNK] = np.einsum('tmi,tmj->mij', dev, dev) / len(per)
+        return mean, cov
 
 
 def _folds(n: int) -> List[np.ndarray]:

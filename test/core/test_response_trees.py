@@ -1,6 +1,7 @@
 """Ours with the laws spread by Extra Trees (``ContactGpModel(spread='trees')``)."""
 
 import json
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -102,3 +103,20 @@ def test_tree_laws_learn_online_as_in_a_batch_and_from_one_poke(world):
         ContactGpModel(spread='forest')
     with pytest.raises(InvalidInput, match='scatter'):
         TreeSpread(np.zeros((2, 9)), np.zeros((2, 3)), TreeState(None, (0.1,)))
+
+
+def test_tree_laws_over_a_large_surface_stay_bounded_in_memory(world):
+    _, surface, curves = world
+    model = ContactGpModel(spread='trees').fit(curves[:8], surface)
+    features = np.tile(surface.features, (40000 // len(surface) + 1, 1))[:40000]
+    tracemalloc.start()
+    try:
+        mean, cov = model.predict_param_dist(features)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # every tree's parameters for all 40 000 points at once took over 200 MB
+    assert peak < 60e6, peak
+    k = len(surface)
+    np.testing.assert_allclose(mean[k:2 * k], mean[:k])
+    np.testing.assert_allclose(cov[:k], model.predict_param_dist(surface.features)[1])

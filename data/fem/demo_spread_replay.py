@@ -15,7 +15,8 @@ served (the default).
 Session 46 (record ``demo_spread_replay.log``, the six fresh clones of ``demo_runs_s45.log``):
 the trees 7.44-7.74 % (mean 7.54 %), both demo goals on 6 of 6, against 7.52-8.15 % (7.67 %)
 and 5 of 6 with the processes (each run's own numbers); 54 of 54 true ``Fz`` inside either way,
-the intervals wider with the trees (6.92 against 4.89 N mean width).
+the intervals wider with the trees (6.92 against 4.89 N mean width). On session 46's three
+(``demo_runs_s46.log``): the trees 7.17-7.65 %, 3 of 3 meet; the processes 7.34-8.92 %, 2 of 3.
 
 Usage: python data/fem/demo_spread_replay.py DEMO_OUT [DEMO_OUT ...] [--object lamb]
 (about a minute per run on one core)

@@ -24,16 +24,14 @@ Usage: python data/fem/demo_spread_replay.py DEMO_OUT [DEMO_OUT ...] [--object l
 
 import functools
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from demo_floor_setup import (last_model_path, meets_demo_goals,  # this folder
-                              query_score, replay_arguments)
+                              query_score, replay_arguments, served_variant)
 from pointforce_ros.bringup.demo import _calibration_pokes
-from pointforce_ros.contact.identify import calibrate_shape, decay_grid
-from pointforce_ros.contact.uncertainty import wrench_uncertainty, Z90
+from pointforce_ros.contact.uncertainty import Z90
 from pointforce_ros.model.files import load_model, load_surface
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.serving import WrenchServer
@@ -64,13 +62,7 @@ def main():
         for k, out in enumerate(args.demo_out):
             for spread in SPREADS:
                 model, sim, pokes = relearned(out, spread, Path(tmp) / str(k))
-                cal = calibrate_shape(sim, three, decays=decay_grid(sim.surface))
-                served = replace(model, shape_constant=cal.fit.c, shape_decay=cal.fit.decay,
-                                 shape_near=cal.near, meta={**model.meta, **cal.sources()})
-                answers = [wrench_uncertainty(served, mesh, [pose], a, centre)
-                           for _, mesh, pose, a, centre in demo.queries]
-                pred = np.array([u.wrench[0, :3] for u in answers])
-                std = np.array([u.std[0, 2] for u in answers])
+                cal, pred, std = served_variant(model, sim, three, demo.queries)
                 pct, below = query_score(pred, true, largest)
                 inside = int(np.sum(np.abs(pred[:, 2] - true[:, 2]) <= Z90 * std))
                 width = float(np.mean(2 * Z90 * std))

@@ -8,6 +8,9 @@ from pointforce_ros.errors import InvalidInput
 from pointforce_ros.pokes.curves import PokeCurve
 from pointforce_ros.types import Surface
 
+SCALE_FLOOR = np.array([1e-5, 1e-3, 1e-3, 1e-2])
+"""Smallest standard deviation of the law parameters ``(d0 [m], log F, p, q)`` used to
+standardise them (ours' processes and trees alike)."""
 DEFAULT_MAX_SURFACE_DISTANCE = 0.01
 """Farthest a poked point may lie from its nearest surface point, metres."""
 

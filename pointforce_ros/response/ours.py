@@ -115,7 +115,8 @@ from pointforce_ros.pokes.curves import fit_power_onset, PokeCurve
 from pointforce_ros.response.baked import BakedResponse
 from pointforce_ros.response.blas import single_threaded_blas
 from pointforce_ros.response.common import (check_curves, check_depths, check_query,
-                                            curve_features, DEFAULT_MAX_SURFACE_DISTANCE)
+                                            curve_features, DEFAULT_MAX_SURFACE_DISTANCE,
+                                            SCALE_FLOOR)
 from pointforce_ros.response.gp import BASES, FeatureFrame, FeatureGp, GpGrid, GpState
 from pointforce_ros.response.scoring import CONTACT_MARGIN
 from pointforce_ros.response.trees import TreeSpread, TreeState
@@ -143,8 +144,6 @@ DECORRELATE_RIDGE = 1e-3
 """Added to the diagonal of the standardised parameters' covariance (keeps it invertible)."""
 DECORRELATE_PRIOR_POKES = 2.0
 """Pseudo-pokes of zero correlation the parameter covariance is shrunk with."""
-SCALE_FLOOR = np.array([1e-5, 1e-3, 1e-3, 1e-2])
-"""Smallest standard deviation of ``(d0 [m], log F, p, q)`` used to standardise them."""
 ONSET_NODES = 3
 """Gauss-Hermite nodes over the onset in the mean force (module docstring, point 6)."""
 LOG_VAR_CAP = 0.5
@@ -655,8 +654,10 @@ class ContactGpModel:
         every = rows is None
         rows = self.process_rows() if every else rows
         theta = self._thetas[law][rows]
+        bounds = self._bounds(self._thetas[law], self._onsets) if every else \
+            self._bounds(theta, self._onsets[rows])
         if self.spread == 'trees':
-            return self._condition_trees(law, states, rows, every)
+            return self._tree_spread(law, states, rows), None, bounds, None
         noise = self._outlier_noise(theta)
         mu, scale, chol, priors = self._decorrelation(theta, 1.0 / noise)
         y = np.linalg.solve(chol, ((theta - mu) / scale).T).T
@@ -668,14 +669,11 @@ class ContactGpModel:
             else:
                 gp.condition(self._features[rows], y[:, j], states[j], noise)
             gps.append(gp)
-        bounds = self._bounds(self._thetas[law], self._onsets) if every else \
-            self._bounds(theta, self._onsets[rows])
         return gps, (mu, scale, chol), bounds, self._calibration(gps)
 
-    def _condition_trees(self, law: str, state: Optional[TreeState], rows: np.ndarray,
-                         every: bool):
-        """``(spread, None, bounds, None)``: :mod:`.trees` in the processes' place."""
-        theta = self._thetas[law][rows]
+    def _tree_spread(self, law: str, state: Optional[TreeState], rows: np.ndarray
+                     ) -> TreeSpread:
+        """:mod:`.trees` in the processes' place, on the training pokes ``rows``."""
         samples = [self._samples[i] for i in rows]
 
         def score(mean, cov):
@@ -683,11 +681,8 @@ class ContactGpModel:
                     - s[1] for m, s in zip(mean, samples)]
             return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
         usable = not any(s is None for s in samples)
-        spread = TreeSpread(self._features[rows], theta, state,
-                            score if usable else None, self.prior_scales)
-        bounds = self._bounds(self._thetas[law], self._onsets) if every else \
-            self._bounds(theta, self._onsets[rows])
-        return spread, None, bounds, None
+        return TreeSpread(self._features[rows], self._thetas[law][rows], state,
+                          score if usable else None, self.prior_scales)
 
     @staticmethod
     def _calibration(gps: Sequence[FeatureGp]) -> np.ndarray:

@@ -37,9 +37,11 @@ import numpy as np
 from sklearn.ensemble import ExtraTreesRegressor
 
 from pointforce_ros.errors import InvalidInput
+from pointforce_ros.response.common import SCALE_FLOOR
 
 TREE_COUNT = 100
-"""Trees in a forest (a forest of 5-30 pokes fits in a few hundredths of a second)."""
+"""Trees in a forest (one forest of 5-30 pokes fits in about a tenth of a second; a model's
+fit makes about 30 of them for the held-out choice, about 4 s)."""
 MAX_FEATURES = (1, 3, None)
 """``max_features`` offered to the held-out choice (``None``: all nine features)."""
 CHOOSE_MIN_POKES = 4
@@ -51,8 +53,6 @@ CALIBRATION_PRIOR = 2.0
 SEED = 0
 CHUNK = 4096
 """Points whose parameters every tree predicts at once (a few MB)."""
-SCALE_FLOOR = np.array([1e-5, 1e-3, 1e-3, 1e-2])
-"""Smallest standard deviation of ``(d0 [m], log F, p, q)`` used to standardise them."""
 
 
 @dataclass(frozen=True)
@@ -159,6 +159,10 @@ def calibrated_scatter(residual: np.ndarray, variance: np.ndarray) -> np.ndarray
     return out
 
 
+Score = Callable[[np.ndarray, np.ndarray], float]
+"""``score(mean, cov) -> RMSE`` of held-out parameter distributions (:class:`TreeSpread`)."""
+
+
 class TreeSpread:
     """Parameters ``theta`` (n, P) of the training pokes spread over their ``features`` (n, 9).
 
@@ -168,13 +172,12 @@ class TreeSpread:
         score: ``score(mean, cov) -> RMSE`` of held-out parameter distributions (n, P),
             (n, P, P) against the training pokes' own samples; needed when ``state`` is None
             and there are at least :data:`CHOOSE_MIN_POKES` pokes.
-        prior: (P,) scatter used with one poke.
+        prior: (P,) or longer scatter used with one poke (ours' prior scales).
     """
 
     def __init__(self, features: np.ndarray, theta: np.ndarray,
-                 state: Optional[TreeState] = None,
-                 score: Optional[Callable[[np.ndarray, np.ndarray], float]] = None,
-                 prior: Sequence[float] = (0.003, 1.0, 0.4, 1.0)):
+                 state: Optional[TreeState], score: Optional[Score],
+                 prior: Sequence[float]):
         features = np.asarray(features, dtype=float)
         theta = np.asarray(theta, dtype=float)
         n, k = theta.shape
@@ -188,8 +191,9 @@ class TreeSpread:
                 choice = min(MAX_FEATURES, key=lambda mf: self.scores[str(mf)])
                 self._held_out = outs[choice]
             if n >= 2:
-                mean, cov = self._held_out or held_out_dist(features, theta, choice)
-                self._held_out = (mean, cov)
+                if self._held_out is None:
+                    self._held_out = held_out_dist(features, theta, choice)
+                mean, cov = self._held_out
                 scatter = calibrated_scatter(theta - mean,
                                              np.diagonal(cov, axis1=1, axis2=2))
             else:

@@ -102,7 +102,7 @@ def test_tree_laws_learn_online_as_in_a_batch_and_from_one_poke(world):
     with pytest.raises(InvalidInput, match='spread'):
         ContactGpModel(spread='forest')
     with pytest.raises(InvalidInput, match='scatter'):
-        TreeSpread(np.zeros((2, 9)), np.zeros((2, 3)), TreeState(None, (0.1,)))
+        TreeSpread(np.zeros((2, 9)), np.zeros((2, 3)), TreeState(None, (0.1,)), None, (0.1,))
 
 
 def test_tree_laws_over_a_large_surface_stay_bounded_in_memory(world):

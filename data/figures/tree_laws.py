@@ -56,31 +56,31 @@ MODELS = {'et': EtBaseline, 'ours': ContactGpModel,
           'ours_trees': lambda: ContactGpModel(spread='trees')}
 
 
-def draw_rmse(train, surface, queries):
+def draw_rmse(train, surface, queries, models=MODELS):
     """``{model: RMSE}`` of one draw over ``queries`` (feature rows, depths, forces)."""
-    fitted = {k: make().fit(train, surface) for k, make in MODELS.items()}
+    fitted = {k: make().fit(train, surface) for k, make in models.items()}
     return {k: float(np.sqrt(np.mean(np.concatenate(
         [m.predict(x, d) - f for x, d, f in queries]) ** 2))) for k, m in fitted.items()}
 
 
-def print_row(label, rows, start):
-    med = {k: float(np.median([r[k] for r in rows])) for k in MODELS}
+def print_row(label, rows, start, models=MODELS):
+    med = {k: float(np.median([r[k] for r in rows])) for k in models}
     print(f'{label} | ' + ' | '.join(f'{med[k]:.3f} ({med[k] / med["et"]:.2f})'
-                                     for k in MODELS)
+                                     for k in models)
           + f'   [{time.monotonic() - start:.0f} s]', flush=True)
 
 
-def figure1(objects, sizes):
+def figure1(objects, sizes, models=MODELS):
     for label, start, draws in figure1_sets(objects, sizes):
-        print_row(label, [draw_rmse(*draw) for draw in draws], start)
+        print_row(label, [draw_rmse(*draw, models) for draw in draws], start, models)
 
 
-def coverage(objects, sizes):
+def coverage(objects, sizes, models=MODELS):
     for label, start, draws in figure1_sets(objects, sizes):
-        hits = {k: [] for k in ('ours', 'ours_trees')}
+        hits = {k: [] for k in models if k != 'et'}
         for train, surface, queries in draws:
             for k in hits:
-                model = MODELS[k]().fit(train, surface)
+                model = models[k]().fit(train, surface)
                 for x, d, f in queries:
                     hits[k].append(np.abs(model.predict(x, d) - f)
                                    <= Z90 * model.predict_std(x, d))
@@ -89,11 +89,11 @@ def coverage(objects, sizes):
             + f'   [{time.monotonic() - start:.0f} s]', flush=True)
 
 
-def probes(objects):
+def probes(objects, spreads=('gp', 'trees')):
     for name in objects:
         surface, curves, _ = load_poke_fixture(name, DATA_DIR, lambda line: None)
         trials, dent, _ = load_probe_fixture(name, DATA_DIR, lambda line: None)
-        for spread in ('gp', 'trees'):
+        for spread in spreads:
             start = time.monotonic()
             res = figure_probes(curves, surface, trials, dent, say=lambda line: None,
                                 point_model=lambda: ContactGpModel(spread=spread))
@@ -106,23 +106,24 @@ def probes(objects):
                   flush=True)
 
 
-def steps(objects, sizes):
+def steps(objects, sizes, models=MODELS):
     for label, start, draws in step_sets(objects, sizes):
-        print_row(f'{label} steps', [draw_rmse(*draw) for draw in draws], start)
+        print_row(f'{label} steps', [draw_rmse(*draw, models) for draw in draws], start,
+                  models)
 
 
-def synthetic(sizes):
+def synthetic(sizes, models=MODELS):
     start = time.monotonic()
     obj = SyntheticObject()
     surface = obj.surface(0.002)
     rng = np.random.default_rng(2024)
     curves = obj.curves(surface, spread_indices(surface, 30, rng), rng, rate=100.0,
                         ft_noise=0.03, ft_bias=0.05)
-    rows = learning_curve(curves, surface, MODELS, sizes=sizes, repeats=10, seed=7)
+    rows = learning_curve(curves, surface, models, sizes=sizes, repeats=10, seed=7)
     med = {(r['model'], r['size']): r['median'] for r in rows}
     for size in sizes:
         print(f'synthetic {size} | ' + ' | '.join(
-            f'{med[(k, size)]:.3f} ({med[(k, size)] / med[("et", size)]:.2f})' for k in MODELS)
+            f'{med[(k, size)]:.3f} ({med[(k, size)] / med[("et", size)]:.2f})' for k in models)
             + f'   [{time.monotonic() - start:.0f} s]', flush=True)
 
 

@@ -35,7 +35,7 @@ from pointforce_ros.lab.figures import (bake_depths, DATA_DIR, DEFAULT_C, load_p
 from pointforce_ros.model.files import ContactModel
 from pointforce_ros.pokes.curves import learned_depth, PokeCurve
 from pointforce_ros.response.baked import EXTRAPOLATION_KAPPA
-from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.ours import product_model
 from pointforce_ros.types import Surface
 
 
@@ -102,7 +102,7 @@ def probe_coverage(curves: Sequence[PokeCurve], surface: Surface, trials: Sequen
     train = [curves[i] for i in rng.choice(len(curves), size=n_train, replace=False)]
     if cut is not None:
         train = [c for c in (cut_curve(c, cut) for c in train) if c is not None]
-    baked = ContactGpModel().fit(train, surface).bake(surface, bake_depths(curves)) \
+    baked = product_model().fit(train, surface).bake(surface, bake_depths(curves)) \
         .with_extrapolation(learned_depth(train), kappa)
     nominal = ContactSimulator(surface, baked, DEFAULT_C)
     rows = {'normal': [], 'force': [], 'torque': [], 'pred': [], 'std': [], 'true': [],

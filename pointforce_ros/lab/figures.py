@@ -61,7 +61,7 @@ from pointforce_ros.response.scoring import CONTACT_MARGIN
 from pointforce_ros.lab.paper_contact import PaperContactSimulator
 from pointforce_ros.pokes.curves import extract_curve
 from pointforce_ros.response.common import curve_features
-from pointforce_ros.response.ours import ContactGpModel, ROBUST_Z
+from pointforce_ros.response.ours import ContactGpModel, product_model, ROBUST_Z
 from pointforce_ros.response.shapefree import ShapeFreeGpModel
 from pointforce_ros.lab.active import active_vs_random_curve
 from pointforce_ros.sim.fem.live import LiveContact, POINT_PROBE
@@ -498,7 +498,8 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
                     truth: Optional[Mapping] = None) -> List[Dict]:
     """Figure 1 rows for one object (same subsets for every model).
 
-    Models: ours, ours as it was before issue 17 (``ours_before``: power law, force at the
+    Models: ours (the product's point model, :func:`~pointforce_ros.response.ours.
+    product_model`), its processes alone (``ours_gp``), ours as it was before issue 17 (``ours_before``: power law, force at the
     parameters' mean), ours capped at its training pokes' largest force (a diagnostic, see
     :class:`CappedAtTraining`), ours with independent parameter processes (before
     decorrelation), ours with the outlier screen, ours with its laws spread by Extra Trees
@@ -507,10 +508,12 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
     (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
     force cap.
     """
-    factories = {'ours': ContactGpModel,
+    factories = {'ours': product_model,
+                 # the processes alone (the product's spread mixes them with the trees)
+                 'ours_gp': ContactGpModel,
                  # before issue 17: one power law, force at the parameters' predictive mean
                  'ours_before': lambda: ContactGpModel(law='power', mean='median'),
-                 'ours_capped': lambda: CappedAtTraining(ContactGpModel()),
+                 'ours_capped': lambda: CappedAtTraining(product_model()),
                  'ours_independent': lambda: ContactGpModel(decorrelate=False),
                  # the optional outlier screen (ours.py, module docstring point 8)
                  'ours_screened': lambda: ContactGpModel(robust_z=ROBUST_Z),
@@ -773,7 +776,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
                   n_train: int = PROBE_TRAIN_POKES, c_grid: Optional[Sequence[float]] = None,
                   paper_draws: int = 3, say: Callable[[str], None] = print,
                   nears: Sequence[str] = NEARS,
-                  point_model: Callable[[], object] = ContactGpModel) -> Dict:
+                  point_model: Callable[[], object] = product_model) -> Dict:
     """Figures 2 and 3 for one object (see the module docstring).
 
     Every trial is scored, each with ``c`` identified from the object's *other* trials
@@ -798,7 +801,8 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     (``nears``, :data:`~pointforce_ros.contact.lcp.NEARS`) is chosen per trial by the other
     trials, each predicted from the rest (:func:`~pointforce_ros.contact.identify.
     choose_near`); ``('paper',)`` keeps the seed's ``c / (c + r)``. ``point_model`` makes ours'
-    point model for each draw (default: :class:`~pointforce_ros.response.ours.ContactGpModel`).
+    point model, for each draw and for the calibration of ``(c, L)`` on every poke (default:
+    the product's, :func:`~pointforce_ros.response.ours.product_model`).
 
     Returns:
         dict with ``c`` (``dent``, ``probe``: median of ``per_trial``, the leave-one-out
@@ -830,7 +834,7 @@ def figure_probes(curves: Sequence[PokeCurve], surface: Surface, trials: Sequenc
     paper_repeats = min(int(repeats), int(paper_draws))
     c_curve, failed = {float(c): [] for c in c_grid}, 0
     calibration = ContactSimulator(
-        surface, ContactGpModel().fit(list(curves), surface).bake(surface, depths), DEFAULT_C)
+        surface, point_model().fit(list(curves), surface).bake(surface, depths), DEFAULT_C)
     c_trial, shape_trial = [], []
     for j in evaluate:
         others = [(t['mesh'], trial_poses(t), t['direction'], t['force'])

@@ -37,7 +37,7 @@ from pointforce_ros.errors import InvalidInput, ModelNotReady, PointforceError
 from pointforce_ros.model.files import ContactModel, model_path, save_model
 from pointforce_ros.pokes.curves import extract_curve, learned_depth, PokeCurve
 from pointforce_ros.pokes.store import PokeStore
-from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.ours import product_model
 from pointforce_ros.response.suggest import (greedy_picks, reference_depth, suggest_pokes,
                                              Suggestion)
 from pointforce_ros.types import Surface
@@ -131,7 +131,8 @@ class OnlineLearner:
         shape_near: the shape function's near field (``'paper'`` or ``'flat'``,
             :data:`~pointforce_ros.contact.lcp.NEARS`), stored in each model.
         depths: (K,) bake grid, metres.
-        model_factory: makes an empty force-response model (ours by default).
+        model_factory: makes an empty force-response model (default: ours as the product
+            uses it, :func:`~pointforce_ros.response.ours.product_model`).
         corrections: optional callable ``records -> records`` applied before curve extraction
             instead of the built-in correction by ``effects``.
         effects: accepted effects ``{name: {param: value}}`` (``pointforce diagnose``'s
@@ -157,7 +158,7 @@ class OnlineLearner:
 
     def __init__(self, store_dir, model_dir, surface: Surface, *, shape_constant: float,
                  depths: np.ndarray = DEFAULT_DEPTHS,
-                 model_factory: Callable[[], object] = ContactGpModel,
+                 model_factory: Callable[[], object] = product_model,
                  corrections: Optional[Callable] = None, effects: Optional[dict] = None,
                  min_peak_force: Optional[float] = None, shape_decay: float = np.inf,
                  contact_snr: float = 5.0, min_peak_fraction: float = 0.02,

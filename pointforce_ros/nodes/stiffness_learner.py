@@ -56,7 +56,7 @@ from pointforce_ros.model.files import (load_model, load_shape, load_shape_law, 
 from pointforce_ros.nodes.common import (contained, declare, live, publish_health, qos_watch,
                                          report_folder, run)
 from pointforce_ros.pokes.recorder import StreamRecorder
-from pointforce_ros.response.ours import check_spread, ContactGpModel
+from pointforce_ros.response.ours import check_spread, ContactGpModel, PRODUCT_SPREAD
 from pointforce_ros.pokes.store import PokeStore
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
@@ -128,13 +128,14 @@ class StiffnessLearnerNode(Node):
             'identified under')
         self._restore_shape()
         self.point_spread = check_spread(declare(
-            self, 'point_spread', 'gp',
-            "How the per-poke laws are spread over the surface: 'gp' (Gaussian processes over "
+            self, 'point_spread', PRODUCT_SPREAD,
+            "How the per-poke laws are spread over the surface: 'mix' (both below in equal "
+            "parts: better held out than either on figure 2's wide probes and than 'gp' on "
+            "every cell of figure 1; a refit about 4 s), 'gp' (Gaussian processes over "
             'position, colour and normal: smooth fields, a spread that grows away from the '
-            "pokes) or 'trees' (Extra Trees over the same features: materials told apart by "
-            "colour or height; held out on the simulated cell's objects 1.01-1.18 of the "
-            "seed's Extra Trees where 'gp' scores 1.00-1.77, but its spread does not grow "
-            'away from the pokes)', read_only=True), 'point_spread')
+            "pokes; a refit 0.1-0.8 s) or 'trees' (Extra Trees over the same features: "
+            'materials told apart by colour or height, but its spread does not grow away '
+            'from the pokes)', read_only=True), 'point_spread')
         poll = declare(self, 'poll_period', 2.0, 'Seconds between poke-store polls',
                        bounds=(0.1, 600.0), read_only=True)
         self.exclude_radius = declare(self, 'suggest_exclude_radius', 0.01,

@@ -130,8 +130,15 @@ LAW_PARAMS = {'power': ('d0', 'log_force', 'exponent'),
               'stiffening': ('d0', 'log_force', 'exponent', 'stiffening')}
 PARAMS = LAW_PARAMS['power']
 MEANS = ('mean', 'median')
-SPREADS = ('gp', 'trees')
+SPREADS = ('gp', 'trees', 'mix')
 """How the per-poke laws are spread over the surface (``ContactGpModel(spread=...)``)."""
+PRODUCT_SPREAD = 'mix'
+"""The spread of the product's point model: the learner node's ``point_spread`` default,
+:class:`~pointforce_ros.model.learner.OnlineLearner`'s and the figures' ``ours``. Held out it
+is better than the processes alone on every cell of figure 1 and under figure 2's probes on
+every object (``data/figures/mix_spread.py``, record ``mix_spread.log``). ``ContactGpModel``'s
+own default stays ``gp``: a fit in 0.1-0.4 s against about 4 s with the trees (which the unit
+tests and studies that build many models use)."""
 ONSET_MARGIN = 0.0005
 """How far (m) a predicted onset may lie outside the training pokes' detected onsets."""
 LOG_FORCE_MARGIN = 0.3
@@ -186,6 +193,36 @@ _GH_Z, _GH_W = np.polynomial.hermite_e.hermegauss(ONSET_NODES)
 _GH_W = _GH_W / _GH_W.sum()
 
 
+@dataclasses.dataclass(frozen=True)
+class Mixture:
+    """The processes' field and the trees' spread of one law, in equal parts (``spread='mix'``).
+
+    Attributes:
+        gp: the processes' field ``(gps, (mu, scale, chol), bounds, var_scale)``.
+        trees: the trees' :class:`~pointforce_ros.response.trees.TreeSpread`.
+
+    """
+
+    gp: tuple
+    trees: TreeSpread
+
+
+def mixture(m1: np.ndarray, c1: np.ndarray, m2: np.ndarray, c2: np.ndarray
+            ) -> Tuple[np.ndarray, np.ndarray]:
+    """Mean (..., P) and covariance (..., P, P) of the equal mixture of two Gaussians.
+
+    Moment matched: the mean of the means, and the mean covariance plus the covariance of the
+    two means about it (their disagreement widens the spread).
+    """
+    half = (np.asarray(m1, dtype=float) - m2) / 2.0
+    return (m1 + m2) / 2.0, (c1 + c2) / 2.0 + half[..., :, None] * half[..., None, :]
+
+
+def product_model() -> 'ContactGpModel':
+    """Return an empty point model as the product uses it (:data:`PRODUCT_SPREAD`)."""
+    return ContactGpModel(spread=PRODUCT_SPREAD)
+
+
 def check_spread(value, name: str = 'spread') -> str:
     """Return ``value`` as a spread, one of :data:`SPREADS`.
 
@@ -225,9 +262,12 @@ class ContactGpModel:
             ``None`` (the default) turns the screen off; :data:`ROBUST_Z` is the usual cut-off.
         spread: ``gp`` (the processes of points 2-5), ``trees`` (Extra Trees over the same
             features, :mod:`.trees`; ``bases``, ``grid``, ``decorrelate``, ``relevance`` and
-            ``robust_z`` are then unused). Not chosen per fit: with 5-10 pokes the
-            leave-one-poke-out errors chose the processes on thin_layer and lamb at 10 pokes
-            where the trees score 1.13 and 1.09 of ET held out and the processes 1.43 and 1.45.
+            ``robust_z`` are then unused) or ``mix`` (both, in equal parts: a point's
+            parameters are the moment-matched mixture of the two Gaussians, :func:`mixture`;
+            ``relevance='auto'`` applies with ``gp`` alone). Not chosen per fit: with 5-10
+            pokes the leave-one-poke-out errors chose the processes on thin_layer and lamb at
+            10 pokes where the trees score 1.13 and 1.09 of ET held out and the processes 1.43
+            and 1.45. :data:`PRODUCT_SPREAD` is the product's.
 
     Raises:
         InvalidInput: non-positive ``ref_depth`` or prior scales, bad exponent bounds, unknown
@@ -658,6 +698,17 @@ class ContactGpModel:
             self._bounds(theta, self._onsets[rows])
         if self.spread == 'trees':
             return self._tree_spread(law, states, rows), None, bounds, None
+        tree_state = None
+        if self.spread == 'mix' and states is not None:
+            states, tree_state = states
+        field = self._condition_gp(theta, bounds, states, rows, grid)
+        if self.spread == 'mix':
+            return Mixture(field, self._tree_spread(law, tree_state, rows)), None, bounds, None
+        return field
+
+    def _condition_gp(self, theta: np.ndarray, bounds, states: Optional[Sequence[GpState]],
+                      rows: np.ndarray, grid: Optional[GpGrid] = None):
+        """The processes' field of parameters ``theta`` of the pokes ``rows``."""
         noise = self._outlier_noise(theta)
         mu, scale, chol, priors = self._decorrelation(theta, 1.0 / noise)
         y = np.linalg.solve(chol, ((theta - mu) / scale).T).T
@@ -709,17 +760,25 @@ class ContactGpModel:
         """
         every = self.process_rows()
         trees = isinstance(gps, TreeSpread)
-        if trees:
-            held = gps.held_out()
-        else:
-            states = [gp.state for gp in gps]
+        mixed = isinstance(gps, Mixture)
+        if trees or mixed:
+            held = (gps.trees if mixed else gps).held_out()
+        if not trees:
+            states = [gp.state for gp in (gps.gp[0] if mixed else gps)]
+            theta = self._thetas[law]
         errs = {'mean': [], 'median': []}
         for j, i in enumerate(every):
             if trees:
                 mean, cov = held[0][j:j + 1], held[1][j:j + 1]
             else:
-                field = self._condition(law, states, np.delete(every, j))
+                rest = np.delete(every, j)
+                field = self._condition_gp(theta[rest], self._bounds(theta[rest],
+                                                                     self._onsets[rest]),
+                                           states, rest)
                 mean, cov = self._param_dist(field, self._features[i:i + 1])
+                if mixed:
+                    mean, cov = mixture(mean, cov, np.clip(held[0][j:j + 1], *field[2]),
+                                        held[1][j:j + 1])
             d, f = self._samples[i]
             if self.mean_setting in ('median', 'auto'):
                 errs['median'].append(self.force_from_params(np.repeat(mean, len(d), 0), d,
@@ -740,6 +799,11 @@ class ContactGpModel:
         if isinstance(field[0], TreeSpread):
             mean, cov = field[0].dist(features)
             return np.clip(mean, *field[2]), (cov if with_cov else None)
+        if isinstance(field[0], Mixture):
+            m1, c1 = self._param_dist(field[0].gp, features)
+            m2, c2 = self._param_dist((field[0].trees, None, field[2], None), features)
+            mean, cov = mixture(m1, c1, m2, c2)
+            return mean, (cov if with_cov else None)
         gps, (mu, scale, chol), bounds, var_scale = field
         sq = {}
         out = [gp.predict(features, return_std=with_cov, sq=sq) for gp in gps]
@@ -1024,10 +1088,18 @@ class ContactGpModel:
                        'samples': None if self._samples[i] is None
                        else [self._samples[i][0].tolist(), self._samples[i][1].tolist()]}
                       for i in range(n)],
-            'processes': None if self._gps is None else (
-                {'trees': self._gps.state.to_dict()} if isinstance(self._gps, TreeSpread)
-                else [gp.state.to_dict() for gp in self._gps]),
+            'processes': None if self._gps is None else self._states_dict(self._gps),
         }
+
+    @staticmethod
+    def _states_dict(spread):
+        """The saved form of a fitted spread's states (``processes`` of :meth:`to_dict`)."""
+        if isinstance(spread, TreeSpread):
+            return {'trees': spread.state.to_dict()}
+        if isinstance(spread, Mixture):
+            return {'gp': [gp.state.to_dict() for gp in spread.gp[0]],
+                    'trees': spread.trees.state.to_dict()}
+        return [gp.state.to_dict() for gp in spread]
 
     @classmethod
     def from_dict(cls, data: Mapping) -> 'ContactGpModel':
@@ -1086,8 +1158,12 @@ class ContactGpModel:
             model._onsets = np.array([p.get('onset', p['params'][0]) for p in pokes],
                                      dtype=float)
             if data['processes'] is not None:
+                saved = data['processes']
                 if model.spread == 'trees':
-                    model._fit_processes(TreeState.from_dict(data['processes']['trees']))
+                    model._fit_processes(TreeState.from_dict(saved['trees']))
+                elif model.spread == 'mix':
+                    model._fit_processes(([GpState.from_dict(s) for s in saved['gp']],
+                                          TreeState.from_dict(saved['trees'])))
                 else:
                     model._fit_processes([GpState.from_dict(s) for s in data['processes']])
         except (KeyError, TypeError, ValueError) as exc:

@@ -14,7 +14,7 @@ from pointforce_ros.model import learner as learner_module
 from pointforce_ros.model.learner import OnlineLearner
 from pointforce_ros.model.files import load_model
 from pointforce_ros.pokes.store import PokeStore
-from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.ours import ContactGpModel, PRODUCT_SPREAD
 from pointforce_ros.types import PokeRecord, Surface
 
 CONTACT = HalfSpaceContact(z0=0.04, k0=1.4e4, exponent=1.5, ripple=0.4, wavelength=0.06)
@@ -349,9 +349,12 @@ def test_an_update_of_many_pokes_checks_once_and_finds_the_one_that_breaks_the_m
 
 
 class _CountsRefits(ContactGpModel):
-    """Ours, counting its process refits."""
+    """Ours as the product uses it, counting its process refits."""
 
     refits = 0
+
+    def __init__(self):
+        super().__init__(spread=PRODUCT_SPREAD)
 
     def _fit_processes(self, states=None):
         type(self).refits += 1

@@ -54,7 +54,8 @@ def test_a_configuration_a_node_refuses_ends_it_with_the_reason(tmp_path):
      'camera_pose: Pose.orientation: quaternion must be unit length'),
     ('deformation_force', 'camera_pose:=[1.0]', 'camera_pose: Pose.position: expected shape'),
     ('cloud_capture', 'cloud_topic:=a b', 'Invalid topic name'),
-    ('stiffness_learner', 'point_spread:=forest', "point_spread: must be one of ('gp', 'trees')"),
+    ('stiffness_learner', 'point_spread:=forest',
+     "point_spread: must be one of ('gp', 'trees', 'mix')"),
 ])
 def test_a_parameter_a_node_refuses_ends_it_with_the_reason(tmp_path, module, argument, reason):
     # before: rclpy's InvalidParameterValueException / TypeException, or the node's own

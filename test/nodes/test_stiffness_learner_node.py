@@ -23,6 +23,7 @@ from pointforce_ros.sim.session import halfspace_object, simulate_campaign
 from pointforce_ros.model.files import load_model, save_surface
 from pointforce_ros.nodes.stiffness_learner import LATCHED, RELIABLE, StiffnessLearnerNode
 from pointforce_ros.pokes.store import PokeStore
+from pointforce_ros.response.ours import PRODUCT_SPREAD
 from pointforce_ros.types import Surface
 
 pytestmark = pytest.mark.ros
@@ -305,16 +306,20 @@ def test_a_shape_constant_in_the_effects_file_sets_the_parameter_and_model(ros_g
     assert model.shape_constant == pytest.approx(0.0021)
 
 
-@pytest.mark.parametrize('spread', ['gp', 'trees'])
+@pytest.mark.parametrize('spread', [None, 'gp', 'trees'])
 def test_the_point_spread_parameter_chooses_how_the_laws_are_spread(ros_graph, tmp_path, spread):
     _setup(tmp_path)
-    node = ros_graph.add(StiffnessLearnerNode(context=ros_graph.context, parameter_overrides=[
-        Parameter('store_dir', value=str(tmp_path / 'pokes')),
-        Parameter('model_dir', value=str(tmp_path / 'models')),
-        Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
-        Parameter('poll_period', value=600.0), Parameter('point_spread', value=spread)]))
-    probe = LearnerProbe(ros_graph, f'spread_probe_{spread}')
+    overrides = [Parameter('store_dir', value=str(tmp_path / 'pokes')),
+                 Parameter('model_dir', value=str(tmp_path / 'models')),
+                 Parameter('surface_file', value=str(tmp_path / 'surface.npz')),
+                 Parameter('poll_period', value=600.0)]
+    if spread is not None:
+        overrides.append(Parameter('point_spread', value=spread))
+    node = ros_graph.add(StiffnessLearnerNode(context=ros_graph.context,
+                                              parameter_overrides=overrides))
+    probe = LearnerProbe(ros_graph, f'spread_probe_{spread or "default"}')
     saved = load_model(probe.wait_version(4).model_path)
+    spread = spread or PRODUCT_SPREAD      # unset: the product's, both processes and trees
     assert saved.response.meta['spread'] == spread
     assert node.learner.model.spread == spread
     assert np.all(np.isfinite(saved.response.forces)) and saved.response.forces.max() > 0

@@ -708,7 +708,7 @@ class ContactGpModel:
 
     def _condition_gp(self, theta: np.ndarray, bounds, states: Optional[Sequence[GpState]],
                       rows: np.ndarray, grid: Optional[GpGrid] = None):
-        """The processes' field of parameters ``theta`` of the pokes ``rows``."""
+        """Return the processes' field of parameters ``theta`` of the pokes ``rows``."""
         noise = self._outlier_noise(theta)
         mu, scale, chol, priors = self._decorrelation(theta, 1.0 / noise)
         y = np.linalg.solve(chol, ((theta - mu) / scale).T).T
@@ -1093,7 +1093,7 @@ class ContactGpModel:
 
     @staticmethod
     def _states_dict(spread):
-        """The saved form of a fitted spread's states (``processes`` of :meth:`to_dict`)."""
+        """Return the saved form of a fitted spread's states (``processes`` of :meth:`to_dict`)."""
         if isinstance(spread, TreeSpread):
             return {'trees': spread.state.to_dict()}
         if isinstance(spread, Mixture):

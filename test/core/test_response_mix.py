@@ -74,9 +74,8 @@ def test_mixed_laws_are_monotone_bake_as_predicted_and_round_trip(world, tmp_pat
     x, d = surface.features[::25], np.full(len(surface.features[::25]), 0.005)
     k = np.searchsorted(DEPTHS, 0.005)
     rows = np.arange(0, len(surface), 25)
-    np.testing.assert_allclose(baked.forces[rows, k], model.predict(x, np.full(len(x),
-                                                                                DEPTHS[k])),
-                               rtol=1e-4, atol=1e-6)
+    at_grid = model.predict(x, np.full(len(x), DEPTHS[k]))
+    np.testing.assert_allclose(baked.forces[rows, k], at_grid, rtol=1e-4, atol=1e-6)
     again = ContactGpModel.from_dict(json.loads(json.dumps(model.to_dict())))
     np.testing.assert_array_equal(again.predict(x, d), model.predict(x, d))
     np.testing.assert_array_equal(again.predict_std(x, d), model.predict_std(x, d))

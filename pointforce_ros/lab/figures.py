@@ -500,12 +500,11 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
 
     Models: ours (the product's point model, :func:`~pointforce_ros.response.ours.
     product_model`), its processes alone (``ours_gp``), ours as it was before issue 17
-    (``ours_before``: power law, force at the parameters' mean), ours capped at its training pokes' largest force (a diagnostic, see
-    :class:`CappedAtTraining`), ours with independent parameter processes (before
-    decorrelation), ours with the outlier screen, ours with its laws spread by Extra Trees
-    (``ours_trees``), its shape-free candidate, ET and Auto-ET.
-    ``truth``
-    (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
+    (``ours_before``: power law, force at the parameters' mean), ours capped at its training
+    pokes' largest force (a diagnostic, see :class:`CappedAtTraining`), ours with independent
+    parameter processes (before decorrelation), ours with the outlier screen, ours with its
+    laws spread by Extra Trees (``ours_trees``), its shape-free candidate, ET and Auto-ET.
+    ``truth`` (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
     force cap.
     """
     factories = {'ours': product_model,

@@ -504,8 +504,8 @@ def figure_learning(curves: Sequence[PokeCurve], surface: Surface, sizes=SIZES,
     pokes' largest force (a diagnostic, see :class:`CappedAtTraining`), ours with independent
     parameter processes (before decorrelation), ours with the outlier screen, ours with its
     laws spread by Extra Trees (``ours_trees``), its shape-free candidate, ET and Auto-ET.
-    ``truth`` (:func:`full_depth_truth`) adds each model's score against the true forces, also past the
-    force cap.
+    ``truth`` (:func:`full_depth_truth`) adds each model's score against the true forces, also
+    past the force cap.
     """
     factories = {'ours': product_model,
                  # the processes alone (the product's spread mixes them with the trees)

@@ -1,7 +1,8 @@
 """Benchmark ``learn``: model update after a new poke, ours against the seed's Auto-ET.
 
-What a live cell waits for after each poke, on a 40 000-point surface: ours refits (one curve
-fit + three small GP fits) and bakes the force table; the paper's learner retrains Auto-ET (a
+What a live cell waits for after each poke, on a 40 000-point surface: ours as the product
+uses it (:func:`~pointforce_ros.response.ours.product_model`) refits (one curve fit per law,
+small GP fits and the trees' forests) and bakes the force table; the paper's learner retrains Auto-ET (a
 time-boxed hyperparameter search, 30 s in the paper, ``auto_budget_s`` here) and must then be
 baked the same way for the contact solver. Both are measured in the same run on the same
 synthetic object (:mod:`.synthetic`), and the figure is the ratio of their median times.
@@ -20,7 +21,7 @@ import numpy as np
 
 from pointforce_ros.lab.baseline import AutoEtBaseline, EtBaseline
 from pointforce_ros.lab.evaluate import rmse
-from pointforce_ros.response.ours import ContactGpModel
+from pointforce_ros.response.ours import product_model
 from pointforce_ros.lab.synthetic_response import spread_indices, SyntheticObject
 
 
@@ -65,7 +66,7 @@ def bench_learn(n_points: int = 40000, n_pokes: int = 10, repeats: int = 5,
     refit, bake, total, cpu = [], [], [], []
     ours = None
     for c in new:
-        ours = ContactGpModel().fit(base, surface)
+        ours = product_model().fit(base, surface)
         c0 = time.process_time()
         t0 = time.perf_counter()
         ours.partial_fit(c, surface)
@@ -77,7 +78,7 @@ def bench_learn(n_points: int = 40000, n_pokes: int = 10, repeats: int = 5,
         bake.append(t2 - t1)
         total.append(t2 - t0)
     train = base + new[:1]
-    ours = ContactGpModel().fit(train, surface)
+    ours = product_model().fit(train, surface)
 
     auto_fit, auto_bake, auto_total = [], [], []
     auto = None

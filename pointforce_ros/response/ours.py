@@ -1,5 +1,10 @@
 """Ours: a monotone contact law per poke whose parameters a Gaussian process spreads over x.
 
+How the laws are spread is ``spread``: the processes below (``gp``), Extra Trees over the same
+features (``trees``, :mod:`.trees`), or both in equal parts (``mix``, :class:`Mixture`: the
+moment-matched mixture of the two parameter Gaussians), which is the product's
+(:data:`PRODUCT_SPREAD`, :func:`product_model`).
+
 Public API (what other modules may rely on; shapes: ``features`` (M, 9) ``[p, rgb, n]``,
 ``d`` (M,) or scalar, metres, forces in newtons):
 

@@ -15,8 +15,9 @@ figure 1's draws the trees score 1.02-1.18 of the seed's Extra Trees where the p
 0.97-1.74, and their spread is the better calibrated (68-94 % of held-out samples inside the
 nominal 90 % against 42-77 %). They lose where the field is smooth (the unit tests' synthetic
 dome: 1.30 of ET at 5 pokes against 0.82) and under wide probes whose footprint spans pokes
-(figure 2: lamb 1.06 against 0.81 N, plush 0.73 against 0.63 N), so the processes stay the
-default.
+(figure 2: lamb 1.06 against 0.81 N, plush 0.73 against 0.63 N). The product's point model
+takes the trees and the processes in equal parts (``spread='mix'``, ``response/ours.py``),
+better held out than the processes on both figures (session 47).
 
 - **Relevance.** The number of features a split may draw from (``max_features``: 1, 3 or all
   nine) is chosen by the leave-one-poke-out force error over the training pokes (K folds of

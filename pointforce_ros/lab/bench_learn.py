@@ -4,8 +4,9 @@ What a live cell waits for after each poke, on a 40 000-point surface: ours as t
 uses it (:func:`~pointforce_ros.response.ours.product_model`) refits (one curve fit per law,
 small GP fits and the trees' forests) and bakes the force table; the paper's learner
 retrains Auto-ET (a time-boxed hyperparameter search, 30 s in the paper, ``auto_budget_s``
-here) and must then be baked the same way for the contact solver. Both are measured in the same run on the same
-synthetic object (:mod:`.synthetic`), and the figure is the ratio of their median times.
+here) and must then be baked the same way for the contact solver. Both are measured in the
+same run on the same synthetic object (:mod:`.synthetic`), and the figure is the ratio of
+their median times.
 Held-out accuracy of both on the same training pokes is reported alongside, so a speed-up that
 costs accuracy shows.
 

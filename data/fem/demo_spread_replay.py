@@ -9,14 +9,18 @@ run's last model has them), ``(c, L)`` identified from the demo's three calibrat
 the demo does, and the 9 planner queries answered as the contact service answers them
 (:func:`~pointforce_ros.contact.uncertainty.wrench_uncertainty`), scored against the FEM
 truth: force RMSE as a share of the largest true force, ``Fz`` below the truth, true ``Fz``
-inside the nominal 90 % intervals and their mean width. The ``gp`` row relearns what the run
-served (the default).
+inside the nominal 90 % intervals and their mean width. The row of the spread the run served
+(``gp`` before session 47, ``mix`` since) reproduces the run's own numbers.
 
 Session 46 (record ``demo_spread_replay.log``, the six fresh clones of ``demo_runs_s45.log``):
 the trees 7.44-7.74 % (mean 7.54 %), both demo goals on 6 of 6, against 7.52-8.15 % (7.67 %)
 and 5 of 6 with the processes (each run's own numbers); 54 of 54 true ``Fz`` inside either way,
 the intervals wider with the trees (6.92 against 4.89 N mean width). On session 46's three
 (``demo_runs_s46.log``): the trees 7.17-7.65 %, 3 of 3 meet; the processes 7.34-8.92 %, 2 of 3.
+Session 47's four fresh clones of the mix (``demo_runs_s47.log``): the mix 6.81-6.98 % on three
+(each run's own numbers) and 9.41 % on 47d, whose eighth poke (at the force cap, its power law's
+onset 3 mm before the others') made the mix choose the power law and widened its trees'
+scatter (mean width 13.79 N); the processes on the same pokes 6.92-7.21 %, 4 of 4 meet.
 
 Usage: python data/fem/demo_spread_replay.py DEMO_OUT [DEMO_OUT ...] [--object lamb]
 (about a minute per run on one core)

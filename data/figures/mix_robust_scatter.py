@@ -36,26 +36,12 @@ from pointforce_ros.response.ours import product_model
 MEDIAN_Z2 = 0.4549364
 """Median of a chi-square with one degree of freedom."""
 HERE = Path(__file__).resolve().parent
+CALIBRATED = trees.calibrated_scatter
 
 
 def robust_scatter(residual, variance):
     """(P,) scatter ``s``: the held-out median of ``r^2 / (v + s^2)`` is :data:`MEDIAN_Z2`."""
-    out = np.zeros(residual.shape[1])
-    for j in range(residual.shape[1]):
-        r2, v = residual[:, j] ** 2, variance[:, j]
-
-        def excess(s2):
-            return np.median(r2 / np.maximum(v + s2, 1e-300)) - MEDIAN_Z2
-        if excess(0.0) <= 0.0:
-            continue
-        lo, hi = 0.0, max(float(np.max(r2)), 1e-30)
-        while excess(hi) > 0.0:
-            hi *= 4.0
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if excess(mid) > 0.0 else (lo, mid)
-        out[j] = np.sqrt(hi)
-    return out
+    return CALIBRATED(residual, variance, lambda z2: float(np.median(z2)) - MEDIAN_Z2)
 
 
 def figure1(objects):

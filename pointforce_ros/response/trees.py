@@ -133,21 +133,26 @@ def held_out_dist(features: np.ndarray, theta: np.ndarray, max_features: Optiona
     return mean, cov
 
 
-def calibrated_scatter(residual: np.ndarray, variance: np.ndarray) -> np.ndarray:
+def calibrated_scatter(residual: np.ndarray, variance: np.ndarray,
+                       excess_of: Optional[Callable[[np.ndarray], float]] = None) -> np.ndarray:
     """(P,) scatter ``s`` per parameter: held-out ``r^2 / (v + s^2)`` averages one.
 
     ``residual`` and ``variance`` (n, P): held-out residuals and the trees' variances there.
     ``CALIBRATION_PRIOR`` pseudo-pokes sit at ``z^2 = 1``; ``s = 0`` where the trees' own
-    variance already covers the residuals.
+    variance already covers the residuals. ``excess_of(z2)``: another statistic of the (n,)
+    ``z^2`` to bring to zero (falling as ``s`` grows; a study tried their median,
+    ``data/figures/mix_robust_scatter.py``).
     """
     n = len(residual)
+    if excess_of is None:
+        def excess_of(z2):
+            return (np.sum(z2) + CALIBRATION_PRIOR) / (n + CALIBRATION_PRIOR) - 1.0
     out = np.zeros(residual.shape[1])
     for j in range(residual.shape[1]):
         r2, v = residual[:, j] ** 2, variance[:, j]
 
         def excess(s2):
-            return (np.sum(r2 / np.maximum(v + s2, 1e-300)) + CALIBRATION_PRIOR) \
-                / (n + CALIBRATION_PRIOR) - 1.0
+            return excess_of(r2 / np.maximum(v + s2, 1e-300))
         if excess(0.0) <= 0.0:
             continue
         lo, hi = 0.0, max(float(np.max(r2)), 1e-30)

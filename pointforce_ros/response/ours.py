@@ -698,22 +698,27 @@ class ContactGpModel:
         """
         every = rows is None
         rows = self.process_rows() if every else rows
-        theta = self._thetas[law][rows]
-        bounds = self._bounds(self._thetas[law], self._onsets) if every else \
-            self._bounds(theta, self._onsets[rows])
         if self.spread == 'trees':
-            return self._tree_spread(law, states, rows), None, bounds, None
+            return (self._tree_spread(law, states, rows), None,
+                    self._field_bounds(law, rows, every), None)
         tree_state = None
         if self.spread == 'mix' and states is not None:
             states, tree_state = states
-        field = self._condition_gp(theta, bounds, states, rows, grid)
+        field = self._condition_gp(law, states, rows, grid, every)
         if self.spread == 'mix':
-            return Mixture(field, self._tree_spread(law, tree_state, rows)), None, bounds, None
+            return Mixture(field, self._tree_spread(law, tree_state, rows)), None, field[2], None
         return field
 
-    def _condition_gp(self, theta: np.ndarray, bounds, states: Optional[Sequence[GpState]],
-                      rows: np.ndarray, grid: Optional[GpGrid] = None):
-        """Return the processes' field of parameters ``theta`` of the pokes ``rows``."""
+    def _field_bounds(self, law: str, rows: np.ndarray, every: bool):
+        """Parameter bounds of a field on the pokes ``rows`` (``every``: all pokes')."""
+        if every:
+            return self._bounds(self._thetas[law], self._onsets)
+        return self._bounds(self._thetas[law][rows], self._onsets[rows])
+
+    def _condition_gp(self, law: str, states: Optional[Sequence[GpState]], rows: np.ndarray,
+                      grid: Optional[GpGrid] = None, every: bool = False):
+        """Return the processes' field of ``law`` on the pokes ``rows`` (``every``: all)."""
+        theta = self._thetas[law][rows]
         noise = self._outlier_noise(theta)
         mu, scale, chol, priors = self._decorrelation(theta, 1.0 / noise)
         y = np.linalg.solve(chol, ((theta - mu) / scale).T).T
@@ -725,7 +730,8 @@ class ContactGpModel:
             else:
                 gp.condition(self._features[rows], y[:, j], states[j], noise)
             gps.append(gp)
-        return gps, (mu, scale, chol), bounds, self._calibration(gps)
+        return (gps, (mu, scale, chol), self._field_bounds(law, rows, every),
+                self._calibration(gps))
 
     def _tree_spread(self, law: str, state: Optional[TreeState], rows: np.ndarray
                      ) -> TreeSpread:
@@ -770,16 +776,12 @@ class ContactGpModel:
             held = (gps.trees if mixed else gps).held_out()
         if not trees:
             states = [gp.state for gp in (gps.gp[0] if mixed else gps)]
-            theta = self._thetas[law]
         errs = {'mean': [], 'median': []}
         for j, i in enumerate(every):
             if trees:
                 mean, cov = held[0][j:j + 1], held[1][j:j + 1]
             else:
-                rest = np.delete(every, j)
-                field = self._condition_gp(theta[rest], self._bounds(theta[rest],
-                                                                     self._onsets[rest]),
-                                           states, rest)
+                field = self._condition_gp(law, states, np.delete(every, j))
                 mean, cov = self._param_dist(field, self._features[i:i + 1])
                 if mixed:
                     mean, cov = mixture(mean, cov, np.clip(held[0][j:j + 1], *field[2]),
